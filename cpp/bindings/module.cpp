@@ -1,0 +1,12 @@
+#include <pybind11/pybind11.h>
+
+namespace py = pybind11;
+
+void bind_earth(py::module_& m);
+void bind_attitude(py::module_& m);
+
+PYBIND11_MODULE(_core, m) {
+  m.doc() = "gpsins C++ core: Earth model, attitude, and (later) the filters.";
+  bind_earth(m);
+  bind_attitude(m);
+}
