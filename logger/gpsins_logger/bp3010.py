@@ -119,8 +119,8 @@ class FramingRule:
         return sum(buf[i + 1:i + CHECKSUM_OFFSET]) & 0xFF == buf[i + CHECKSUM_OFFSET]
 
     @staticmethod
-    def continues(prev: bytes, buf: bytearray, j: int, skipped: int = 0) -> bool:
-        return buf[j + COUNTER_OFFSET] == (prev[COUNTER_OFFSET] + 1 + skipped) & 0xFF
+    def counter_gap(prev: bytes, buf: bytearray, j: int) -> int:
+        return (buf[j + COUNTER_OFFSET] - prev[COUNTER_OFFSET]) & 0xFF
 
     @staticmethod
     def counter_end(j: int) -> int:

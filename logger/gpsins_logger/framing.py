@@ -12,9 +12,10 @@ Two hunting policies, chosen by the rule:
   frame is not lost.
 - With a counter (BP3010: 1-byte sync, 8-bit sum, which a false sync passes
   about once in 256 tries) a candidate found while hunting is accepted only
-  when its counter continues the last accepted frame's, or when the next
-  frame's sync and counter follow it. Once locked, a frame that fails is
-  dropped alone if the frame after it is where the lock expects it.
+  when its counter continues the last accepted frame's within MAX_GAP frames,
+  or when a valid frame within the next MAX_GAP frames' worth of bytes
+  continues its counter. Once locked, a frame that fails is dropped alone if
+  the frame after it is where the lock expects it.
 """
 
 from __future__ import annotations
@@ -38,11 +39,17 @@ class FrameRule(Protocol):
     def header_ok(self, buf: bytearray, i: int) -> bool: ...
     def frame_len(self, buf: bytearray, i: int) -> int: ...
     def checksum_ok(self, buf: bytearray, i: int, n: int) -> bool: ...
-    # Counter rule (only used when has_counter): does the frame at buf[j]
-    # follow `prev` with `skipped` frames missing in between? Needs the
+    # Counter rules only: frames from `prev` to the frame at buf[j] by their
+    # counters (1 = the next frame), modulo the counter's range. Needs the
     # bytes up to counter_end(j).
-    def continues(self, prev: bytes, buf: bytearray, j: int, skipped: int = 0) -> bool: ...
+    def counter_gap(self, prev: bytes, buf: bytearray, j: int) -> int: ...
     def counter_end(self, j: int) -> int: ...
+
+
+# Counter rules: how many frames a confirmation may skip (faulted frames in a
+# row), and how many bytes ahead a forward confirmation may look per frame.
+MAX_GAP = 8
+LOOKAHEAD_BYTES_PER_FRAME = 64
 
 
 @dataclass
@@ -121,13 +128,15 @@ class FrameFinder:
             if n and size - i < n:
                 return i
             good = n > 0 and rule.checksum_ok(buf, i, n)
-            if n and not good:
-                self.stats.checksum_failures += 1
+            # A complete frame with a valid header whose checksum fails: counted
+            # once, where the finder decides what to do with it.
+            failed = n > 0 and not good
             if not rule.has_counter:
                 if good:
                     self._emit(out, i, n)
                     i += n
                 else:
+                    self.stats.checksum_failures += failed
                     self._discard(1)
                     i += 1
                 continue
@@ -141,11 +150,11 @@ class FrameFinder:
                 # frame sits where the lock expects it, with its counter.
                 m = rule.fixed_len
                 need = rule.counter_end(i + m)
-                if size < need:
-                    if not final:
-                        return i
-                elif buf[i + m] == rule.sync and self._last is not None and rule.continues(
-                        self._last, buf, i + m, skipped=1):
+                if size < need and not final:
+                    return i
+                self.stats.checksum_failures += failed
+                if size >= need and buf[i + m] == rule.sync and self._last is not None and \
+                        rule.counter_gap(self._last, buf, i + m) == 2:
                     self._discard(m)
                     i += m
                     continue
@@ -157,25 +166,51 @@ class FrameFinder:
 
             # Hunting with a counter rule.
             if not good:
+                self.stats.checksum_failures += failed
                 self._discard(1)
                 i += 1
                 continue
-            if self._last is not None and rule.continues(self._last, buf, i):
-                self._locked = True
-                self._emit(out, i, n)
-                i += n
-                continue
-            need = rule.counter_end(i + n)
-            if size < need:
-                if not final:
-                    return i
-                self._discard(1)
-                i += 1
-                continue
-            if buf[i + n] == rule.sync and rule.continues(bytes(buf[i:i + n]), buf, i + n):
+            verdict = self._confirm(i, n, final)
+            if verdict is None:
+                return i
+            if verdict:
                 self._locked = True
                 self._emit(out, i, n)
                 i += n
             else:
                 self._discard(1)
                 i += 1
+
+    def _confirm(self, i: int, n: int, final: bool) -> bool | None:
+        """May the checksum-valid candidate at i be taken while hunting?
+        None: not enough bytes yet to tell.
+
+        Accepted when its counter is the next after the last accepted frame,
+        or the frame right after it has the sync and the next counter. After
+        several damaged frames in a row neither holds, and the candidate needs
+        evidence on both sides: a counter gap of at most MAX_GAP from the last
+        accepted frame and to the first valid frame after it."""
+        buf, rule = self._buf, self.rule
+        gap_back = rule.counter_gap(self._last, buf, i) if self._last is not None else None
+        if gap_back == 1:
+            return True
+        candidate = bytes(buf[i:i + n])
+        need = rule.counter_end(i + n)
+        if len(buf) < need:
+            return None if not final else False
+        if buf[i + n] == rule.sync and rule.counter_gap(candidate, buf, i + n) == 1:
+            return True
+        if gap_back is not None and not 2 <= gap_back <= MAX_GAP:
+            return False
+        window_end = i + n + MAX_GAP * LOOKAHEAD_BYTES_PER_FRAME
+        j = i + n
+        while True:
+            j = buf.find(rule.sync, j, window_end)
+            if j < 0:
+                # No valid frame in the window (or not yet: wait for the bytes).
+                return None if len(buf) < window_end + n and not final else False
+            if j + n > len(buf):
+                return None if not final else False
+            if rule.checksum_ok(buf, j, n):
+                return 1 <= rule.counter_gap(candidate, buf, j) <= MAX_GAP
+            j += 1

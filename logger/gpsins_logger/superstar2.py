@@ -85,7 +85,7 @@ class FramingRule:
         return sum(buf[i:i + n - 2]) & 0xFFFF == buf[i + n - 2] | buf[i + n - 1] << 8
 
     @staticmethod
-    def continues(prev: bytes, buf: bytearray, j: int, skipped: int = 0) -> bool:  # pragma: no cover
+    def counter_gap(prev: bytes, buf: bytearray, j: int) -> int:  # pragma: no cover
         raise NotImplementedError("Superstar II frames carry no counter")
 
     @staticmethod

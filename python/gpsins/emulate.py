@@ -1,0 +1,387 @@
+"""Pty device emulators: a Superstar II receiver and a BP3010 IMU on virtual serial ports.
+
+Each device is a pty pair in raw mode behind a stable symlink (a reopened
+pty gets a new /dev/pts path; the symlink is re-pointed). Bytes are paced as
+the real line would deliver them (ptys ignore the baud rate): a frame is
+written in chunks, each when its last byte would have arrived on the wire.
+
+The GPS emulator sends nothing until asked and honours continuous, once and
+stop requests and the ID 23 rate; the IMU emulator streams once the host is
+there (its first rate-select command) and honours rate changes. Faults can be
+injected with exact bookkeeping: every frame's fate is in ``sent``.
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+import select
+import threading
+import time
+import tty
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from gpsins_logger import bp3010
+from gpsins_logger import superstar2 as ss2
+from gpsins_logger.framing import FrameFinder
+
+from .sources import MessageSource
+
+BITS_PER_BYTE = 10
+
+
+@dataclass
+class Faults:
+    """Per-frame fault probabilities and scheduled disconnects (all seeded)."""
+
+    garbage: float = 0.0  # insert 1..garbage_max random bytes before the frame
+    garbage_max: int = 40
+    bit_flip: float = 0.0  # flip one random bit of the frame
+    drop: float = 0.0  # do not send the frame
+    truncate: float = 0.0  # send only a random prefix of the frame
+    disconnects: list[tuple[float, float]] = field(default_factory=list)  # (run time s, seconds down)
+    seed: int = 0
+
+
+@dataclass
+class SentFrame:
+    frame: bytes  # the frame as the device produced it
+    fate: str  # "ok", "flipped", "dropped", "truncated", "offline"
+    first_byte_realtime: float  # when its first byte was on the line (time.time())
+    garbage_before: int = 0
+
+
+class PtyLink:
+    """A pty pair in raw mode behind a symlink; reopen() emulates unplug/replug."""
+
+    def __init__(self, link: Path):
+        self.link = Path(link)
+        self.master = -1
+        self.slave = -1
+        self.generation = 0
+        self.open()
+
+    def open(self) -> None:
+        self.master, self.slave = os.openpty()
+        tty.setraw(self.master)
+        tty.setraw(self.slave)  # a fresh pty is cooked and would eat bytes like 0x03
+        os.set_blocking(self.master, False)
+        tmp = self.link.with_name(self.link.name + ".tmp")
+        if tmp.is_symlink() or tmp.exists():
+            tmp.unlink()
+        tmp.symlink_to(os.ttyname(self.slave))
+        os.replace(tmp, self.link)  # atomic re-point
+        self.generation += 1
+
+    def close(self) -> None:
+        for fd in (self.master, self.slave):
+            if fd >= 0:
+                os.close(fd)
+        self.master = self.slave = -1
+
+    def remove(self) -> None:
+        self.close()
+        if self.link.is_symlink():
+            self.link.unlink()
+
+    def write_all(self, data: bytes, deadline: float) -> bool:
+        """Write everything unless the host stops reading until the deadline."""
+        view = memoryview(data)
+        while view:
+            try:
+                n = os.write(self.master, view)
+                view = view[n:]
+            except BlockingIOError:
+                if time.monotonic() > deadline:
+                    return False
+                select.select([], [self.master], [], 0.01)
+            except OSError as e:
+                if e.errno in (errno.EIO, errno.EBADF):
+                    return False
+                raise
+        return True
+
+    def read_available(self) -> bytes:
+        try:
+            return os.read(self.master, 4096)
+        except (BlockingIOError, InterruptedError):
+            return b""
+        except OSError as e:
+            if e.errno == errno.EIO:  # nobody has the slave open
+                return b""
+            raise
+
+
+class DeviceEmulator(threading.Thread):
+    """Common machinery: pacing, faults, disconnects, host input."""
+
+    device = "?"
+
+    def __init__(self, link: Path, source: MessageSource, baud: int, speed: float = 1.0,
+                 faults: Faults | None = None, chunk_bytes: int = 16):
+        super().__init__(name=f"emulate-{self.device}", daemon=True)
+        self.pty = PtyLink(link)
+        self.source = source
+        self.speed = speed
+        self.byte_time_s = BITS_PER_BYTE / baud / speed
+        self.faults = faults or Faults()
+        self.chunk_bytes = chunk_bytes
+        self.rng = np.random.default_rng([self.faults.seed, 1 if self.device == "superstar2" else 2])
+        self.sent: list[SentFrame] = []
+        self.garbage_bytes = 0
+        self.disconnect_count = 0
+        self._stop_event = threading.Event()
+        self._line_free = 0.0
+        self._start_mono = 0.0
+        self._mono_to_real = 0.0
+        self._online = True
+        self._pending_disconnects = sorted(self.faults.disconnects)
+        self.host_requests: list[bytes] = []
+        self.done = threading.Event()
+
+    # -- time -------------------------------------------------------------------
+    def run_time(self) -> float:
+        return (time.monotonic() - self._start_mono) * self.speed
+
+    def _mono_at(self, t: float) -> float:
+        return self._start_mono + t / self.speed
+
+    def stop(self) -> None:
+        self._stop_event.set()
+
+    def _wait_until(self, mono: float) -> bool:
+        """Sleep until `mono`, serving host input; False when stopping."""
+        while True:
+            if self._stop_event.is_set():
+                return False
+            now = time.monotonic()
+            if now >= mono:
+                return True
+            self._service(min(mono - now, 0.05))
+
+    def _service(self, timeout: float) -> None:
+        """Wait up to timeout for host bytes and handle them; handle disconnects."""
+        if self._pending_disconnects and self.run_time() >= self._pending_disconnects[0][0]:
+            _, down = self._pending_disconnects.pop(0)
+            self._disconnect(down)
+            return
+        if self._online:
+            r, _, _ = select.select([self.pty.master], [], [], max(timeout, 0.0))
+            if r:
+                data = self.pty.read_available()
+                if data:
+                    self.on_host_bytes(data)
+        else:
+            time.sleep(max(timeout, 0.0))
+
+    def _disconnect(self, down_s: float) -> None:
+        self.disconnect_count += 1
+        self._online = False
+        self.pty.close()
+        self.on_disconnect()
+        self._stop_event.wait(down_s / self.speed)
+        self.pty.open()
+        self._online = True
+
+    # -- sending ------------------------------------------------------------------
+    def send_frame(self, frame: bytes, t: float) -> None:
+        """Put a frame on the line at run time t (or when the line is free)."""
+        if not self._online or not self.host_present():
+            self.sent.append(SentFrame(frame, "offline", float("nan")))
+            return
+        f = self.faults
+        fate, wire = "ok", frame
+        u = self.rng.random(4)
+        if u[0] < f.drop:
+            self.sent.append(SentFrame(frame, "dropped", float("nan")))
+            return
+        if u[1] < f.bit_flip:
+            bit = int(self.rng.integers(0, 8 * len(frame)))
+            b = bytearray(frame)
+            b[bit // 8] ^= 1 << (bit % 8)
+            wire, fate = bytes(b), "flipped"
+        elif u[2] < f.truncate:
+            wire, fate = frame[:int(self.rng.integers(1, len(frame)))], "truncated"
+        garbage = b""
+        if u[3] < f.garbage:
+            garbage = self.rng.integers(0, 256, int(self.rng.integers(1, f.garbage_max + 1)), dtype=np.uint8).tobytes()
+            self.garbage_bytes += len(garbage)
+        data = garbage + wire
+        start = max(self._mono_at(t), self._line_free)
+        first_byte = start + len(garbage) * self.byte_time_s
+        self.sent.append(SentFrame(frame, fate, first_byte + self._mono_to_real, len(garbage)))
+        for k in range(0, len(data), self.chunk_bytes):
+            chunk = data[k:k + self.chunk_bytes]
+            if not self._wait_until(start + (k + len(chunk)) * self.byte_time_s):
+                return
+            if not self._online or not self.pty.write_all(chunk, time.monotonic() + 1.0):
+                return
+        self._line_free = start + len(data) * self.byte_time_s
+
+    # -- hooks --------------------------------------------------------------------
+    def host_present(self) -> bool:
+        return True
+
+    def on_host_bytes(self, data: bytes) -> None:
+        pass
+
+    def on_disconnect(self) -> None:
+        pass
+
+    def run(self) -> None:
+        self._start_mono = time.monotonic()
+        self._mono_to_real = time.time() - self._start_mono
+        self._line_free = self._start_mono
+        try:
+            self.stream()
+        finally:
+            self.done.set()
+
+    def stream(self) -> None:
+        raise NotImplementedError
+
+
+class GpsEmulator(DeviceEmulator):
+    device = "superstar2"
+
+    def __init__(self, link: Path, source: MessageSource, baud: int = 115200, **kw):
+        super().__init__(link, source, baud, **kw)
+        self._finder = FrameFinder(ss2.FRAMING)
+        self.continuous: set[int] = set()
+        self.once: set[int] = set()
+        self.raw_rate_hz: int | None = None
+
+    def on_host_bytes(self, data: bytes) -> None:
+        for frame in self._finder.feed(data):
+            self.host_requests.append(frame.data)
+            req = ss2.decode_request(frame.data)
+            if req.msg_id == ss2.ID_LINK_OPEN:
+                continue
+            if req.msg_id == ss2.ID_MEASUREMENTS:
+                self.raw_rate_hz = req.raw_rate_hz  # bit 7 clear (stop) gives None
+            elif req.continuous:
+                self.continuous.add(req.msg_id)
+            else:
+                self.once.add(req.msg_id)
+
+    def on_disconnect(self) -> None:
+        # Replugging resets the link: nothing is sent until the host asks again.
+        self.continuous.clear()
+        self.once.clear()
+        self.raw_rate_hz = None
+        self._finder = FrameFinder(ss2.FRAMING)
+
+    def _wanted(self, m) -> bool:
+        if m.msg_id == ss2.ID_MEASUREMENTS:
+            if not self.raw_rate_hz:
+                return False
+            x = m.tow_s * self.raw_rate_hz
+            return abs(x - round(x)) < 1e-6
+        if m.msg_id in self.continuous:
+            return True
+        if m.msg_id in self.once:
+            self.once.discard(m.msg_id)
+            return True
+        return False
+
+    def stream(self) -> None:
+        for m in self.source.gps_messages():
+            if not self._wait_until(self._mono_at(m.t)):
+                return
+            if self._wanted(m):
+                self.send_frame(m.frame, m.t)
+
+
+class ImuEmulator(DeviceEmulator):
+    device = "bp3010"
+
+    def __init__(self, link: Path, source: MessageSource, baud: int = 38400, wait_for_host: bool = True, **kw):
+        super().__init__(link, source, baud, **kw)
+        self.rate_hz = bp3010.NOMINAL_RATE_HZ
+        self._rate_changed = False
+        self.wait_for_host = wait_for_host
+        self._host_seen = not wait_for_host
+        self._pending = b""
+        self.counter = 0
+
+    def host_present(self) -> bool:
+        return self._host_seen
+
+    def on_host_bytes(self, data: bytes) -> None:
+        self._pending = (self._pending + data)[-64:]
+        while len(self._pending) >= 2:
+            i = self._pending.find(b"\x7b")
+            if i < 0 or i + 1 >= len(self._pending):
+                self._pending = self._pending[i:] if i >= 0 else b""
+                break
+            cmd = self._pending[i:i + 2]
+            self._pending = self._pending[i + 2:]
+            self.host_requests.append(cmd)
+            rate = bp3010.rate_from_command(cmd)
+            if rate:
+                self._host_seen = True
+                if rate != self.rate_hz:
+                    self.rate_hz = rate
+                    self._rate_changed = True
+
+    def on_disconnect(self) -> None:
+        self._host_seen = not self.wait_for_host
+
+    def stream(self) -> None:
+        t0 = 0.0
+        while not self._stop_event.is_set():
+            self._rate_changed = False
+            rate = self.rate_hz
+            for s in self.source.imu_samples(rate, t0):
+                if not self._wait_until(self._mono_at(s.t)):
+                    return
+                sample = s.sample
+                sample.counter = self.counter
+                self.counter = (self.counter + 1) & 0xFF
+                self.send_frame(sample.encode(rate), s.t)
+                if self._rate_changed:
+                    t0 = s.t + 1e-9
+                    break
+            else:
+                return
+
+
+class Emulators:
+    """Both devices under one directory: <dir>/gps and <dir>/imu."""
+
+    def __init__(self, directory: Path, source: MessageSource, speed: float = 1.0, gps_faults: Faults | None = None,
+                 imu_faults: Faults | None = None, gps_baud: int = 115200, imu_baud: int = 38400,
+                 imu_wait_for_host: bool = True):
+        directory = Path(directory)
+        directory.mkdir(parents=True, exist_ok=True)
+        self.gps = GpsEmulator(directory / "gps", source, gps_baud, speed=speed, faults=gps_faults)
+        self.imu = ImuEmulator(directory / "imu", source, imu_baud, wait_for_host=imu_wait_for_host, speed=speed,
+                               faults=imu_faults)
+
+    @property
+    def devices(self) -> list[DeviceEmulator]:
+        return [self.gps, self.imu]
+
+    def start(self) -> None:
+        for d in self.devices:
+            d.start()
+
+    def wait(self, timeout: float | None = None) -> bool:
+        deadline = None if timeout is None else time.monotonic() + timeout
+        for d in self.devices:
+            left = None if deadline is None else max(0.0, deadline - time.monotonic())
+            if not d.done.wait(left):
+                return False
+        return True
+
+    def stop(self) -> None:
+        for d in self.devices:
+            d.stop()
+        for d in self.devices:
+            if d.is_alive():
+                d.join(timeout=5.0)
+        for d in self.devices:
+            d.pty.remove()

@@ -1,0 +1,281 @@
+"""Fast NumPy readers of logger sessions and raw device captures.
+
+A record file is a sequence of ``header | f8 stamp | rest`` records
+(spec/logfile.md). The scanner is vectorised: it finds every candidate
+record (sync, header test, device checksum, plausible stamp) in one pass,
+then follows the chain of records from the start, resynchronising at the
+next valid candidate after damage, exactly as the logger's streaming finder
+does on a byte stream. Python loops only over damaged places, never over
+records. A truncated last record is accepted as the file's tail and reported.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from gpsins_logger import bp3010
+from gpsins_logger import superstar2 as ss2
+
+STAMP_BYTES = 8
+# A stamp outside (1970, 2286) cannot be system time: the candidate is not a record.
+STAMP_MIN, STAMP_MAX = 0.0, 1e10
+
+
+class LogError(ValueError):
+    """A file that cannot be read as a session file; names the file."""
+
+
+@dataclass(frozen=True)
+class Layout:
+    device: str
+    sync: int
+    header_len: int
+    stamped: bool  # record file (stamp after the header) or raw device stream
+
+    @property
+    def stamp_len(self) -> int:
+        return STAMP_BYTES if self.stamped else 0
+
+
+SS2_RECORDS = Layout("superstar2", ss2.SOH, ss2.HEADER_LEN, True)
+BP_RECORDS = Layout("bp3010", bp3010.SYNC, 1, True)
+SS2_RAW = Layout("superstar2", ss2.SOH, ss2.HEADER_LEN, False)
+LAYOUTS = {"superstar2": SS2_RECORDS, "bp3010": BP_RECORDS}
+
+
+@dataclass
+class Scan:
+    """Accepted records of one file: offsets into `data`, lengths, stamps."""
+
+    path: str
+    layout: Layout
+    data: np.ndarray  # uint8, the whole file
+    starts: np.ndarray  # int64 offsets of accepted records
+    lengths: np.ndarray  # int64 record lengths (stamp included for record files)
+    stats: dict = field(default_factory=dict)
+
+    @property
+    def count(self) -> int:
+        return len(self.starts)
+
+    @property
+    def stamps(self) -> np.ndarray:
+        if not self.layout.stamped:
+            return np.full(self.count, np.nan)
+        h = self.layout.header_len
+        idx = self.starts[:, None] + h + np.arange(STAMP_BYTES)
+        return self.data[idx].copy().view("<f8").reshape(-1)
+
+    def frame(self, k: int) -> bytes:
+        """The device frame of record k, as the device sent it (stamp removed)."""
+        s, n, h, sl = int(self.starts[k]), int(self.lengths[k]), self.layout.header_len, self.layout.stamp_len
+        raw = self.data[s:s + n].tobytes()
+        return raw[:h] + raw[h + sl:]
+
+    def frames(self) -> list[bytes]:
+        return [self.frame(k) for k in range(self.count)]
+
+
+def _candidates(buf: np.ndarray, lay: Layout) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """All header-valid candidates: positions, lengths, and checksum/stamp validity."""
+    size = len(buf)
+    sl = lay.stamp_len
+    if lay.device == "superstar2":
+        p = np.flatnonzero(buf[:max(size - 3, 0)] == ss2.SOH).astype(np.int64)
+        p = p[buf[p + 2] == (buf[p + 1] ^ 0xFF)]
+        n_payload = buf[p + 3].astype(np.int64)
+        length = n_payload + 6 + sl
+    else:
+        p = np.flatnonzero(buf == bp3010.SYNC).astype(np.int64)
+        length = np.full(len(p), bp3010.FRAME_LEN + sl, dtype=np.int64)
+    complete = p + length <= size
+    ok = np.zeros(len(p), dtype=bool)
+    pc, lc = p[complete], length[complete]
+    if len(pc):
+        cs = np.concatenate(([0], np.cumsum(buf, dtype=np.int64)))
+        if lay.device == "superstar2":
+            body = pc + ss2.HEADER_LEN + sl
+            end = pc + lc - 2  # checksum position
+            total = (cs[pc + ss2.HEADER_LEN] - cs[pc]) + (cs[end] - cs[body])
+            want = buf[end].astype(np.int64) | buf[end + 1].astype(np.int64) << 8
+            good = (total & 0xFFFF) == want
+        else:
+            body = pc + 1 + sl
+            end = pc + lc - 1
+            good = ((cs[end] - cs[body]) & 0xFF) == buf[end]
+        if lay.stamped:
+            st = buf[pc[:, None] + lay.header_len + np.arange(STAMP_BYTES)].copy().view("<f8").reshape(-1)
+            with np.errstate(invalid="ignore"):
+                good &= np.isfinite(st) & (st > STAMP_MIN) & (st < STAMP_MAX)
+        ok[complete] = good
+    return p, length, ok
+
+
+def scan(buf: np.ndarray | bytes, layout: Layout, path: str = "<bytes>") -> Scan:
+    buf = np.frombuffer(buf, dtype=np.uint8) if isinstance(buf, (bytes, bytearray, memoryview)) else buf
+    size = len(buf)
+    p, length, ok = _candidates(buf, layout)
+    vp, vl = p[ok], length[ok]
+    # Greedy chain from the start: after a record ending at e, the next record is
+    # the first valid candidate at or after e. succ[k] is that candidate's index.
+    succ = np.searchsorted(vp, vp + vl)
+    n = len(vp)
+    irregular = np.flatnonzero(succ != np.arange(1, n + 1))
+    chosen = np.zeros(n, dtype=bool)
+    k = 0
+    while k < n:
+        j = np.searchsorted(irregular, k)
+        if j == len(irregular):
+            chosen[k:] = True
+            break
+        stop = irregular[j]
+        chosen[k:stop + 1] = True
+        k = succ[stop]
+    starts, lengths = vp[chosen], vl[chosen]
+    # The tail: the first incomplete header-valid candidate not inside an accepted
+    # record. The streaming finder stops there and waits, so records after it
+    # (possible only inside its declared span) are not accepted either.
+    tail_offset = None
+    inc = p[p + length > size]
+    if len(inc):
+        k = np.searchsorted(starts, inc, side="right") - 1
+        inside = (k >= 0) & (inc < np.where(k >= 0, starts[np.maximum(k, 0)] + lengths[np.maximum(k, 0)], 0))
+        reached = inc[~inside]
+        if len(reached):
+            tail_offset = int(reached[0])
+            keep = starts < tail_offset
+            starts, lengths = starts[keep], lengths[keep]
+    tail = size - tail_offset if tail_offset is not None else 0
+    covered = int(lengths.sum())
+    stats = {
+        "records": int(len(starts)),
+        "bytes": int(size),
+        "discarded_bytes": int(size - covered - tail),
+        "truncated_tail_bytes": int(tail),
+        "truncated_tail_offset": tail_offset,
+        "resyncs": int(np.count_nonzero(np.diff(starts) != lengths[:-1])) if len(starts) > 1 else 0,
+    }
+    return Scan(path, layout, buf, starts, lengths, stats)
+
+
+def read_record_file(path: str | Path, device: str) -> Scan:
+    path = Path(path)
+    if device not in LAYOUTS:
+        raise LogError(f"{path}: unknown device {device!r} (known: {', '.join(LAYOUTS)})")
+    try:
+        buf = np.fromfile(path, dtype=np.uint8)
+    except OSError as e:
+        raise LogError(f"{path}: cannot read: {e.strerror}") from None
+    out = scan(buf, LAYOUTS[device], str(path))
+    st = out.stamps
+    back = np.flatnonzero(np.diff(st) < 0)
+    out.stats["stamps_backwards"] = int(len(back))
+    out.stats["first_backwards_offset"] = int(out.starts[back[0] + 1]) if len(back) else None
+    return out
+
+
+def message_ids(s: Scan) -> np.ndarray:
+    """Superstar II message ID of every record."""
+    return s.data[s.starts + 1] & 0x7F
+
+
+# --- BP3010 -----------------------------------------------------------------------
+
+
+@dataclass
+class ImuLog:
+    stamps: np.ndarray  # (n,) system time of each frame's first byte
+    dtheta_rad: np.ndarray  # (n, 3)
+    dv_mps: np.ndarray  # (n, 3)
+    status: np.ndarray  # (n,) uint8
+    counter: np.ndarray  # (n,) uint8
+    rate_hz: int
+
+    def __len__(self) -> int:
+        return len(self.stamps)
+
+
+def imu_log(s: Scan, rate_hz: int = bp3010.NOMINAL_RATE_HZ) -> ImuLog:
+    body = s.starts + (1 + s.layout.stamp_len)
+    raw = s.data[body[:, None] + np.arange(14)]
+    counts = raw[:, :12].copy().view("<i2").astype(np.float64)
+    return ImuLog(s.stamps, counts[:, 0:3] * bp3010.dtheta_lsb_rad(rate_hz), counts[:, 3:6] * bp3010.dv_lsb_mps(rate_hz),
+                  raw[:, 12].copy(), raw[:, 13].copy(), rate_hz)
+
+
+# --- sessions ---------------------------------------------------------------------
+
+
+@dataclass
+class SensorFiles:
+    name: str
+    device: str
+    scans: list[Scan]
+
+    @property
+    def count(self) -> int:
+        return sum(s.count for s in self.scans)
+
+    @property
+    def stamps(self) -> np.ndarray:
+        return np.concatenate([s.stamps for s in self.scans]) if self.scans else np.zeros(0)
+
+    def frames(self) -> list[bytes]:
+        return [f for s in self.scans for f in s.frames()]
+
+    def stats(self) -> dict:
+        keys = ("records", "bytes", "discarded_bytes", "truncated_tail_bytes", "resyncs", "stamps_backwards")
+        return {k: sum(s.stats[k] for s in self.scans) for k in keys}
+
+
+@dataclass
+class SessionLog:
+    directory: Path
+    sidecar: dict
+    sensors: dict[str, SensorFiles]
+
+    def imu(self) -> ImuLog:
+        files = self.sensors["imu"]
+        rate = int(self.sidecar["sensors"]["imu"].get("rate_hz", bp3010.NOMINAL_RATE_HZ))
+        parts = [imu_log(s, rate) for s in files.scans]
+        return ImuLog(*(np.concatenate([getattr(p, f) for p in parts]) for f in
+                        ("stamps", "dtheta_rad", "dv_mps", "status", "counter")), rate)
+
+
+def read_session(directory: str | Path) -> SessionLog:
+    directory = Path(directory)
+    side = directory / "session.json"
+    try:
+        sidecar = json.loads(side.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise LogError(f"{side}: missing; not a gpsins session directory") from None
+    except json.JSONDecodeError as e:
+        raise LogError(f"{side}: not valid JSON ({e})") from None
+    sensors = {}
+    for name, info in sidecar.get("sensors", {}).items():
+        scans = []
+        for fname in info.get("files", []):
+            path = directory / fname
+            if path.exists():
+                scans.append(read_record_file(path, info["device"]))
+        sensors[name] = SensorFiles(name, info["device"], scans)
+    return SessionLog(directory, sidecar, sensors)
+
+
+def read_raw_capture(path: str | Path) -> list[tuple[float, float, bytes]]:
+    """A logger raw capture (.raw): per read (monotonic, realtime, bytes); a truncated last read is dropped."""
+    data = Path(path).read_bytes()
+    out, i = [], 0
+    head = 20
+    while i + head <= len(data):
+        n = int.from_bytes(data[i:i + 4], "little")
+        if i + head + n > len(data):
+            break
+        mono, real = np.frombuffer(data, "<f8", 2, i + 4)
+        out.append((float(mono), float(real), data[i + head:i + head + n]))
+        i += head + n
+    return out

@@ -1,0 +1,119 @@
+"""Timed message sources for the device emulators.
+
+A source offers what the two devices could send, each item with its time in
+seconds from the start of the run:
+
+- ``gps_messages()``: every Superstar II message the receiver can produce, at
+  its highest rates (ID 23 at 10 Hz), in time order; the emulator selects what
+  the host requested.
+- ``imu_samples(rate_hz, t0)``: IMU samples (increments) from t0 at that rate.
+
+The built-in :class:`StaticSource` is a receiver and IMU standing still; the
+simulator's scenario source plugs in through the same two methods.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Iterator, Protocol
+
+import numpy as np
+
+from gpsins_logger import bp3010
+from gpsins_logger import superstar2 as ss2
+
+from . import _core
+
+SECONDS_PER_WEEK = 604800.0
+
+
+@dataclass(frozen=True)
+class TimedMessage:
+    t: float  # seconds since the start of the run
+    msg_id: int
+    frame: bytes
+    tow_s: float | None = None  # GPS time of week of ID 23 measurements (for rate decimation)
+
+
+@dataclass(frozen=True)
+class TimedSample:
+    t: float  # sampling instant (end of the increment's interval)
+    sample: bp3010.ImuSample
+
+
+class MessageSource(Protocol):
+    duration_s: float
+
+    def gps_messages(self) -> Iterator[TimedMessage]: ...
+    def imu_samples(self, rate_hz: int, t0: float = 0.0) -> Iterator[TimedSample]: ...
+
+
+class StaticSource:
+    """A receiver and IMU at rest: plausible contents, not a physical simulation
+    (the simulator provides that). Deterministic for a given seed."""
+
+    def __init__(self, duration_s: float = 60.0, seed: int = 0, lat_deg: float = 59.37, lon_deg: float = 17.95,
+                 height_m: float = 30.0, week: int = 1590, tow0_s: float = 345600.0, n_sats: int = 8,
+                 leap_s: int = 15):
+        self.duration_s = duration_s
+        self.seed = seed
+        self.llh = np.array([math.radians(lat_deg), math.radians(lon_deg), height_m])
+        self.week = week
+        self.tow0_s = tow0_s
+        self.n_sats = n_sats
+        self.leap_s = leap_s
+
+    def gps_messages(self) -> Iterator[TimedMessage]:
+        rng = np.random.default_rng(self.seed)
+        xyz = _core.geodetic_to_ecef(self.llh)
+        prns = sorted(rng.choice(np.arange(1, 33), self.n_sats, replace=False).tolist())
+        ranges0 = rng.uniform(20.2e6, 25.0e6, self.n_sats)
+        rates = rng.uniform(-800.0, 800.0, self.n_sats)
+        locks = {p: 0 for p in prns}
+        n_epochs = int(round(self.duration_s * 10))
+        for k in range(n_epochs):
+            t = k / 10.0
+            tow = self.tow0_s + t
+            obs = []
+            for p, r0, rr in zip(prns, ranges0, rates):
+                pr = r0 + rr * t + rng.normal(0.0, 0.75)
+                cycles = (r0 + rr * t) / 0.19029367279836487
+                obs.append(ss2.Observation(p, 45.0 + 0.25 * (p % 8), ss2.code_phase_from_pseudorange(tow, pr),
+                                           ss2.carrier_raw(cycles), locks[p]))
+            # Real receivers stamp measurements just under whole milliseconds.
+            yield TimedMessage(t, ss2.ID_MEASUREMENTS, ss2.Measurements(tow - 3e-8, obs).encode(), tow)
+            if k % 10 == 0:
+                yield from self._second_messages(t, tow, xyz, prns, rng)
+
+    def _second_messages(self, t, tow, xyz, prns, rng) -> Iterator[TimedMessage]:
+        utc = tow - self.leap_s
+        day_s = utc % 86400.0
+        llh = self.llh
+        yield TimedMessage(t, ss2.ID_NAV_USER, ss2.NavUser(
+            int(day_s // 3600), int(day_s % 3600 // 60), day_s % 60, 1, 7, 2010, llh[0] + rng.normal(0, 2e-7),
+            llh[1] + rng.normal(0, 4e-7), llh[2] + rng.normal(0, 2.0), 0.0, 0.0, 0.0, 0.0, 0.0, 3.0, 4.5, 1.2, 1.8, 2,
+            len(prns), 3).encode())
+        yield TimedMessage(t, ss2.ID_NAV_ECEF, ss2.NavEcef(tow, self.week, *xyz, 0.0, 0.0, 0.0).encode())
+        yield TimedMessage(t, ss2.ID_RECEIVER_STATUS, ss2.ReceiverStatus(self.week).encode())
+        if int(t) % 10 == 0:
+            yield TimedMessage(t, ss2.ID_LEAP, ss2.LeapSeconds(self.leap_s).encode())
+        if int(t) % 30 == 0:
+            yield TimedMessage(t, ss2.ID_IONO_UTC, ss2.IonoUtc((1.1e-8, 1.5e-8, -6e-8, -1.2e-7),
+                                                               (9.0e4, 1.3e5, -6.5e4, -5.2e5), self.leap_s).encode())
+            for p in prns:
+                words = [[int(w) for w in rng.integers(0, 1 << 24, 8)] for _ in range(3)]
+                yield TimedMessage(t, ss2.ID_EPHEMERIS, ss2.EphemerisWords(p, words).encode())
+
+    def imu_samples(self, rate_hz: int, t0: float = 0.0) -> Iterator[TimedSample]:
+        rng = np.random.default_rng([self.seed, rate_hz, int(t0 * 1000)])
+        dt = 1.0 / rate_hz
+        lat = self.llh[0]
+        g = float(_core.normal_gravity(lat, self.llh[2]))
+        w = 7.292115e-5
+        rate_body = np.array([w * math.cos(lat), 0.0, -w * math.sin(lat)])  # facing north, level
+        k0 = int(math.ceil(t0 * rate_hz - 1e-9))
+        for k in range(max(k0, 1), int(self.duration_s * rate_hz) + 1):
+            dtheta = rate_body * dt + rng.normal(0.0, 2e-4 * math.sqrt(dt), 3)
+            dv = np.array([0.0, 0.0, -g]) * dt + rng.normal(0.0, 1e-3 * math.sqrt(dt), 3)
+            yield TimedSample(k * dt, bp3010.ImuSample(tuple(dtheta), tuple(dv)))
