@@ -44,7 +44,8 @@ class SensorThread(threading.Thread):
         self.initial_backoff_s = initial_backoff_s
         self.max_backoff_s = max_backoff_s
         self.counts = session.extra_counts[name]
-        self.counts.update(reconnects=0, discarded_bytes=0, checksum_failures=0, lock_losses=0, bytes_read=0)
+        self.counts.update(reconnects=0, discarded_bytes=0, checksum_failures=0, lock_losses=0, unfinished_bytes=0,
+                           bytes_read=0)
         self._stop_event = threading.Event()
         self._serial: serial.Serial | None = None
         self._lock = threading.Lock()
@@ -126,6 +127,8 @@ class SensorThread(threading.Thread):
         finally:
             for key in ("discarded_bytes", "checksum_failures", "lock_losses"):
                 self.counts[key] += getattr(finder.stats, key)
+            # Bytes of a frame still incomplete when the port closed.
+            self.counts["unfinished_bytes"] += finder.pending
 
     def _stamp(self, offset: int, reads) -> float:
         best = float("inf")

@@ -41,7 +41,7 @@ class Faults:
     garbage_max: int = 40
     bit_flip: float = 0.0  # flip one random bit of the frame
     drop: float = 0.0  # do not send the frame
-    truncate: float = 0.0  # send only a random prefix of the frame
+    truncate: float = 0.0  # send only a random prefix of the frame (at least 2 bytes short)
     disconnects: list[tuple[float, float]] = field(default_factory=list)  # (run time s, seconds down)
     seed: int = 0
 
@@ -49,9 +49,10 @@ class Faults:
 @dataclass
 class SentFrame:
     frame: bytes  # the frame as the device produced it
-    fate: str  # "ok", "flipped", "dropped", "truncated", "offline"
+    fate: str  # "ok", "flipped", "dropped", "truncated", "offline", "interrupted"
     first_byte_realtime: float  # when its first byte was on the line (time.time())
     garbage_before: int = 0
+    wire_bytes: int = 0  # bytes of the frame put on the line (less when truncated)
 
 
 class PtyLink:
@@ -204,7 +205,10 @@ class DeviceEmulator(threading.Thread):
             b[bit // 8] ^= 1 << (bit % 8)
             wire, fate = bytes(b), "flipped"
         elif u[2] < f.truncate:
-            wire, fate = frame[:int(self.rng.integers(1, len(frame)))], "truncated"
+            # At least two bytes go: a frame cut by its last byte alone is completed
+            # by the next frame's first byte whenever that equals the lost checksum,
+            # and is then the intact frame, byte for byte.
+            wire, fate = frame[:int(self.rng.integers(1, len(frame) - 1))], "truncated"
         garbage = b""
         if u[3] < f.garbage:
             garbage = self.rng.integers(0, 256, int(self.rng.integers(1, f.garbage_max + 1)), dtype=np.uint8).tobytes()
@@ -212,12 +216,16 @@ class DeviceEmulator(threading.Thread):
         data = garbage + wire
         start = max(self._mono_at(t), self._line_free)
         first_byte = start + len(garbage) * self.byte_time_s
-        self.sent.append(SentFrame(frame, fate, first_byte + self._mono_to_real, len(garbage)))
+        record = SentFrame(frame, fate, first_byte + self._mono_to_real, len(garbage), len(wire))
+        self.sent.append(record)
+        generation = self.pty.generation
         for k in range(0, len(data), self.chunk_bytes):
             chunk = data[k:k + self.chunk_bytes]
             if not self._wait_until(start + (k + len(chunk)) * self.byte_time_s):
                 return
-            if not self._online or not self.pty.write_all(chunk, time.monotonic() + 1.0):
+            if self.pty.generation != generation or not self._online or not self.pty.write_all(
+                    chunk, time.monotonic() + 1.0):
+                record.fate = "interrupted"  # the cable was pulled mid-frame
                 return
         self._line_free = start + len(data) * self.byte_time_s
 

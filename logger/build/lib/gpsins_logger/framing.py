@@ -142,7 +142,10 @@ class FrameFinder:
                 continue
 
             if self._locked:
-                if good:
+                # Locked, a frame must also continue the counter (frames lost
+                # on the line allowed): an 8-bit sum alone lets garbage that
+                # starts with the sync through once in 256 times.
+                if good and 1 <= rule.counter_gap(self._last, buf, i) <= MAX_GAP:
                     self._emit(out, i, n)
                     i += n
                     continue
@@ -185,32 +188,70 @@ class FrameFinder:
         """May the checksum-valid candidate at i be taken while hunting?
         None: not enough bytes yet to tell.
 
-        Accepted when its counter is the next after the last accepted frame,
-        or the frame right after it has the sync and the next counter. After
-        several damaged frames in a row neither holds, and the candidate needs
-        evidence on both sides: a counter gap of at most MAX_GAP from the last
-        accepted frame and to the first valid frame after it."""
+        Evidence points: its counter is the next after the last accepted
+        frame's; the frame right after it has the sync and the next counter.
+        With a point it is taken, unless a candidate overlapping it has more.
+        With none (several damaged frames in a row), it is taken when its
+        counter lies between the last accepted frame's and that of the next
+        anchored frame ahead (a valid frame whose own successor follows it),
+        and no overlapping candidate has a point."""
+        score = self._score(i, n, final)
+        if score is None:
+            return None
+        if score == 0:
+            between = self._between(i, n, final)
+            if not between:
+                return between
+        buf, rule = self._buf, self.rule
+        j = i + 1
+        while True:
+            j = buf.find(rule.sync, j, i + n)
+            if j < 0:
+                return True
+            if j + n > len(buf):
+                return None if not final else True
+            if rule.checksum_ok(buf, j, n):
+                other = self._score(j, n, final)
+                if other is None:
+                    return None
+                if other > score:
+                    return False
+            j += 1
+
+    def _score(self, i: int, n: int, final: bool) -> int | None:
+        buf, rule = self._buf, self.rule
+        back = int(self._last is not None and rule.counter_gap(self._last, buf, i) == 1)
+        if len(buf) < rule.counter_end(i + n):
+            return None if not final else back
+        return back + int(self._anchored(i, n))
+
+    def _anchored(self, j: int, n: int) -> bool:
+        """The frame right after j has the sync and the next counter."""
+        buf, rule = self._buf, self.rule
+        return buf[j + n] == rule.sync and rule.counter_gap(bytes(buf[j:j + n]), buf, j + n) == 1
+
+    def _between(self, i: int, n: int, final: bool) -> bool | None:
         buf, rule = self._buf, self.rule
         gap_back = rule.counter_gap(self._last, buf, i) if self._last is not None else None
-        if gap_back == 1:
-            return True
-        candidate = bytes(buf[i:i + n])
-        need = rule.counter_end(i + n)
-        if len(buf) < need:
-            return None if not final else False
-        if buf[i + n] == rule.sync and rule.counter_gap(candidate, buf, i + n) == 1:
-            return True
         if gap_back is not None and not 2 <= gap_back <= MAX_GAP:
             return False
+        # At the end of the stream there may be no frame ahead: then the
+        # evidence from the last accepted frame has to do.
+        ended = gap_back is not None
+        candidate = bytes(buf[i:i + n])
         window_end = i + n + MAX_GAP * LOOKAHEAD_BYTES_PER_FRAME
         j = i + n
         while True:
             j = buf.find(rule.sync, j, window_end)
             if j < 0:
-                # No valid frame in the window (or not yet: wait for the bytes).
-                return None if len(buf) < window_end + n and not final else False
-            if j + n > len(buf):
-                return None if not final else False
-            if rule.checksum_ok(buf, j, n):
-                return 1 <= rule.counter_gap(candidate, buf, j) <= MAX_GAP
+                if len(buf) < window_end + n:
+                    return ended if final else None
+                return False
+            if rule.counter_end(j + n) > len(buf):
+                return ended if final else None
+            if rule.checksum_ok(buf, j, n) and self._anchored(j, n):
+                ahead = rule.counter_gap(candidate, buf, j)
+                if not 1 <= ahead <= MAX_GAP:
+                    return False
+                return gap_back is None or 1 <= rule.counter_gap(self._last, buf, j) - gap_back <= MAX_GAP
             j += 1
