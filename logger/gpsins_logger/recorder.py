@@ -176,17 +176,16 @@ class Session:
         os.fsync(self._clock.fileno())
 
     def rotate(self) -> None:
-        """Close this part's files and start the next part (SIGHUP)."""
-        for name in self.sensors:
-            with self._locks[name]:
-                self._records[name].close()
-                if name in self._raws:
-                    self._raws[name].close()
-        self.part += 1
-        # Reopen under the locks so no record lands between parts.
+        """Close this part's files and start the next part (SIGHUP). All
+        sensor locks are held throughout, so no record lands on a closed file."""
         for name in self.sensors:
             self._locks[name].acquire()
         try:
+            for files in (self._records, self._raws):
+                for f in files.values():
+                    f.close()
+            self._raws.clear()
+            self.part += 1
             self._open_part()
         finally:
             for name in self.sensors:

@@ -19,6 +19,7 @@ import numpy as np
 
 from gpsins_logger import bp3010
 from gpsins_logger import superstar2 as ss2
+from gpsins_logger.recorder import RAW_HEADER
 
 STAMP_BYTES = 8
 # A stamp outside (1970, 2286) cannot be system time: the candidate is not a record.
@@ -270,12 +271,11 @@ def read_raw_capture(path: str | Path) -> list[tuple[float, float, bytes]]:
     """A logger raw capture (.raw): per read (monotonic, realtime, bytes); a truncated last read is dropped."""
     data = Path(path).read_bytes()
     out, i = [], 0
-    head = 20
+    head = RAW_HEADER.size
     while i + head <= len(data):
-        n = int.from_bytes(data[i:i + 4], "little")
+        n, mono, real = RAW_HEADER.unpack_from(data, i)
         if i + head + n > len(data):
             break
-        mono, real = np.frombuffer(data, "<f8", 2, i + 4)
-        out.append((float(mono), float(real), data[i + head:i + head + n]))
+        out.append((mono, real, data[i + head:i + head + n]))
         i += head + n
     return out
