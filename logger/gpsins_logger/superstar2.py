@@ -353,6 +353,17 @@ class IonoUtc:
         return cls(tuple(v[0:4]), tuple(v[4:8]), v[8])
 
 
+MESSAGE_NAMES = {
+    ID_NAV_USER: "navigation (user)",
+    ID_NAV_ECEF: "navigation (ECEF)",
+    ID_EPHEMERIS: "ephemeris",
+    ID_MEASUREMENTS: "measurements",
+    ID_SAT_STATUS: "satellite status",
+    ID_RECEIVER_STATUS: "receiver status",
+    ID_IONO_UTC: "ionosphere and UTC",
+    ID_LEAP: "leap seconds",
+}
+
 DECODERS = {
     ID_NAV_USER: NavUser.decode,
     ID_NAV_ECEF: NavEcef.decode,

@@ -20,6 +20,12 @@ def _cmd_run(args: argparse.Namespace) -> int:
     return mainjob.run(args)
 
 
+def _cmd_dump(args: argparse.Namespace) -> int:
+    from . import dump
+
+    return dump.main(args)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="gpsins", description=__doc__)
     parser.add_argument("--version", action="version", version=f"gpsins {__version__}")
@@ -28,6 +34,13 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("run", help="the main job on its built-in default")
     p.add_argument("--out", default="out", help="output directory (default: out)")
     p.set_defaults(func=_cmd_run)
+
+    p = sub.add_parser("dump", help="summarise a session directory or a raw device capture")
+    p.add_argument("path", help="session directory, or with --raw a capture file")
+    p.add_argument("--raw", choices=("superstar2", "bp3010"), help="PATH is a raw byte stream of this device")
+    p.add_argument("--csv", action="store_true", help="list every record as CSV on stdout")
+    p.add_argument("--format", choices=("text", "json"), default="text")
+    p.set_defaults(func=_cmd_dump)
 
     p = sub.add_parser("log", help="run the logger daemon (same as gpsins-logger)", add_help=False)
     p.add_argument("logger_args", nargs=argparse.REMAINDER)

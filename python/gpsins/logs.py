@@ -67,9 +67,7 @@ class Scan:
     def stamps(self) -> np.ndarray:
         if not self.layout.stamped:
             return np.full(self.count, np.nan)
-        h = self.layout.header_len
-        idx = self.starts[:, None] + h + np.arange(STAMP_BYTES)
-        return self.data[idx].copy().view("<f8").reshape(-1)
+        return _gather(self.data, self.starts + self.layout.header_len, STAMP_BYTES).view("<f8").reshape(-1)
 
     def frame(self, k: int) -> bytes:
         """The device frame of record k, as the device sent it (stamp removed)."""
@@ -79,6 +77,13 @@ class Scan:
 
     def frames(self) -> list[bytes]:
         return [self.frame(k) for k in range(self.count)]
+
+
+def _gather(buf: np.ndarray, offsets: np.ndarray, width: int) -> np.ndarray:
+    """(n, width) uint8 rows of buf starting at offsets, without an (n, width) index array."""
+    if len(buf) < width:
+        return np.zeros((0, width), np.uint8)
+    return np.lib.stride_tricks.sliding_window_view(buf, width)[offsets]
 
 
 def _candidates(buf: np.ndarray, lay: Layout) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -97,19 +102,23 @@ def _candidates(buf: np.ndarray, lay: Layout) -> tuple[np.ndarray, np.ndarray, n
     ok = np.zeros(len(p), dtype=bool)
     pc, lc = p[complete], length[complete]
     if len(pc):
-        cs = np.concatenate(([0], np.cumsum(buf, dtype=np.int64)))
+        # Running sums modulo the checksum's width: unsigned wrap-around is exact
+        # here and keeps the array 1-2 bytes per input byte.
+        wide = np.uint16 if lay.device == "superstar2" else np.uint8
+        cs = np.zeros(size + 1, dtype=wide)
+        np.cumsum(buf, dtype=wide, out=cs[1:])
         if lay.device == "superstar2":
             body = pc + ss2.HEADER_LEN + sl
             end = pc + lc - 2  # checksum position
             total = (cs[pc + ss2.HEADER_LEN] - cs[pc]) + (cs[end] - cs[body])
             want = buf[end].astype(np.int64) | buf[end + 1].astype(np.int64) << 8
-            good = (total & 0xFFFF) == want
+            good = total.astype(np.uint16) == want
         else:
             body = pc + 1 + sl
             end = pc + lc - 1
-            good = ((cs[end] - cs[body]) & 0xFF) == buf[end]
+            good = (cs[end] - cs[body]) == buf[end]
         if lay.stamped:
-            st = buf[pc[:, None] + lay.header_len + np.arange(STAMP_BYTES)].copy().view("<f8").reshape(-1)
+            st = _gather(buf, pc + lay.header_len, STAMP_BYTES).view("<f8").reshape(-1)
             with np.errstate(invalid="ignore"):
                 good &= np.isfinite(st) & (st > STAMP_MIN) & (st < STAMP_MAX)
         ok[complete] = good
@@ -152,12 +161,16 @@ def scan(buf: np.ndarray | bytes, layout: Layout, path: str = "<bytes>") -> Scan
             starts, lengths = starts[keep], lengths[keep]
     tail = size - tail_offset if tail_offset is not None else 0
     covered = int(lengths.sum())
+    ends = starts + lengths
+    gaps = np.flatnonzero(np.concatenate(([0], ends)) != np.concatenate((starts, [size - tail])))
+    first_discarded = int(np.concatenate(([0], ends))[gaps[0]]) if len(gaps) else None
     stats = {
         "records": int(len(starts)),
         "bytes": int(size),
         "discarded_bytes": int(size - covered - tail),
         "truncated_tail_bytes": int(tail),
         "truncated_tail_offset": tail_offset,
+        "first_discarded_offset": first_discarded,
         "resyncs": int(np.count_nonzero(np.diff(starts) != lengths[:-1])) if len(starts) > 1 else 0,
     }
     return Scan(path, layout, buf, starts, lengths, stats)
@@ -202,7 +215,7 @@ class ImuLog:
 
 def imu_log(s: Scan, rate_hz: int = bp3010.NOMINAL_RATE_HZ) -> ImuLog:
     body = s.starts + (1 + s.layout.stamp_len)
-    raw = s.data[body[:, None] + np.arange(14)]
+    raw = _gather(s.data, body, 14)
     counts = raw[:, :12].copy().view("<i2").astype(np.float64)
     return ImuLog(s.stamps, counts[:, 0:3] * bp3010.dtheta_lsb_rad(rate_hz), counts[:, 3:6] * bp3010.dv_lsb_mps(rate_hz),
                   raw[:, 12].copy(), raw[:, 13].copy(), rate_hz)

@@ -1,0 +1,158 @@
+"""``gpsins dump``: what a session (or a raw device capture) holds.
+
+The summary answers the first questions after a drive: how many records per
+sensor and message, over which time span, at which rates, and what the reader
+had to skip (with file offsets). ``--csv`` lists every record; ``--format
+json`` gives the summary to programs.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from gpsins_logger import bp3010
+from gpsins_logger import superstar2 as ss2
+
+from . import logs
+
+
+def _span(stamps: np.ndarray) -> dict:
+    if len(stamps) == 0:
+        return {"first": None, "last": None, "duration_s": 0.0}
+    return {"first": float(stamps[0]), "last": float(stamps[-1]), "duration_s": float(stamps[-1] - stamps[0])}
+
+
+def _gps_by_id(scans: list[logs.Scan]) -> dict:
+    out: dict[int, dict] = {}
+    for s in scans:
+        ids, st = logs.message_ids(s), s.stamps
+        for mid in np.unique(ids):
+            sel = st[ids == mid]
+            e = out.setdefault(int(mid), {"records": 0, "stamps": []})
+            e["records"] += int(len(sel))
+            e["stamps"].append(sel)
+    result = {}
+    for mid, e in sorted(out.items()):
+        st = np.concatenate(e["stamps"])
+        span = _span(st)
+        rate = (len(st) - 1) / span["duration_s"] if span["duration_s"] > 0 else None
+        result[str(mid)] = {"records": e["records"], "rate_hz": rate, **span}
+    return result
+
+
+def _imu_details(session: logs.SessionLog) -> dict:
+    imu = session.imu()
+    gaps = (np.diff(imu.counter.astype(np.int64)) - 1) % 256
+    return {"rate_hz": imu.rate_hz, "invalid": int(np.count_nonzero((imu.status & bp3010.STATUS_VALID) == 0)),
+            "overrange": int(np.count_nonzero(imu.status & (bp3010.STATUS_GYRO_OVERRANGE | bp3010.STATUS_ACCEL_OVERRANGE))),
+            "missing_by_counter": int(gaps.sum())}
+
+
+def session_summary(directory: str | Path) -> dict:
+    session = logs.read_session(directory)
+    out = {"session": str(session.directory), "sidecar": {k: session.sidecar.get(k) for k in
+                                                          ("host", "state", "start", "stop", "parts")},
+           "sensors": {}}
+    for name, files in session.sensors.items():
+        entry = {"device": files.device, **files.stats(), **_span(files.stamps),
+                 "damage": [{"file": Path(s.path).name, "first_discarded_offset": s.stats.get("first_discarded_offset"),
+                             "truncated_tail_offset": s.stats.get("truncated_tail_offset")}
+                            for s in files.scans if s.stats.get("discarded_bytes") or s.stats.get("truncated_tail_bytes")]}
+        if files.device == "superstar2":
+            entry["messages"] = _gps_by_id(files.scans)
+        elif files.device == "bp3010" and files.count:
+            entry.update(_imu_details(session))
+        out["sensors"][name] = entry
+    return out
+
+
+def raw_summary(path: str | Path, device: str) -> dict:
+    """Frames in a raw device byte stream (a .raw capture or a plain byte dump)."""
+    path = Path(path)
+    data = path.read_bytes()
+    captured = logs.read_raw_capture(path) if path.suffix == ".raw" else None
+    stream = b"".join(chunk for _, _, chunk in captured) if captured else data
+    if device == "superstar2":
+        s = logs.scan(np.frombuffer(stream, np.uint8), logs.SS2_RAW, str(path))
+        ids = logs.message_ids(s)
+        messages = {str(int(m)): int(np.count_nonzero(ids == m)) for m in np.unique(ids)}
+        return {"file": str(path), "device": device, "frames": s.count, "messages": messages, **s.stats}
+    if device == "bp3010":
+        from gpsins_logger.framing import FrameFinder
+
+        finder = FrameFinder(bp3010.FRAMING)
+        frames = finder.feed(stream)
+        st = finder.stats
+        return {"file": str(path), "device": device, "frames": len(frames), "bytes": len(stream),
+                "discarded_bytes": st.discarded_bytes, "checksum_failures": st.checksum_failures}
+    raise logs.LogError(f"{path}: unknown device {device!r} (superstar2 or bp3010)")
+
+
+def write_csv(directory: str | Path, out) -> int:
+    """One row per record: sensor, stamp, message id, length; IMU rows add the decoded increments."""
+    session = logs.read_session(directory)
+    w = csv.writer(out, lineterminator="\n")
+    w.writerow(["sensor", "stamp_s", "msg_id", "frame_bytes", "counter", "status",
+                "dtheta_x_rad", "dtheta_y_rad", "dtheta_z_rad", "dv_x_mps", "dv_y_mps", "dv_z_mps"])
+    n = 0
+    for name, files in session.sensors.items():
+        if files.device == "bp3010":
+            imu = session.imu()
+            for k in range(len(imu)):
+                w.writerow([name, repr(float(imu.stamps[k])), "", bp3010.FRAME_LEN, int(imu.counter[k]),
+                            int(imu.status[k]), *map(repr, imu.dtheta_rad[k].tolist()), *map(repr, imu.dv_mps[k].tolist())])
+            n += len(imu)
+            continue
+        for s in files.scans:
+            ids, st, lens = logs.message_ids(s), s.stamps, s.lengths - logs.STAMP_BYTES
+            for k in range(s.count):
+                w.writerow([name, repr(float(st[k])), int(ids[k]), int(lens[k])] + [""] * 8)
+            n += s.count
+    return n
+
+
+def _print_text(summary: dict, out) -> None:
+    if "sensors" not in summary:
+        for k, v in summary.items():
+            print(f"{k:>22}: {v}", file=out)
+        return
+    print(f"session {summary['session']}", file=out)
+    for name, e in summary["sensors"].items():
+        print(f"  {name} ({e['device']}): {e['records']} records, {e['bytes']} bytes, "
+              f"{e['duration_s']:.1f} s; discarded {e['discarded_bytes']} bytes, "
+              f"truncated tail {e['truncated_tail_bytes']} bytes, stamps backwards {e['stamps_backwards']}", file=out)
+        for d in e["damage"]:
+            print(f"    damage in {d['file']}: first discarded byte at {d['first_discarded_offset']}, "
+                  f"truncated tail at {d['truncated_tail_offset']}", file=out)
+        for mid, m in e.get("messages", {}).items():
+            rate = f"{m['rate_hz']:.2f} Hz" if m["rate_hz"] else "-"
+            name_ = ss2.MESSAGE_NAMES.get(int(mid), "?")
+            print(f"    ID {mid:>3} {name_:<22} {m['records']:>7} records  {rate}", file=out)
+        if "rate_hz" in e:
+            print(f"    {e['rate_hz']} Hz; invalid {e['invalid']}, over-range {e['overrange']}, "
+                  f"missing by counter {e['missing_by_counter']}", file=out)
+
+
+def main(args) -> int:
+    try:
+        if args.raw:
+            summary = raw_summary(args.path, args.raw)
+        elif args.csv:
+            write_csv(args.path, sys.stdout)
+            return 0
+        else:
+            summary = session_summary(args.path)
+    except (logs.LogError, OSError) as e:
+        print(f"gpsins dump: {e}", file=sys.stderr)
+        return 1
+    if args.format == "json":
+        json.dump(summary, sys.stdout, indent=2)
+        print()
+    else:
+        _print_text(summary, sys.stdout)
+    return 0
