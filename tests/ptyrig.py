@@ -45,9 +45,9 @@ rate_hz = {imu_rate_hz}
 
 def run_rig(tmp: Path, seconds: float = 4.0, stop_signal=signal.SIGINT, gps_faults: Faults | None = None,
             imu_faults: Faults | None = None, imu_rate_hz: int = 64, speed: float = 1.0,
-            during=None) -> RigResult:
+            during=None, source=None) -> RigResult:
     devdir = tmp / "dev"
-    source = StaticSource(seconds, seed=1)
+    source = source or StaticSource(seconds, seed=1)
     em = Emulators(devdir, source, speed=speed, gps_faults=gps_faults, imu_faults=imu_faults)
     cfg = write_config(tmp / "logger.toml", devdir, tmp / "sessions", imu_rate_hz)
     session_dir = tmp / "session"

@@ -26,6 +26,18 @@ def _cmd_dump(args: argparse.Namespace) -> int:
     return dump.main(args)
 
 
+def _cmd_sim(args: argparse.Namespace) -> int:
+    from .sim import cli as sim_cli
+
+    return sim_cli.run_sim(args)
+
+
+def _cmd_emulate(args: argparse.Namespace) -> int:
+    from .sim import cli as sim_cli
+
+    return sim_cli.run_emulate(args)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="gpsins", description=__doc__)
     parser.add_argument("--version", action="version", version=f"gpsins {__version__}")
@@ -41,6 +53,21 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--csv", action="store_true", help="list every record as CSV on stdout")
     p.add_argument("--format", choices=("text", "json"), default="text")
     p.set_defaults(func=_cmd_dump)
+
+    p = sub.add_parser("sim", help="simulate a drive: truth + session files")
+    p.add_argument("--scenario", default="default", help="built-in name or a TOML file (default: default)")
+    p.add_argument("--out", required=True, help="session directory to create")
+    p.add_argument("--seed", type=int, default=0)
+    p.set_defaults(func=_cmd_sim)
+
+    p = sub.add_parser("emulate", help="serve a scenario or a recorded session on pty serial devices")
+    src = p.add_mutually_exclusive_group()
+    src.add_argument("--scenario", default="default", help="built-in name or a TOML file")
+    src.add_argument("--session", help="replay a recorded session directory instead (gpsfake-like)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--dir", default="dev", help="directory for the device links gps and imu (default: dev)")
+    p.add_argument("--speed", type=float, default=1.0, help="time scale (2 = twice real time)")
+    p.set_defaults(func=_cmd_emulate)
 
     p = sub.add_parser("log", help="run the logger daemon (same as gpsins-logger)", add_help=False)
     p.add_argument("logger_args", nargs=argparse.REMAINDER)

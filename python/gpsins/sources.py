@@ -117,3 +117,39 @@ class StaticSource:
             dtheta = rate_body * dt + rng.normal(0.0, 2e-4 * math.sqrt(dt), 3)
             dv = np.array([0.0, 0.0, -g]) * dt + rng.normal(0.0, 1e-3 * math.sqrt(dt), 3)
             yield TimedSample(k * dt, bp3010.ImuSample(tuple(dtheta), tuple(dv)))
+
+
+class SessionSource:
+    """A recorded session served again (as gpsfake does for gpsd): each frame at
+    its recorded stamp relative to the session's first stamp. The IMU is served
+    at its recorded rate whatever rate the host asks for."""
+
+    def __init__(self, directory):
+        from . import logs
+
+        session = logs.read_session(directory)
+        gps = session.sensors.get("gps")
+        self._gps_frames = gps.frames() if gps else []
+        gps_st = gps.stamps if gps else np.zeros(0)
+        self._imu = session.imu() if "imu" in session.sensors else None
+        starts = [a[0] for a in (gps_st, self._imu.stamps if self._imu else np.zeros(0)) if len(a)]
+        ends = [a[-1] for a in (gps_st, self._imu.stamps if self._imu else np.zeros(0)) if len(a)]
+        self.t0 = min(starts) if starts else 0.0
+        self.duration_s = (max(ends) - self.t0) if ends else 0.0
+        self._gps_t = gps_st - self.t0
+
+    def gps_messages(self) -> Iterator[TimedMessage]:
+        for t, frame in zip(self._gps_t, self._gps_frames):
+            tow = None
+            if frame[1] & 0x7F == ss2.ID_MEASUREMENTS:
+                tow = ss2.Measurements.decode(ss2.decode_frame(frame)[1]).epoch_tow_s
+            yield TimedMessage(float(t), frame[1] & 0x7F, frame, tow)
+
+    def imu_samples(self, rate_hz: int, t0: float = 0.0) -> Iterator[TimedSample]:
+        if self._imu is None:
+            return
+        imu = self._imu
+        t = imu.stamps - self.t0
+        for k in np.flatnonzero(t >= t0 - 1e-9):
+            yield TimedSample(float(t[k]), bp3010.ImuSample(tuple(imu.dtheta_rad[k]), tuple(imu.dv_mps[k]),
+                                                            int(imu.status[k])))

@@ -1,0 +1,109 @@
+"""The IMU error model: turns ideal increments into what a BP3010-like unit outputs.
+
+Per axis, in the units of the report's tables (Tables 5.1, 5.5, 5.8, 5.9):
+output = (I + scale factor + misalignment) ideal + bias * dt + white noise,
+where bias = turn-on bias + bias instability (a weighted sum of first-order
+Gauss-Markov processes whose Allan deviation is flat at 0.664 B) + rate random
+walk. Quantisation is the frame's LSB, applied by the encoder. Every true
+value is returned so tests can set a filter's Q and P0 from it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import nnls
+from scipy.signal import lfilter
+
+from .scenario import ImuModel
+
+FLAT_ALLAN_FACTOR = 0.664  # sqrt(2 ln 2 / pi): ADEV of flicker bias instability B
+
+
+def gm_avar(tau: np.ndarray, sigma: float, t_corr: float) -> np.ndarray:
+    """Allan variance of a first-order Gauss-Markov rate with stationary std sigma and time constant t_corr."""
+    x = tau / t_corr
+    return sigma ** 2 / x ** 2 * (2.0 * x - 3.0 + 4.0 * np.exp(-x) - np.exp(-2.0 * x))
+
+
+def bias_instability_weights(taus_corr: tuple[float, ...]) -> np.ndarray:
+    """Stationary variances (per unit B^2) of GM processes whose summed ADEV is flat at 0.664 B."""
+    tc = np.asarray(taus_corr, dtype=float)
+    tau = np.logspace(np.log10(tc[0]), np.log10(tc[-1]), 60)
+    a = np.stack([gm_avar(tau, 1.0, T) for T in tc], -1)
+    w, _ = nnls(a / FLAT_ALLAN_FACTOR ** 2, np.ones_like(tau))
+    return w
+
+
+@dataclass
+class ImuErrors:
+    """True error values of one simulated unit (SI)."""
+
+    gyro_bias_rad_per_s: np.ndarray  # turn-on bias (3,)
+    accel_bias_mps2: np.ndarray
+    gyro_matrix: np.ndarray  # (3, 3) = I + scale factor + misalignment
+    accel_matrix: np.ndarray
+    gyro_bias_drift: np.ndarray  # (n, 3) time-varying part of the bias at each sample
+    accel_bias_drift: np.ndarray
+
+    def as_dict(self) -> dict:
+        return {k: np.asarray(v).tolist() for k, v in self.__dict__.items() if "drift" not in k}
+
+
+def _vec(x) -> np.ndarray:
+    return np.broadcast_to(np.asarray(x, dtype=float), (3,)).copy()
+
+
+def _drift(rng, n: int, dt: float, b: np.ndarray, k: np.ndarray, m: ImuModel) -> np.ndarray:
+    out = np.zeros((n, 3))
+    if m.terms["bias_instability"] and np.any(b > 0):
+        tc = np.asarray(m.bias_instability_tau_s, dtype=float)
+        var = bias_instability_weights(m.bias_instability_tau_s)
+        for T, v in zip(tc, var):
+            phi = np.exp(-dt / T)
+            sig = np.sqrt(v) * b  # stationary std per axis
+            x0 = rng.normal(0.0, 1.0, 3) * sig  # start in the stationary distribution
+            drive = rng.normal(0.0, 1.0, (n, 3)) * sig * np.sqrt(1.0 - phi * phi)
+            # x_k = phi x_{k-1} + w_k, as a linear filter (fast, exact)
+            out += lfilter([1.0], [1.0, -phi], drive, axis=0) + x0 * phi ** np.arange(1, n + 1)[:, None]
+    if m.terms["rate_random_walk"] and np.any(k > 0):
+        out += np.cumsum(rng.normal(0.0, 1.0, (n, 3)) * k * np.sqrt(dt), axis=0)
+    return out
+
+
+def _matrix(rng, sf, mis_std, m: ImuModel) -> np.ndarray:
+    a = np.eye(3)
+    if m.terms["scale_factor"]:
+        a += np.diag(_vec(sf))
+    if m.terms["misalignment"] and mis_std > 0:
+        off = rng.normal(0.0, mis_std, (3, 3))
+        np.fill_diagonal(off, 0.0)
+        a += off
+    return a
+
+
+def draw_errors(m: ImuModel, n: int, rng: np.random.Generator) -> ImuErrors:
+    dt = 1.0 / m.rate_hz
+    gb = _vec(m.gyro_bias_rad_per_s) + rng.normal(0.0, m.gyro_bias_residual_rad_per_s, 3)
+    ab = _vec(m.accel_bias_mps2) + rng.normal(0.0, m.accel_bias_residual_mps2, 3)
+    if not m.terms["turn_on_bias"]:
+        gb[:], ab[:] = 0.0, 0.0
+    gm = _matrix(rng, m.gyro_scale_factor, m.gyro_misalignment_rad, m)
+    am = _matrix(rng, m.accel_scale_factor, m.accel_misalignment_rad, m)
+    gd = _drift(rng, n, dt, _vec(m.gyro_bias_instability_rad_per_s), _vec(m.gyro_rrw_rad_per_s_sqrt_s), m)
+    ad = _drift(rng, n, dt, _vec(m.accel_bias_instability_mps2), _vec(m.accel_rrw_mps2_per_sqrt_s), m)
+    return ImuErrors(gb, ab, gm, am, gd, ad)
+
+
+def measure(dtheta: np.ndarray, dv: np.ndarray, m: ImuModel, err: ImuErrors,
+            rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Increments as the unit reports them (before the frame's quantisation)."""
+    n = len(dtheta)
+    dt = 1.0 / m.rate_hz
+    g = dtheta @ err.gyro_matrix.T + (err.gyro_bias_rad_per_s + err.gyro_bias_drift) * dt
+    a = dv @ err.accel_matrix.T + (err.accel_bias_mps2 + err.accel_bias_drift) * dt
+    if m.terms["white_noise"]:
+        g += rng.normal(0.0, 1.0, (n, 3)) * _vec(m.gyro_arw_rad_per_sqrt_s) * np.sqrt(dt)
+        a += rng.normal(0.0, 1.0, (n, 3)) * _vec(m.accel_vrw_mps_per_sqrt_s) * np.sqrt(dt)
+    return g, a

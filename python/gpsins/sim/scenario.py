@@ -1,0 +1,214 @@
+"""Scenarios are data: a TOML file of drive segments, obstructions, and the
+device models' parameters. Unknown keys are errors that name the file and key.
+
+Each segment ramps speed, heading and grade from their values at its start
+to its targets with a quintic smoothstep (zero first and second derivative
+at both ends), so acceleration and angular rate are continuous everywhere.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass, field, fields
+from importlib import resources
+from pathlib import Path
+
+
+class ScenarioError(ValueError):
+    pass
+
+
+@dataclass
+class Segment:
+    label: str
+    duration_s: float
+    speed_mps: float | None = None  # target at the end; None keeps the current speed
+    turn_deg: float = 0.0  # heading change over the segment, + to the right
+    grade_deg: float | None = None  # target road grade (pitch), + uphill
+
+
+@dataclass
+class Obstruction:
+    t0_s: float
+    t1_s: float
+    azimuth_deg: tuple[float, float]  # sector from, to (clockwise from north)
+    below_elevation_deg: float  # satellites in the sector under this elevation are blocked
+    flicker: float = 0.0  # forest: probability that a blocked satellite comes through in a period
+    flicker_period_s: float = 4.0
+    label: str = ""
+
+
+@dataclass
+class Start:
+    gps_week: int = 1590
+    gps_tow_s: float = 419400.0  # 2010-07-01 20:30 GPST
+    lat_deg: float = 59.37
+    lon_deg: float = 17.95
+    height_m: float = 30.0
+    heading_deg: float = 0.0
+
+
+@dataclass
+class ImuModel:
+    rate_hz: int = 64
+    seed_offset: int = 1
+    # Turn-on bias: the calibrated values (report Tables 5.1, 5.5) plus a random residual of this size.
+    gyro_bias_rad_per_s: tuple = (0.0003962, 0.0146681, 0.0195939)
+    gyro_bias_residual_rad_per_s: float = 2e-3
+    accel_bias_mps2: tuple = (0.2899, 0.2312, 0.1928)
+    accel_bias_residual_mps2: float = 0.03
+    gyro_scale_factor: tuple = (-0.0020, -0.0042, -0.0017)
+    accel_scale_factor: tuple = (-4.7856e-4, -0.0014, -0.0031)
+    gyro_misalignment_rad: float = 1e-3  # std of each off-diagonal term
+    accel_misalignment_rad: float = 1e-3
+    # Noise (report Tables 5.8, 5.9: Q is the white-noise N, B bias instability, K rate random walk).
+    gyro_arw_rad_per_sqrt_s: tuple = (8.8e-4, 8.7e-4, 8.1e-4)
+    gyro_bias_instability_rad_per_s: tuple = (4.7e-4, 4.7e-4, 3.6e-4)
+    gyro_rrw_rad_per_s_sqrt_s: tuple = (1.8e-4, 1.9e-4, 0.0)
+    accel_vrw_mps_per_sqrt_s: tuple = (78.4e-4, 61.0e-4, 69.7e-4)
+    accel_bias_instability_mps2: tuple = (43.8e-4, 24.5e-4, 0.0)
+    accel_rrw_mps2_per_sqrt_s: tuple = (23.2e-4, 9.8e-4, 13.4e-4)
+    # Bias instability is a sum of Gauss-Markov processes with these time constants, weighted to
+    # give a flat Allan deviation of 0.664 B between about the shortest and longest.
+    bias_instability_tau_s: tuple = (3.0, 10.0, 30.0, 100.0, 300.0, 1000.0)
+    terms: dict = field(default_factory=lambda: dict(
+        turn_on_bias=True, scale_factor=True, misalignment=True, white_noise=True, bias_instability=True,
+        rate_random_walk=True, quantisation=True))
+
+
+@dataclass
+class GnssModel:
+    nav_file: str = "brdc1820.10n"  # bundled name, or a path
+    elevation_mask_deg: float = 5.0
+    measurement_rate_hz: int = 10
+    fix_rate_hz: int = 1
+    reacquire_s: float = 2.0
+    code_noise_m: float = 0.75  # at zenith; grows as 1/sin(elevation)^0.5
+    multipath_m: float = 0.6  # at zenith; grows as 1/sin(elevation)
+    multipath_tau_s: float = 20.0
+    carrier_noise_cycles: float = 0.02
+    iono_scale: float = 1.15  # true ionosphere = Klobuchar x scale x (1 + slow variation)
+    iono_variation: float = 0.15
+    iono_period_s: float = 900.0
+    trop_wet_zenith_m: float = 0.18  # the standard-atmosphere model assumes about 0.1
+    clock: str = "steered"  # or "unsteered"
+    clock_bias_s: float = 2e-8
+    clock_drift_s_per_s: float = 1e-9
+    clock_phase_noise_s_per_sqrt_s: float = 2e-10
+    clock_freq_noise_per_sqrt_s: float = 2e-11
+    cn0_zenith_dbhz: float = 48.0
+    leap_seconds: int = 15
+
+
+@dataclass
+class Timing:
+    """How the logger's system-time stamps relate to the true first-byte times."""
+
+    gps_latency_s: float = 0.0
+    imu_latency_s: float = 0.0
+    jitter_mean_s: float = 0.0003  # exponential, non-negative
+    imu_clock_ppm: float = 0.0
+    imu_drop_probability: float = 0.0
+    system_clock_offset_s: float = 0.25  # system clock minus true UTC at the start
+    clock_step_at_s: float | None = None
+    clock_step_s: float = 0.0
+    gps_baud: int = 115200
+    imu_baud: int = 38400
+
+
+@dataclass
+class Scenario:
+    name: str
+    segments: list[Segment]
+    obstructions: list[Obstruction] = field(default_factory=list)
+    start: Start = field(default_factory=Start)
+    imu: ImuModel = field(default_factory=ImuModel)
+    gnss: GnssModel = field(default_factory=GnssModel)
+    timing: Timing = field(default_factory=Timing)
+    description: str = ""
+    source: str = ""
+
+    @property
+    def duration_s(self) -> float:
+        return sum(s.duration_s for s in self.segments)
+
+    def segment_times(self) -> list[tuple[str, float, float]]:
+        out, t = [], 0.0
+        for s in self.segments:
+            out.append((s.label, t, t + s.duration_s))
+            t += s.duration_s
+        return out
+
+
+def _build(cls, table: dict, where: str):
+    names = {f.name: f for f in fields(cls)}
+    unknown = set(table) - set(names)
+    if unknown:
+        raise ScenarioError(f"{where}: unknown key(s) {', '.join(sorted(unknown))} (known: {', '.join(names)})")
+    kw = {}
+    for k, v in table.items():
+        kw[k] = tuple(v) if isinstance(v, list) else v
+    try:
+        return cls(**kw)
+    except TypeError as e:
+        raise ScenarioError(f"{where}: {e}") from None
+
+
+def parse(data: dict, source: str = "<scenario>") -> Scenario:
+    top = {"name", "description", "start", "segment", "obstruction", "imu", "gnss", "timing"}
+    unknown = set(data) - top
+    if unknown:
+        raise ScenarioError(f"{source}: unknown key(s) {', '.join(sorted(unknown))}")
+    segs = [_build(Segment, s, f"{source}: segment {i + 1}") for i, s in enumerate(data.get("segment", []))]
+    if not segs:
+        raise ScenarioError(f"{source}: no [[segment]]")
+    for i, s in enumerate(segs):
+        if not s.duration_s > 0:
+            raise ScenarioError(f"{source}: segment {i + 1} ({s.label}): duration_s must be > 0")
+    times = {label: (t0, t1) for label, t0, t1 in Scenario("", segs).segment_times()}
+    obs = []
+    for i, o in enumerate(data.get("obstruction", [])):
+        o = dict(o)
+        if "segment" in o:
+            label = o.pop("segment")
+            if label not in times:
+                raise ScenarioError(f"{source}: obstruction {i + 1}: no segment labelled {label!r}")
+            o.setdefault("t0_s", times[label][0])
+            o.setdefault("t1_s", times[label][1])
+        obs.append(_build(Obstruction, o, f"{source}: obstruction {i + 1}"))
+    imu_table = dict(data.get("imu", {}))
+    terms = imu_table.pop("terms", {})
+    imu = _build(ImuModel, imu_table, f"{source}: [imu]")
+    bad = set(terms) - set(imu.terms)
+    if bad:
+        raise ScenarioError(f"{source}: [imu.terms]: unknown term(s) {', '.join(sorted(bad))}")
+    imu.terms.update(terms)
+    return Scenario(name=data.get("name", Path(source).stem), description=data.get("description", ""),
+                    segments=segs, obstructions=obs, start=_build(Start, data.get("start", {}), f"{source}: [start]"),
+                    imu=imu, gnss=_build(GnssModel, data.get("gnss", {}), f"{source}: [gnss]"),
+                    timing=_build(Timing, data.get("timing", {}), f"{source}: [timing]"), source=source)
+
+
+def builtin_names() -> list[str]:
+    return sorted(p.name[:-5] for p in resources.files(__package__).joinpath("scenarios").iterdir()
+                  if p.name.endswith(".toml"))
+
+
+def load(name_or_path: str | Path) -> Scenario:
+    """A built-in scenario by name (`default`, ...) or a TOML file."""
+    p = Path(name_or_path)
+    if p.suffix != ".toml" and str(name_or_path) in builtin_names():
+        text = resources.files(__package__).joinpath("scenarios", f"{name_or_path}.toml").read_text("utf-8")
+        source = f"scenario {name_or_path}"
+    else:
+        try:
+            text = p.read_text(encoding="utf-8")
+        except OSError as e:
+            raise ScenarioError(f"{p}: cannot read ({e.strerror}); built-in scenarios: "
+                                f"{', '.join(builtin_names())}") from None
+        source = str(p)
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        raise ScenarioError(f"{source}: {e}") from None
+    return parse(data, source)

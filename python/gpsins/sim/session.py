@@ -1,0 +1,145 @@
+"""A simulation written as files: a logger session directory (for fast tests,
+without ptys) and the truth.
+
+System-time stamps follow the model the time-alignment stage must undo:
+stamp = realtime(first byte) + constant latency per device + non-negative
+(exponential) jitter, where realtime = true UTC + the system clock's offset
+(+ an optional step). GPS frames sent at the same moment leave the port one
+after another at the line's byte time. The model's parameters are recorded in
+the sidecar's ``simulation`` block.
+"""
+
+from __future__ import annotations
+
+import json
+import struct
+from pathlib import Path
+
+import numpy as np
+
+from gpsins_logger import bp3010
+from gpsins_logger import superstar2 as ss2
+
+from . import Simulation
+from .messages import SimSource
+
+GPS_UNIX_OFFSET_S = 315964800.0  # 1980-01-06 in Unix time
+STAMP = struct.Struct("<d")
+
+
+def realtime(sim: Simulation, t: np.ndarray) -> np.ndarray:
+    """System clock reading at true run time t."""
+    sc = sim.scenario
+    base = GPS_UNIX_OFFSET_S + sc.start.gps_week * 604800.0 + sc.start.gps_tow_s - sc.gnss.leap_seconds
+    out = base + np.asarray(t, dtype=np.float64) + sc.timing.system_clock_offset_s
+    if sc.timing.clock_step_at_s is not None:
+        out = out + np.where(np.asarray(t) >= sc.timing.clock_step_at_s, sc.timing.clock_step_s, 0.0)
+    return out
+
+
+def _records(frames: list[bytes], stamps: np.ndarray, header_len: int) -> bytes:
+    return b"".join(f[:header_len] + STAMP.pack(s) + f[header_len:] for f, s in zip(frames, stamps))
+
+
+def write_session(sim: Simulation, directory: str | Path) -> Path:
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=False)
+    sc, tm = sim.scenario, sim.scenario.timing
+    rng = np.random.default_rng([sim.seed, 3])
+    src = SimSource(sim)
+    # GPS: frames queue on the line in emission order.
+    msgs = list(src.gps_messages())
+    byte_s = 10.0 / tm.gps_baud
+    first = np.empty(len(msgs))
+    free = -np.inf
+    for k, m in enumerate(msgs):
+        first[k] = max(m.t, free)
+        free = first[k] + len(m.frame) * byte_s
+    gps_stamps = realtime(sim, first) + tm.gps_latency_s + rng.exponential(tm.jitter_mean_s, len(msgs)) \
+        if tm.jitter_mean_s > 0 else realtime(sim, first) + tm.gps_latency_s
+    (directory / "gps-000.bin").write_bytes(_records([m.frame for m in msgs], gps_stamps, ss2.HEADER_LEN))
+    # IMU: one frame per sample, some dropped if configured; the counter counts every sample.
+    samples = list(src.imu_samples(sim.imu_rate_hz))
+    keep = rng.random(len(samples)) >= tm.imu_drop_probability
+    frames = []
+    for k, s in enumerate(samples):
+        s.sample.counter = (k + 1) & 0xFF
+        frames.append(s.sample.encode(sim.imu_rate_hz))
+    t_imu = np.array([s.t for s in samples])
+    imu_stamps = realtime(sim, t_imu) + tm.imu_latency_s + (rng.exponential(tm.jitter_mean_s, len(samples))
+                                                           if tm.jitter_mean_s > 0 else 0.0)
+    kept = np.flatnonzero(keep)
+    (directory / "imu-000.bin").write_bytes(_records([frames[k] for k in kept], imu_stamps[kept], 1))
+    start = float(realtime(sim, 0.0))
+    stop = float(realtime(sim, sc.duration_s))
+    # Clock pairs: the simulated host's monotonic clock starts at 1000 s.
+    pairs = np.arange(0.0, sc.duration_s, 10.0)
+    with open(directory / "clock.csv", "w", encoding="ascii") as f:
+        f.write("realtime,monotonic\n")
+        for t in pairs:
+            f.write(f"{float(realtime(sim, t))!r},{1000.0 + t!r}\n")
+    sidecar = {
+        "format": "gpsins-session",
+        "format_version": 1,
+        "software": {"name": "gpsins sim", "scenario": sc.name, "seed": sim.seed},
+        "host": "simulated",
+        "state": "stopped",
+        "start": {"realtime": start, "monotonic": 1000.0},
+        "stop": {"realtime": stop, "monotonic": 1000.0 + sc.duration_s},
+        "stamp": "simulated: realtime of the frame's first byte + latency + exponential jitter",
+        "sensors": {
+            "gps": {"device": "superstar2", "header_len": ss2.HEADER_LEN, "baud": tm.gps_baud,
+                    "files": ["gps-000.bin"], "raw_files": []},
+            "imu": {"device": "bp3010", "header_len": 1, "baud": tm.imu_baud, "rate_hz": sim.imu_rate_hz,
+                    "files": ["imu-000.bin"], "raw_files": []},
+        },
+        "parts": [{"index": 0, "start": {"realtime": start, "monotonic": 1000.0}}],
+        "counts": {"gps": {"frames_written": len(msgs)}, "imu": {"frames_written": int(len(kept)),
+                                                                "frames_dropped_by_simulation": int((~keep).sum())}},
+        "clock_steps": int(tm.clock_step_at_s is not None),
+        "simulation": {
+            "scenario": sc.name, "seed": sim.seed, "timing": dict(tm.__dict__),
+            "gps_start": {"week": sc.start.gps_week, "tow_s": sc.start.gps_tow_s},
+            "leap_seconds": sc.gnss.leap_seconds, "truth": "truth.npz",
+        },
+    }
+    (directory / "session.json").write_text(json.dumps(sidecar, indent=2) + "\n", encoding="utf-8")
+    write_truth(sim, directory / "truth.npz")
+    return directory
+
+
+def write_truth(sim: Simulation, path: str | Path) -> None:
+    """Truth at the IMU's sampling instants plus the receiver's true error terms (NumPy .npz)."""
+    tr, g, e = sim.truth, sim.gnss, sim.imu_errors
+    i = sim.truth_at_imu
+    sc = sim.scenario
+    dt = 1.0 / sim.imu_rate_hz
+    arrays = dict(
+        gps_week=np.int64(sc.start.gps_week), t0_tow_s=np.float64(sc.start.gps_tow_s),
+        t=tr.t[i], tow_s=sc.start.gps_tow_s + tr.t[i], r_ecef=tr.r_ecef[i], v_ecef=tr.v_ecef[i], v_ned=tr.v_ned[i],
+        lat=tr.lat[i], lon=tr.lon[i], h=tr.h[i], q_eb=tr.q_eb[i], ypr=tr.ypr[i], f_body=tr.f_body[i],
+        w_ib_body=tr.w_ib_body[i], imu_t=sim.imu_t, ideal_dtheta=sim.ideal_dtheta, ideal_dv=sim.ideal_dv,
+        gyro_bias=e.gyro_bias_rad_per_s + e.gyro_bias_drift, accel_bias=e.accel_bias_mps2 + e.accel_bias_drift,
+        gyro_matrix=e.gyro_matrix, accel_matrix=e.accel_matrix, imu_dt=np.float64(dt),
+        gnss_t=g.t, gnss_tow_rx=g.tow_rx, clock_bias_s=g.clock.bias_s, clock_drift=g.clock.drift_s_per_s,
+        tracked=g.tracked, iono_m=g.iono_m, trop_m=g.trop_m, multipath_m=g.multipath_m,
+        fix_t=np.array([f.t for f in g.fixes]), fix_mode=np.array([f.mode for f in g.fixes]),
+        fix_r_ecef=np.array([f.r_ecef for f in g.fixes]), fix_sats=np.array([f.sats for f in g.fixes]),
+        fix_hdop=np.array([f.hdop for f in g.fixes]), fix_vdop=np.array([f.vdop for f in g.fixes]),
+        segment_labels=np.array([s[0] for s in sc.segment_times()]),
+        segment_t=np.array([[s[1], s[2]] for s in sc.segment_times()]),
+    )
+    model = {"imu": {k: v for k, v in sc.imu.__dict__.items()}, "gnss": dict(sc.gnss.__dict__),
+             "timing": dict(sc.timing.__dict__), "imu_errors": e.as_dict(),
+             "bp3010_lsb": {"dtheta_rad": bp3010.dtheta_lsb_rad(sim.imu_rate_hz),
+                            "dv_mps": bp3010.dv_lsb_mps(sim.imu_rate_hz)}}
+    arrays["model_json"] = np.array(json.dumps(model, default=list))
+    with open(path, "wb") as f:
+        np.savez(f, **arrays)
+
+
+def load_truth(path: str | Path) -> dict:
+    with np.load(path) as z:
+        out = {k: z[k] for k in z.files}
+    out["model"] = json.loads(str(out.pop("model_json")))
+    return out

@@ -1,0 +1,184 @@
+"""Truth trajectory at a high internal rate, and the ideal IMU increments.
+
+Speed, heading and grade are smooth analytic functions of time (quintic
+ramps per segment), so velocity in NED and its derivative are exact. Latitude
+and longitude follow from the curvature ODE (Simpson's rule on half steps,
+iterated to a fixed point); height is the exact integral of the vertical
+speed. Everything else is evaluated in closed form: ECEF acceleration from
+the NED derivative and the transport rate, specific force from J2 gravity
+with the centrifugal and Coriolis terms, body rate from Earth rate, transport
+rate and Euler rates.
+
+The ideal increments are exact at the IMU's sampling instants: delta-theta is
+the rotation vector of the body's inertial attitude change over the interval
+(coning included), delta-v the integral of specific force taken in inertial
+space and expressed in the start-of-interval body frame (sculling included),
+by composite Simpson over the internal samples of the interval.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import earth
+from .scenario import Scenario
+
+SUBSTEPS = 16  # internal samples per IMU interval (1024 Hz at 64 Hz)
+
+
+def _smoothstep(tau):
+    return tau ** 3 * (10.0 - 15.0 * tau + 6.0 * tau * tau), 30.0 * tau ** 2 * (1.0 - tau) ** 2
+
+
+@dataclass
+class Profiles:
+    speed: np.ndarray
+    speed_dot: np.ndarray
+    yaw: np.ndarray
+    yaw_dot: np.ndarray
+    pitch: np.ndarray
+    pitch_dot: np.ndarray
+
+
+def profiles(sc: Scenario, t: np.ndarray) -> Profiles:
+    """Speed, yaw (heading) and pitch (grade) with their time derivatives at times t."""
+    out = [np.zeros_like(t) for _ in range(6)]
+    s0, y0, p0 = 0.0, np.radians(sc.start.heading_deg), 0.0
+    t0 = 0.0
+    for seg in sc.segments:
+        t1 = t0 + seg.duration_s
+        s1 = s0 if seg.speed_mps is None else float(seg.speed_mps)
+        y1 = y0 + np.radians(seg.turn_deg)
+        p1 = p0 if seg.grade_deg is None else np.radians(seg.grade_deg)
+        last = seg is sc.segments[-1]
+        m = (t >= t0) & ((t < t1) | last)
+        tau = np.clip((t[m] - t0) / seg.duration_s, 0.0, 1.0)
+        s, ds = _smoothstep(tau)
+        for k, (a, b) in enumerate(((s0, s1), (y0, y1), (p0, p1))):
+            out[2 * k][m] = a + (b - a) * s
+            out[2 * k + 1][m] = (b - a) * ds / seg.duration_s * (tau < 1.0)
+        s0, y0, p0, t0 = s1, y1, p1, t1
+    before = t < 0.0
+    if np.any(before):  # before the run: standing as at the start
+        out[2][before] = np.radians(sc.start.heading_deg)
+    return Profiles(*out)
+
+
+def _ned_velocity(p: Profiles) -> tuple[np.ndarray, np.ndarray]:
+    cy, sy, cp, sp = np.cos(p.yaw), np.sin(p.yaw), np.cos(p.pitch), np.sin(p.pitch)
+    v = p.speed[:, None] * np.stack([cp * cy, cp * sy, -sp], -1)
+    dv = (p.speed_dot[:, None] * np.stack([cp * cy, cp * sy, -sp], -1)
+          + p.speed[:, None] * np.stack([-sp * cy * p.pitch_dot - cp * sy * p.yaw_dot,
+                                         -sp * sy * p.pitch_dot + cp * cy * p.yaw_dot, -cp * p.pitch_dot], -1))
+    return v, dv
+
+
+@dataclass
+class Truth:
+    t: np.ndarray  # (n,) seconds from the run's start (true GPS time - start)
+    lat: np.ndarray
+    lon: np.ndarray
+    h: np.ndarray
+    r_ecef: np.ndarray  # (n, 3)
+    v_ecef: np.ndarray
+    v_ned: np.ndarray
+    a_ecef: np.ndarray
+    q_eb: np.ndarray  # (n, 4) Hamilton, body -> ECEF
+    ypr: np.ndarray  # (n, 3) yaw, pitch, roll, rad
+    f_body: np.ndarray  # specific force, m/s^2
+    w_ib_body: np.ndarray  # inertial angular rate, rad/s
+    c_eb: np.ndarray  # (n, 3, 3)
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    def position_at(self, tq: np.ndarray) -> np.ndarray:
+        """ECEF position at arbitrary times, cubic Hermite (position and velocity) between samples."""
+        return _hermite(self.t, self.r_ecef, self.v_ecef, np.asarray(tq, dtype=np.float64))
+
+    def velocity_at(self, tq: np.ndarray) -> np.ndarray:
+        return _hermite(self.t, self.v_ecef, self.a_ecef, np.asarray(tq, dtype=np.float64))
+
+
+def _hermite(t, x, dx, tq):
+    i = np.clip(np.searchsorted(t, tq, side="right") - 1, 0, len(t) - 2)
+    h = t[i + 1] - t[i]
+    s = ((tq - t[i]) / h)[..., None]
+    h = h[..., None]
+    h00, h10, h01, h11 = 2 * s ** 3 - 3 * s ** 2 + 1, s ** 3 - 2 * s ** 2 + s, -2 * s ** 3 + 3 * s ** 2, s ** 3 - s ** 2
+    return h00 * x[i] + h10 * h * dx[i] + h01 * x[i + 1] + h11 * h * dx[i + 1]
+
+
+def _integrate_position(sc: Scenario, t: np.ndarray, v: np.ndarray, vm: np.ndarray):
+    """lat, lon, h at grid times t given NED velocity on the grid (v) and at half steps (vm)."""
+    dt = np.diff(t)
+    lat0, lon0, h0 = np.radians(sc.start.lat_deg), np.radians(sc.start.lon_deg), sc.start.height_m
+
+    def cumulative(f, fm):
+        return np.concatenate(([0.0], np.cumsum(dt / 6.0 * (f[:-1] + 4.0 * fm + f[1:]))))
+
+    h = h0 + cumulative(-v[:, 2], -vm[:, 2])
+    hm = 0.5 * (h[:-1] + h[1:]) + dt / 8.0 * (-v[:-1, 2] + v[1:, 2])
+    lat = np.full_like(t, lat0)
+    for _ in range(6):
+        m, _n = earth.radii(lat)
+        dlat = v[:, 0] / (m + h)
+        latm = 0.5 * (lat[:-1] + lat[1:]) + dt / 8.0 * (dlat[:-1] - dlat[1:])
+        mm, _ = earth.radii(latm)
+        new = lat0 + cumulative(dlat, vm[:, 0] / (mm + hm))
+        done = np.max(np.abs(new - lat)) < 1e-15
+        lat = new
+        if done:
+            break
+    _, n = earth.radii(lat)
+    dlat = v[:, 0] / (earth.radii(lat)[0] + h)
+    latm = 0.5 * (lat[:-1] + lat[1:]) + dt / 8.0 * (dlat[:-1] - dlat[1:])
+    _, nm = earth.radii(latm)
+    dlon = v[:, 1] / ((n + h) * np.cos(lat))
+    lon = lon0 + cumulative(dlon, vm[:, 1] / ((nm + hm) * np.cos(latm)))
+    return lat, lon, h, dlat, dlon
+
+
+def truth(sc: Scenario, t_first_sample: float, imu_rate_hz: float, n_samples: int) -> Truth:
+    """Truth on the internal grid: SUBSTEPS points per IMU interval, from t_first_sample - 1/rate."""
+    step = 1.0 / (imu_rate_hz * SUBSTEPS)
+    t = t_first_sample - 1.0 / imu_rate_hz + step * np.arange(n_samples * SUBSTEPS + 1)
+    p = profiles(sc, t)
+    v, dv = _ned_velocity(p)
+    vm, _ = _ned_velocity(profiles(sc, t[:-1] + 0.5 * step))
+    lat, lon, h, dlat, dlon = _integrate_position(sc, t, v, vm)
+    r = earth.geodetic_to_ecef(lat, lon, h)
+    c_en = earth.ecef_to_ned_matrix(lat, lon)
+    w_en = np.stack([dlon * np.cos(lat), -dlat, -dlon * np.sin(lat)], -1)
+    w_ie = np.stack([earth.OMEGA_E * np.cos(lat), np.zeros_like(lat), -earth.OMEGA_E * np.sin(lat)], -1)
+    v_e = np.einsum("nij,nj->ni", c_en, v)
+    a_e = np.einsum("nij,nj->ni", c_en, dv + np.cross(w_en, v))
+    roll = np.zeros_like(t)
+    c_nb = earth.euler_to_dcm(p.yaw, p.pitch, roll)
+    c_eb = c_en @ c_nb
+    f_e = a_e + 2.0 * np.cross(earth.OMEGA_VEC, v_e) - earth.gravity_ecef(r)
+    f_b = np.einsum("nji,nj->ni", c_eb, f_e)
+    # Euler-rate part of the body rate (roll held at zero, so its rate is zero too)
+    sr, cr, sp, cp = np.sin(roll), np.cos(roll), np.sin(p.pitch), np.cos(p.pitch)
+    w_nb = np.stack([-p.yaw_dot * sp, p.pitch_dot * cr + p.yaw_dot * sr * cp, -p.pitch_dot * sr + p.yaw_dot * cr * cp], -1)
+    w_ib = np.einsum("nji,nj->ni", c_nb, w_ie + w_en) + w_nb
+    return Truth(t, lat, lon, h, r, v_e, v, a_e, earth.dcm_to_quat(c_eb), np.stack([p.yaw, p.pitch, roll], -1),
+                 f_b, w_ib, c_eb)
+
+
+def ideal_increments(tr: Truth) -> tuple[np.ndarray, np.ndarray]:
+    """Exact (delta-theta, delta-v) for each IMU interval of the truth grid."""
+    c_ib = earth.rot_z(earth.OMEGA_E * tr.t) @ tr.c_eb  # inertial frame = ECEF at t = 0
+    ends = np.arange(0, len(tr.t), SUBSTEPS)
+    c0, c1 = c_ib[ends[:-1]], c_ib[ends[1:]]
+    dtheta = earth.dcm_to_rotvec(np.swapaxes(c0, -1, -2) @ c1)
+    f_i = np.einsum("nij,nj->ni", c_ib, tr.f_body)
+    h = tr.t[1] - tr.t[0]
+    w = np.ones(SUBSTEPS + 1)
+    w[1:-1:2], w[2:-1:2] = 4.0, 2.0
+    idx = ends[:-1, None] + np.arange(SUBSTEPS + 1)
+    integral = np.einsum("k,nkj->nj", w * h / 3.0, f_i[idx])
+    dv = np.einsum("nji,nj->ni", c0, integral)
+    return dtheta, dv
