@@ -45,6 +45,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("run", help="the main job on its built-in default")
     p.add_argument("--out", default="out", help="output directory (default: out)")
+    p.add_argument("--scenario", default="default", help="built-in name or a TOML file")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--speed", type=float, default=1.0, help="time scale of the emulated drive (4 = four times faster)")
     p.set_defaults(func=_cmd_run)
 
     p = sub.add_parser("dump", help="summarise a session directory or a raw device capture")

@@ -1,18 +1,87 @@
-"""The main job: the default end-to-end run (grows as the pipeline's stages land)."""
+"""The main job on its built-in default: simulate the report's drive, serve it
+through the two emulated serial devices, and record it with the real logger
+daemon exactly as on the vehicle. (Replay through the filters and the report
+join here as those stages land.)"""
 
 from __future__ import annotations
 
 import argparse
-import math
+import json
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
 
-from . import _core
+from . import dump, logs, sim
+from .emulate import Emulators
+from .sim.messages import SimSource
+
+
+def _logger_config(path: Path, devdir: Path, root: Path) -> Path:
+    path.write_text(f"""# written by gpsins run
+[session]
+root = "{root}"
+[gps]
+port = "{devdir / 'gps'}"
+[imu]
+port = "{devdir / 'imu'}"
+""", encoding="utf-8")
+    return path
+
+
+def record_drive(simulation: sim.Simulation, out: Path, speed: float = 1.0) -> Path:
+    """Serve a simulation on ptys and record it with the logger daemon; returns the session directory."""
+    devdir, session = out / "dev", out / "session"
+    cfg = _logger_config(out / "logger.toml", devdir, out / "sessions")
+    em = Emulators(devdir, SimSource(simulation), speed=speed)
+    proc = subprocess.Popen([sys.executable, "-m", "gpsins_logger.daemon", "--config", str(cfg), "--session-dir",
+                             str(session)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        line = proc.stdout.readline().strip()
+        if line != str(session):
+            raise RuntimeError(f"logger did not start: {line} {proc.stderr.read() if proc.poll() is not None else ''}")
+        em.start()
+        total = simulation.scenario.duration_s / speed
+        t0 = time.monotonic()
+        while not em.wait(1.0):
+            done = min(1.0, (time.monotonic() - t0) / total)
+            print(f"\r  recording: {100 * done:5.1f} % of {total:.0f} s", end="", flush=True)
+        print()
+        time.sleep(0.3)  # the last frames through the logger
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=30)
+        if proc.returncode != 0:
+            raise RuntimeError(f"logger exited with {proc.returncode}: {err}")
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        em.stop()
+    return session
 
 
 def run(args: argparse.Namespace) -> int:
-    lat, lon, h = math.radians(59.37), math.radians(17.95), 30.0
-    xyz = _core.geodetic_to_ecef([lat, lon, h])
-    g = _core.normal_gravity(lat, h)
-    print("gpsins core: WGS-84 Earth model at the default site (59.37 N, 17.95 E, 30 m)")
-    print(f"  ECEF            {xyz[0]:.3f} {xyz[1]:.3f} {xyz[2]:.3f} m")
-    print(f"  normal gravity  {float(g):.6f} m/s^2")
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    if (out / "session").exists():
+        print(f"gpsins run: {out / 'session'} exists; give another --out", file=sys.stderr)
+        return 2
+    sc = sim.load(args.scenario)
+    print(f"1. simulating {sc.name}: {sc.description} (seed {args.seed})")
+    simulation = sim.simulate(sc, args.seed)
+    from .sim.session import write_truth
+
+    write_truth(simulation, out / "truth.npz")
+    print(f"2. serving it on emulated serial devices at {args.speed:g}x real time, recording with the logger daemon")
+    session = record_drive(simulation, out, args.speed)
+    summary = dump.session_summary(session)
+    dump._print_text(summary, sys.stdout)
+    sent = {"gps": len(list(SimSource(simulation).gps_messages()))}
+    got = logs.read_session(session)
+    print(f"3. recorded {got.sensors['gps'].count} GPS frames (the receiver offered {sent['gps']}, sending what the "
+          f"logger requested) and {got.sensors['imu'].count} IMU frames of {len(simulation.imu_t)}")
+    (out / "run.json").write_text(json.dumps({"scenario": sc.name, "seed": args.seed, "speed": args.speed,
+                                              "session": str(session), "truth": str(out / "truth.npz")}, indent=2))
+    print(f"session: {session}\ntruth:   {out / 'truth.npz'}")
     return 0
