@@ -270,3 +270,29 @@ def test_simulated_drive_through_ptys_and_the_real_logger(tmp_path):
     second = again.session.imu()
     assert len(second) >= len(first) - 2
     assert np.array_equal(second.dtheta_rad, first.dtheta_rad[len(first) - len(second):])
+
+
+def test_stamp_model_options_are_applied_and_recorded(tmp_path):
+    sc = parse({"segment": [{"label": "a", "duration_s": 20.0}],
+                "timing": {"imu_drop_probability": 0.05, "imu_clock_ppm": 50.0, "imu_latency_s": 0.004,
+                           "jitter_mean_s": 0.0005, "clock_step_at_s": 10.0, "clock_step_s": 0.3}})
+    s = sim.simulate(sc, 4)
+    d = write_session(s, tmp_path / "s")
+    side = logs.read_session(d)
+    imu_log = side.imu()
+    dropped = side.sidecar["counts"]["imu"]["frames_dropped_by_simulation"]
+    assert 0.03 < dropped / len(s.imu_t) < 0.07 and len(imu_log) + dropped == len(s.imu_t)
+    # the counter numbers every sample (from 1), so it says which sample each kept frame is
+    steps = (np.diff(imu_log.counter.astype(int)) - 1) % 256 + 1
+    sample = int(imu_log.counter[0]) - 1 + np.concatenate([[0], np.cumsum(steps)])
+    assert sample[-1] < len(s.imu_t)
+    # the IMU clock runs 50 ppm fast: its samples come 50 ppm more often
+    assert np.median(np.diff(s.imu_t)) == pytest.approx(1 / 64 / (1 + 5e-5), rel=1e-9)
+    # stamps = realtime of the first byte + latency + non-negative jitter (the step is inside realtime)
+    from gpsins.sim.session import realtime
+
+    lag = imu_log.stamps - realtime(s, s.imu_t[sample]) - 0.004
+    assert lag.min() >= 0 and 0.0003 < lag.mean() < 0.0007
+    step = np.diff(imu_log.stamps)
+    assert np.count_nonzero(step > 0.25) == 1 and abs(imu_log.stamps[np.argmax(step) + 1] - realtime(s, 10.0)) < 0.05
+    assert side.sidecar["simulation"]["timing"]["clock_step_s"] == 0.3
