@@ -77,9 +77,9 @@ def run(args: argparse.Namespace) -> int:
     session = record_drive(simulation, out, args.speed)
     summary = dump.session_summary(session)
     dump._print_text(summary, sys.stdout)
-    sent = {"gps": len(list(SimSource(simulation).gps_messages()))}
+    offered = len(list(SimSource(simulation).gps_messages()))
     got = logs.read_session(session)
-    print(f"3. recorded {got.sensors['gps'].count} GPS frames (the receiver offered {sent['gps']}, sending what the "
+    print(f"3. recorded {got.sensors['gps'].count} GPS frames (the receiver offered {offered}, sending what the "
           f"logger requested) and {got.sensors['imu'].count} IMU frames of {len(simulation.imu_t)}")
     (out / "run.json").write_text(json.dumps({"scenario": sc.name, "seed": args.seed, "speed": args.speed,
                                               "session": str(session), "truth": str(out / "truth.npz")}, indent=2))

@@ -182,7 +182,6 @@ def simulate(sc: Scenario, tr: Truth, rng: np.random.Generator) -> GnssSim:
     clock = receiver_clock(model, tow_rx - sc.start.gps_tow_s, rng)
     t = tow_rx - sc.start.gps_tow_s - clock.bias_s  # true GPS time of each epoch, from the start
     r_rx = tr.position_at(t)
-    lat, lon, h = tr.lat[0], tr.lon[0], tr.h[0]
     lat_k = np.interp(t, tr.t, tr.lat)
     lon_k = np.interp(t, tr.t, tr.lon)
     h_k = np.interp(t, tr.t, tr.h)
@@ -240,7 +239,7 @@ def simulate(sc: Scenario, tr: Truth, rng: np.random.Generator) -> GnssSim:
 
 
 def _solve(pr, sats, clk, weights, r0, height_hold: float | None, tow: float, alpha, beta):
-    """Iterated weighted least squares with the receiver's corrections; returns (r, bias_m, G, W)."""
+    """Iterated weighted least squares with the receiver's corrections; returns (r, clock bias in m, geometry)."""
     x = np.append(r0, 0.0)
     for _ in range(10):
         lat, lon, h = ecef_to_geodetic(x[:3])
