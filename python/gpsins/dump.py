@@ -74,9 +74,10 @@ def session_summary(directory: str | Path) -> dict:
 def raw_summary(path: str | Path, device: str) -> dict:
     """Frames in a raw device byte stream (a .raw capture or a plain byte dump)."""
     path = Path(path)
-    data = path.read_bytes()
-    captured = logs.read_raw_capture(path) if path.suffix == ".raw" else None
-    stream = b"".join(chunk for _, _, chunk in captured) if captured else data
+    if path.suffix == ".raw":  # a logger capture: per-read headers around the bytes
+        stream = b"".join(chunk for _, _, chunk in logs.read_raw_capture(path))
+    else:
+        stream = path.read_bytes()
     if device == "superstar2":
         s = logs.scan(np.frombuffer(stream, np.uint8), logs.SS2_RAW, str(path))
         ids = logs.message_ids(s)
@@ -116,7 +117,7 @@ def write_csv(directory: str | Path, out) -> int:
     return n
 
 
-def _print_text(summary: dict, out) -> None:
+def print_summary(summary: dict, out) -> None:
     if "sensors" not in summary:
         for k, v in summary.items():
             print(f"{k:>22}: {v}", file=out)
@@ -131,8 +132,8 @@ def _print_text(summary: dict, out) -> None:
                   f"truncated tail at {d['truncated_tail_offset']}", file=out)
         for mid, m in e.get("messages", {}).items():
             rate = f"{m['rate_hz']:.2f} Hz" if m["rate_hz"] else "-"
-            name_ = ss2.MESSAGE_NAMES.get(int(mid), "?")
-            print(f"    ID {mid:>3} {name_:<22} {m['records']:>7} records  {rate}", file=out)
+            label = ss2.MESSAGE_NAMES.get(int(mid), "?")
+            print(f"    ID {mid:>3} {label:<22} {m['records']:>7} records  {rate}", file=out)
         if "rate_hz" in e:
             print(f"    {e['rate_hz']} Hz; invalid {e['invalid']}, over-range {e['overrange']}, "
                   f"missing by counter {e['missing_by_counter']}", file=out)
@@ -154,5 +155,5 @@ def main(args) -> int:
         json.dump(summary, sys.stdout, indent=2)
         print()
     else:
-        _print_text(summary, sys.stdout)
+        print_summary(summary, sys.stdout)
     return 0

@@ -161,9 +161,10 @@ def scan(buf: np.ndarray | bytes, layout: Layout, path: str = "<bytes>") -> Scan
             starts, lengths = starts[keep], lengths[keep]
     tail = size - tail_offset if tail_offset is not None else 0
     covered = int(lengths.sum())
-    ends = starts + lengths
-    gaps = np.flatnonzero(np.concatenate(([0], ends)) != np.concatenate((starts, [size - tail])))
-    first_discarded = int(np.concatenate(([0], ends))[gaps[0]]) if len(gaps) else None
+    # Where each covered stretch ends vs where the next begins: the first mismatch is the first discarded byte.
+    prev_end = np.concatenate(([0], starts + lengths))
+    gaps = np.flatnonzero(prev_end != np.concatenate((starts, [size - tail])))
+    first_discarded = int(prev_end[gaps[0]]) if len(gaps) else None
     stats = {
         "records": int(len(starts)),
         "bytes": int(size),

@@ -76,7 +76,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"2. serving it on emulated serial devices at {args.speed:g}x real time, recording with the logger daemon")
     session = record_drive(simulation, out, args.speed)
     summary = dump.session_summary(session)
-    dump._print_text(summary, sys.stdout)
+    dump.print_summary(summary, sys.stdout)
     offered = len(list(SimSource(simulation).gps_messages()))
     got = logs.read_session(session)
     print(f"3. recorded {got.sensors['gps'].count} GPS frames (the receiver offered {offered}, sending what the "

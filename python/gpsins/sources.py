@@ -132,10 +132,9 @@ class SessionSource:
         self._gps_frames = gps.frames() if gps else []
         gps_st = gps.stamps if gps else np.zeros(0)
         self._imu = session.imu() if "imu" in session.sensors else None
-        starts = [a[0] for a in (gps_st, self._imu.stamps if self._imu else np.zeros(0)) if len(a)]
-        ends = [a[-1] for a in (gps_st, self._imu.stamps if self._imu else np.zeros(0)) if len(a)]
-        self.t0 = min(starts) if starts else 0.0
-        self.duration_s = (max(ends) - self.t0) if ends else 0.0
+        every = np.concatenate([gps_st, self._imu.stamps if self._imu else np.zeros(0)])
+        self.t0 = float(every.min()) if len(every) else 0.0
+        self.duration_s = float(every.max()) - self.t0 if len(every) else 0.0
         self._gps_t = gps_st - self.t0
 
     def gps_messages(self) -> Iterator[TimedMessage]:

@@ -33,6 +33,20 @@ def geodetic_to_ecef(lat, lon, h) -> np.ndarray:
                     axis=-1)
 
 
+def ecef_to_geodetic(r: np.ndarray) -> tuple[float, float, float]:
+    """Latitude, longitude (rad) and height of one ECEF point (fixed-point iteration)."""
+    x, y, z = r
+    lon = np.arctan2(y, x)
+    p = np.hypot(x, y)
+    lat = np.arctan2(z, p * (1.0 - E2))
+    for _ in range(8):
+        _, n = radii(lat)
+        h = p / np.cos(lat) - n
+        lat = np.arctan2(z, p * (1.0 - E2 * n / (n + h)))
+    _, n = radii(lat)
+    return float(lat), float(lon), float(p / np.cos(lat) - n)
+
+
 def ecef_to_ned_matrix(lat, lon) -> np.ndarray:
     """C_en (..., 3, 3): columns are the north, east and down unit vectors in ECEF."""
     sl, cl, so, co = np.sin(lat), np.cos(lat), np.sin(lon), np.cos(lon)

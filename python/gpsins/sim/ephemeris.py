@@ -10,7 +10,7 @@ Times are continuous GPS seconds (week * 604800 + seconds of week).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, fields
 from pathlib import Path
 
 import numpy as np
@@ -77,7 +77,7 @@ def _num(s: str) -> float:
     return float(s) if s else 0.0
 
 
-def _gps_seconds(y: int, mo: int, d: int, h: int, mi: int, sec: float) -> float:
+def gps_seconds(y: int, mo: int, d: int, h: int, mi: int, sec: float) -> float:
     days = (np.datetime64(f"{y:04d}-{mo:02d}-{d:02d}") - np.datetime64("1980-01-06")).astype(int)
     return float(days) * 86400.0 + h * 3600.0 + mi * 60.0 + sec
 
@@ -115,7 +115,7 @@ def read_rinex2_nav(path: str | Path) -> NavFile:
         try:
             prn = int(rec[0][0:2])
             yy = int(rec[0][3:5])
-            t = _gps_seconds(yy + (2000 if yy < 80 else 1900), int(rec[0][6:8]), int(rec[0][9:11]),
+            t = gps_seconds(yy + (2000 if yy < 80 else 1900), int(rec[0][6:8]), int(rec[0][9:11]),
                              int(rec[0][12:14]), int(rec[0][15:17]), float(rec[0][17:22]))
             v = [_num(rec[0][22 + 19 * j:41 + 19 * j]) for j in range(3)]
             for line in rec[1:]:
@@ -278,4 +278,4 @@ def decode_subframes(prn: int, words: list[list[int]], week_hint: int) -> Epheme
 
 def quantised(eph: Ephemeris) -> Ephemeris:
     """The ephemeris exactly as a receiver decodes it from the broadcast words."""
-    return replace(decode_subframes(eph.prn, encode_subframes(eph), eph.week), iode=eph.iode)
+    return decode_subframes(eph.prn, encode_subframes(eph), eph.week)

@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from . import atmosphere, earth, ephemeris
+from .processes import gauss_markov
 from .scenario import GnssModel, Scenario
 from .trajectory import Truth
 
@@ -36,11 +37,6 @@ def load_nav(model: GnssModel) -> ephemeris.NavFile:
     return ephemeris.read_rinex2_nav(p)
 
 
-def ecef_to_enu_matrix(lat: float, lon: float) -> np.ndarray:
-    sl, cl, so, co = np.sin(lat), np.cos(lat), np.sin(lon), np.cos(lon)
-    return np.array([[-so, co, 0.0], [-sl * co, -sl * so, cl], [cl * co, cl * so, sl]])
-
-
 def az_el(r_rx: np.ndarray, r_sat: np.ndarray, lat: np.ndarray, lon: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     d = r_sat - r_rx
     sl, cl, so, co = np.sin(lat), np.cos(lat), np.sin(lon), np.cos(lon)
@@ -48,19 +44,6 @@ def az_el(r_rx: np.ndarray, r_sat: np.ndarray, lat: np.ndarray, lon: np.ndarray)
     n = -sl * co * d[..., 0] - sl * so * d[..., 1] + cl * d[..., 2]
     u = cl * co * d[..., 0] + cl * so * d[..., 1] + sl * d[..., 2]
     return np.mod(np.arctan2(e, n), 2 * np.pi), np.arctan2(u, np.hypot(e, n))
-
-
-def ecef_to_geodetic(r: np.ndarray) -> tuple[float, float, float]:
-    x, y, z = r
-    lon = np.arctan2(y, x)
-    p = np.hypot(x, y)
-    lat = np.arctan2(z, p * (1.0 - earth.E2))
-    for _ in range(8):
-        _, n = earth.radii(lat)
-        h = p / np.cos(lat) - n
-        lat = np.arctan2(z, p * (1.0 - earth.E2 * n / (n + h)))
-    _, n = earth.radii(lat)
-    return float(lat), float(lon), float(p / np.cos(lat) - n)
 
 
 @dataclass
@@ -162,16 +145,6 @@ def _lock_counts(tracked: np.ndarray) -> np.ndarray:
     return lock
 
 
-def _gm(rng, shape, tau_corr: float, dt: float) -> np.ndarray:
-    phi = np.exp(-dt / tau_corr)
-    x = np.empty(shape)
-    x[0] = rng.normal(0.0, 1.0, shape[1:])
-    w = rng.normal(0.0, np.sqrt(1.0 - phi * phi), shape)
-    for k in range(1, shape[0]):
-        x[k] = phi * x[k - 1] + w[k]
-    return x
-
-
 def simulate(sc: Scenario, tr: Truth, rng: np.random.Generator) -> GnssSim:
     model = sc.gnss
     nav = load_nav(model)
@@ -218,7 +191,10 @@ def simulate(sc: Scenario, tr: Truth, rng: np.random.Generator) -> GnssSim:
                                   model.iono_variation, model.iono_period_s)
     trop = atmosphere.true_trop_m(el, lat_k[:, None], h_k[:, None], model.trop_wet_zenith_m)
     sin_el = np.sin(np.clip(el, np.radians(1.0), None))
-    mp = _gm(rng, shape, model.multipath_tau_s, dt) * model.multipath_m / sin_el
+    phi = np.exp(-dt / model.multipath_tau_s)
+    first = rng.normal(0.0, 1.0, shape[1:])  # unit stationary std
+    drive = rng.normal(0.0, np.sqrt(1.0 - phi * phi), shape)
+    mp = gauss_markov(first, drive[1:], phi, include_first=True) * model.multipath_m / sin_el
     noise = rng.normal(0.0, 1.0, shape) * model.code_noise_m / np.sqrt(sin_el)
     pr = rng_geo + ephemeris.C * (clock.bias_s[:, None] - sat_clk) + iono + trop + mp + noise
     ambiguity = rng.integers(-10_000, 10_000, MAX_PRN)
@@ -242,7 +218,7 @@ def _solve(pr, sats, clk, weights, r0, height_hold: float | None, tow: float, al
     """Iterated weighted least squares with the receiver's corrections; returns (r, clock bias in m, geometry)."""
     x = np.append(r0, 0.0)
     for _ in range(10):
-        lat, lon, h = ecef_to_geodetic(x[:3])
+        lat, lon, h = earth.ecef_to_geodetic(x[:3])
         d = sats - x[:3]
         # Earth rotation during travel is already in sats (they are given in the frame of reception)
         rho = np.linalg.norm(d, axis=1)
@@ -283,9 +259,9 @@ def receiver_fixes(sc: Scenario, g: GnssSim, tr: Truth, rng: np.random.Generator
             w = 1.0 / (sc.gnss.code_noise_m ** 2 / np.sin(el) + (sc.gnss.multipath_m / np.sin(el)) ** 2)
             r, _, geo = _solve(g.pseudorange_m[k, use], g.sat_pos[k, use], g.sat_clock_s[k, use], w, r_last,
                                None if n >= 4 else h_last, g.tow_rx[k], g.ion_alpha, g.ion_beta)
-            llh = ecef_to_geodetic(r)
-            enu = ecef_to_enu_matrix(llh[0], llh[1])
-            gl = np.hstack([geo[:, :3] @ enu.T, geo[:, 3:]])
+            llh = earth.ecef_to_geodetic(r)
+            c_en = earth.ecef_to_ned_matrix(llh[0], llh[1])
+            gl = np.hstack([geo[:, :3] @ c_en, geo[:, 3:]])  # north, east, down, clock
             if n >= 4:
                 cov = np.linalg.inv(gl.T @ gl)
                 hdop, vdop = float(np.sqrt(cov[0, 0] + cov[1, 1])), float(np.sqrt(cov[2, 2]))
@@ -294,7 +270,6 @@ def receiver_fixes(sc: Scenario, g: GnssSim, tr: Truth, rng: np.random.Generator
                 cov = np.linalg.inv(aug.T @ aug)
                 hdop, vdop = float(np.sqrt(cov[0, 0] + cov[1, 1])), 99.9
             v = v_true + rng.normal(0.0, 0.05 * min(hdop, 10.0), 3)
-            c_en = earth.ecef_to_ned_matrix(llh[0], llh[1])
             fix = Fix(fix.t, fix.tow_s, 2 if n >= 4 else 3, r, llh, v, c_en.T @ v, min(hdop, 99.9),
                       min(vdop, 99.9), n, fix.prns)
             r_last = r

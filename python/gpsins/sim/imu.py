@@ -14,8 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import nnls
-from scipy.signal import lfilter
 
+from .processes import gauss_markov
 from .scenario import ImuModel
 
 FLAT_ALLAN_FACTOR = 0.664  # sqrt(2 ln 2 / pi): ADEV of flicker bias instability B
@@ -65,8 +65,7 @@ def _drift(rng, n: int, dt: float, b: np.ndarray, k: np.ndarray, m: ImuModel) ->
             sig = np.sqrt(v) * b  # stationary std per axis
             x0 = rng.normal(0.0, 1.0, 3) * sig  # start in the stationary distribution
             drive = rng.normal(0.0, 1.0, (n, 3)) * sig * np.sqrt(1.0 - phi * phi)
-            # x_k = phi x_{k-1} + w_k, as a linear filter (fast, exact)
-            out += lfilter([1.0], [1.0, -phi], drive, axis=0) + x0 * phi ** np.arange(1, n + 1)[:, None]
+            out += gauss_markov(x0, drive, phi)
     if m.terms["rate_random_walk"] and np.any(k > 0):
         out += np.cumsum(rng.normal(0.0, 1.0, (n, 3)) * k * np.sqrt(dt), axis=0)
     return out

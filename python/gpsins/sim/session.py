@@ -37,6 +37,11 @@ def realtime(sim: Simulation, t: np.ndarray) -> np.ndarray:
     return out
 
 
+def _jitter(rng: np.random.Generator, n: int, mean_s: float) -> np.ndarray | float:
+    """Non-negative stamp jitter; no draws when it is switched off."""
+    return rng.exponential(mean_s, n) if mean_s > 0 else 0.0
+
+
 def _records(frames: list[bytes], stamps: np.ndarray, header_len: int) -> bytes:
     return b"".join(f[:header_len] + STAMP.pack(s) + f[header_len:] for f, s in zip(frames, stamps))
 
@@ -55,8 +60,7 @@ def write_session(sim: Simulation, directory: str | Path) -> Path:
     for k, m in enumerate(msgs):
         first[k] = max(m.t, free)
         free = first[k] + len(m.frame) * byte_s
-    gps_stamps = realtime(sim, first) + tm.gps_latency_s + rng.exponential(tm.jitter_mean_s, len(msgs)) \
-        if tm.jitter_mean_s > 0 else realtime(sim, first) + tm.gps_latency_s
+    gps_stamps = realtime(sim, first) + tm.gps_latency_s + _jitter(rng, len(msgs), tm.jitter_mean_s)
     (directory / "gps-000.bin").write_bytes(_records([m.frame for m in msgs], gps_stamps, ss2.HEADER_LEN))
     # IMU: one frame per sample, some dropped if configured; the counter counts every sample.
     samples = list(src.imu_samples(sim.imu_rate_hz))
@@ -66,8 +70,7 @@ def write_session(sim: Simulation, directory: str | Path) -> Path:
         s.sample.counter = (k + 1) & 0xFF
         frames.append(s.sample.encode(sim.imu_rate_hz))
     t_imu = np.array([s.t for s in samples])
-    imu_stamps = realtime(sim, t_imu) + tm.imu_latency_s + (rng.exponential(tm.jitter_mean_s, len(samples))
-                                                           if tm.jitter_mean_s > 0 else 0.0)
+    imu_stamps = realtime(sim, t_imu) + tm.imu_latency_s + _jitter(rng, len(samples), tm.jitter_mean_s)
     kept = np.flatnonzero(keep)
     (directory / "imu-000.bin").write_bytes(_records([frames[k] for k in kept], imu_stamps[kept], 1))
     start = float(realtime(sim, 0.0))

@@ -132,8 +132,8 @@ def _integrate_position(sc: Scenario, t: np.ndarray, v: np.ndarray, vm: np.ndarr
         lat = new
         if done:
             break
-    _, n = earth.radii(lat)
-    dlat = v[:, 0] / (earth.radii(lat)[0] + h)
+    m, n = earth.radii(lat)
+    dlat = v[:, 0] / (m + h)
     latm = 0.5 * (lat[:-1] + lat[1:]) + dt / 8.0 * (dlat[:-1] - dlat[1:])
     _, nm = earth.radii(latm)
     dlon = v[:, 1] / ((n + h) * np.cos(lat))
