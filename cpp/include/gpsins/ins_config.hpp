@@ -1,0 +1,81 @@
+// Configuration of the integrated navigation filter. Units are in the names;
+// the Python layer reads the same names from TOML (gpsins.filter).
+#pragma once
+
+#include <limits>
+
+#include "gpsins/types.hpp"
+
+namespace gpsins {
+
+enum class BiasModel { RandomWalk = 0, GaussMarkov = 1, Constant = 2 };
+
+struct BiasConfig {
+  BiasModel model = BiasModel::RandomWalk;
+  Vec3 random_walk_per_sqrt_s = Vec3::Zero();  // rate random walk K: rad/s/sqrt(s) or m/s^2/sqrt(s)
+  Vec3 gm_sigma = Vec3::Zero();                // Gauss-Markov stationary sigma: rad/s or m/s^2
+  Vec3 gm_tau_s = Vec3::Constant(100.0);       // Gauss-Markov time constant
+};
+
+struct InsConfig {
+  double imu_rate_hz = 64.0;
+  double max_gap_s = 0.5;  // a longer IMU gap is an input error
+
+  // IMU calibration applied to the raw increments: measured = (1 + sf) true + bias.
+  Vec3 gyro_bias_cal_rad_per_s = Vec3::Zero();
+  Vec3 accel_bias_cal_mps2 = Vec3::Zero();
+  Vec3 gyro_scale_factor_cal = Vec3::Zero();
+  Vec3 accel_scale_factor_cal = Vec3::Zero();
+
+  // White noise densities (Allan N): process noise V = N^2.
+  Vec3 gyro_arw_rad_per_sqrt_s = Vec3::Constant(1e-3);
+  Vec3 accel_vrw_mps_per_sqrt_s = Vec3::Constant(1e-2);
+  BiasConfig gyro_bias;
+  BiasConfig accel_bias;
+  bool scale_factor_states = false;
+  Vec3 gyro_scale_factor_sigma = Vec3::Constant(1e-3);
+  Vec3 accel_scale_factor_sigma = Vec3::Constant(1e-3);
+
+  // Initial uncertainty (1 sigma). Attitude as roll, pitch, yaw about local NED.
+  Vec3 attitude_sigma_rad = Vec3(0.02, 0.02, 0.1);
+  double velocity_sigma_mps = 1.0;
+  double position_sigma_m = 10.0;
+  Vec3 gyro_bias_sigma_rad_per_s = Vec3::Constant(2e-3);
+  Vec3 accel_bias_sigma_mps2 = Vec3::Constant(0.05);
+
+  // Receiver clock (tight coupling), random walks on bias and drift.
+  double clock_bias_sigma_m = 1e5;
+  double clock_drift_sigma_mps = 100.0;
+  double clock_bias_noise_m_per_sqrt_s = 0.1;
+  double clock_drift_noise_mps_per_sqrt_s = 0.1;
+
+  // Initialisation.
+  double level_time_s = 1.0;  // accelerometer mean for roll and pitch
+  double initial_yaw_rad = std::numeric_limits<double>::quiet_NaN();  // NaN: from GNSS course
+  double heading_min_speed_mps = 3.0;
+  double heading_sigma_rad = 0.05;
+
+  // GNSS fix. R from HDOP/VDOP times the UERE, or fixed ECEF sigmas when set (> 0).
+  Vec3 lever_arm_body_m = Vec3::Zero();
+  double fix_uere_m = 3.0;
+  Vec3 fix_sigma_ecef_m = Vec3::Zero();
+  bool use_fix_velocity = false;
+  double fix_velocity_sigma_mps = 0.1;
+
+  // Standstill: detected from the IMU window while the speed estimate is low.
+  bool zero_velocity_updates = true;
+  double standstill_window_s = 0.5;
+  double standstill_accel_std_mps2 = 0.12;
+  double standstill_gyro_std_rad_per_s = 0.015;
+  double standstill_gyro_mean_rad_per_s = 0.02;
+  double standstill_max_speed_mps = 0.5;
+  double zero_velocity_sigma_mps = 0.02;
+  double zero_rate_sigma_rad_per_s = 1e-4;
+
+  // Innovation gate: chi-square probability (<= 0 or >= 1 disables gating).
+  double gate_probability = 0.9999;
+  // Divergence guard: position sigma beyond this marks the filter diverged.
+  double max_position_sigma_m = 1e4;
+};
+
+}  // namespace gpsins

@@ -1,0 +1,387 @@
+#include "gpsins/ins_filter.hpp"
+
+#include <algorithm>
+#include <cmath>
+
+#include "gpsins/aiding/measurement.hpp"
+#include "gpsins/aiding/position_fix.hpp"
+#include "gpsins/aiding/velocity.hpp"
+#include "gpsins/aiding/zero_rate.hpp"
+#include "gpsins/aiding/zero_velocity.hpp"
+#include "gpsins/chi2.hpp"
+
+namespace gpsins {
+
+const char* input_status_text(InputStatus s) {
+  switch (s) {
+    case InputStatus::Ok: return "ok";
+    case InputStatus::NonFinite: return "value is NaN or infinite";
+    case InputStatus::TimeNotIncreasing: return "time does not increase";
+    case InputStatus::GapTooLong: return "gap longer than max_gap_s";
+    case InputStatus::BadValue: return "value out of range";
+  }
+  return "unknown";
+}
+
+namespace {
+
+Vec3 square(const Vec3& v) { return v.cwiseProduct(v); }
+
+ProcessNoise noise_of(const InsConfig& c) {
+  ProcessNoise q;
+  q.gyro_white_var = square(c.gyro_arw_rad_per_sqrt_s);
+  q.accel_white_var = square(c.accel_vrw_mps_per_sqrt_s);
+  auto bias = [](const BiasConfig& b, Vec3& drive, Vec3& inv_tau) {
+    switch (b.model) {
+      case BiasModel::RandomWalk:
+        drive = square(b.random_walk_per_sqrt_s);
+        inv_tau.setZero();
+        break;
+      case BiasModel::GaussMarkov:  // driving noise 2 sigma^2 / T (seed 003)
+        inv_tau = b.gm_tau_s.cwiseInverse();
+        drive = 2.0 * square(b.gm_sigma).cwiseProduct(inv_tau);
+        break;
+      case BiasModel::Constant:
+        drive.setZero();
+        inv_tau.setZero();
+        break;
+    }
+  };
+  bias(c.gyro_bias, q.gyro_bias_drive_var, q.gyro_bias_inv_tau);
+  bias(c.accel_bias, q.accel_bias_drive_var, q.accel_bias_inv_tau);
+  q.clock_bias_var = c.clock_bias_noise_m_per_sqrt_s * c.clock_bias_noise_m_per_sqrt_s;
+  q.clock_drift_var = c.clock_drift_noise_mps_per_sqrt_s * c.clock_drift_noise_mps_per_sqrt_s;
+  return q;
+}
+
+Euler levelled(const Vec3& f_mean) {
+  Euler e;  // at rest f = -g in body axes (forward-right-down)
+  e.roll_rad = std::atan2(-f_mean.y(), -f_mean.z());
+  e.pitch_rad = std::atan2(f_mean.x(), std::hypot(f_mean.y(), f_mean.z()));
+  return e;
+}
+
+}  // namespace
+
+template <int NB, int NC>
+InsFilter<NB, NC>::InsFilter(const InsConfig& cfg) : cfg_(cfg) {
+  core_.noise = noise_of(cfg);
+  dt_nominal_ = 1.0 / cfg.imu_rate_hz;
+  ring_size_ = std::clamp(static_cast<int>(std::lround(cfg.standstill_window_s * cfg.imu_rate_hz)), 4, kRing);
+  const bool gating = cfg.gate_probability > 0.0 && cfg.gate_probability < 1.0;
+  for (int d = 1; d < static_cast<int>(gates_.size()); ++d)
+    gates_[static_cast<std::size_t>(d)] = gating ? chi2_quantile(cfg.gate_probability, d) : 0.0;
+  heading_known_ = std::isfinite(cfg.initial_yaw_rad);
+}
+
+template <int NB, int NC>
+Increment InsFilter<NB, NC>::calibrated(double dt, const Vec3& dtheta, const Vec3& dv) const {
+  Increment inc;
+  inc.dt_s = dt;
+  inc.dtheta_rad = (dtheta - cfg_.gyro_bias_cal_rad_per_s * dt).cwiseQuotient(Vec3::Ones() + cfg_.gyro_scale_factor_cal);
+  inc.dv_mps = (dv - cfg_.accel_bias_cal_mps2 * dt).cwiseQuotient(Vec3::Ones() + cfg_.accel_scale_factor_cal);
+  return inc;
+}
+
+template <int NB, int NC>
+InputStatus InsFilter<NB, NC>::push_fix(const FixInput& fix) {
+  if (!std::isfinite(fix.t_s)) return InputStatus::NonFinite;
+  const bool solution = fix.mode == 2 || fix.mode == 3;
+  if (solution && (!fix.r_ecef_m.allFinite() || !std::isfinite(fix.hdop) || !std::isfinite(fix.vdop)))
+    return InputStatus::NonFinite;
+  if (solution && (fix.hdop <= 0.0 || fix.vdop <= 0.0)) return InputStatus::BadValue;
+  if (have_fix_time_ && fix.t_s < last_fix_t_) return InputStatus::TimeNotIncreasing;
+  have_fix_time_ = true;
+  last_fix_t_ = fix.t_s;
+  ++counters_.fixes;
+  if (!solution) {
+    ++counters_.fixes_without_solution;
+    return InputStatus::Ok;
+  }
+  if (have_time_ && fix.t_s <= t_last_) {
+    // Already past it: use it now (its latency is below one IMU interval when
+    // measurements arrive in order).
+    ++counters_.fixes_late;
+    if (initialised_) process_fix(fix); else ++counters_.fixes_before_alignment;
+    return InputStatus::Ok;
+  }
+  if (pending_count_ == kPending) {  // keep the newest; the oldest is used now
+    const FixInput oldest = pending_[0];
+    std::copy(pending_.begin() + 1, pending_.end(), pending_.begin());
+    --pending_count_;
+    ++counters_.fixes_late;
+    if (initialised_) process_fix(oldest); else ++counters_.fixes_before_alignment;
+  }
+  pending_[static_cast<std::size_t>(pending_count_++)] = fix;
+  return InputStatus::Ok;
+}
+
+template <int NB, int NC>
+InputStatus InsFilter<NB, NC>::push_imu(double t_s, const Vec3& dtheta_rad, const Vec3& dv_mps) {
+  if (!std::isfinite(t_s) || !dtheta_rad.allFinite() || !dv_mps.allFinite()) return InputStatus::NonFinite;
+  if (have_time_ && !(t_s > t_last_)) return InputStatus::TimeNotIncreasing;
+  const double span = have_time_ ? t_s - t_last_ : dt_nominal_;
+  if (span > cfg_.max_gap_s) return InputStatus::GapTooLong;
+  ++counters_.imu_samples;
+  if (!have_time_) {
+    have_time_ = true;
+    t_last_ = t_s - span;
+  }
+
+  // The frame's increments cover its own interval; a longer span means frames
+  // were lost: bridged with the previous rates.
+  const bool gap = span > 1.5 * dt_nominal_;
+  const double dt = gap ? dt_nominal_ : span;
+  const Increment inc = calibrated(dt, dtheta_rad, dv_mps);
+  if (gap) {
+    ++counters_.imu_gaps_bridged;
+    Increment bridge;
+    bridge.dt_s = span - dt;
+    if (last_inc_.dt_s > 0.0) {
+      const double scale = bridge.dt_s / last_inc_.dt_s;
+      bridge.dtheta_rad = last_inc_.dtheta_rad * scale;
+      bridge.dv_mps = last_inc_.dv_mps * scale;
+    }
+    propagate_to(bridge);
+  }
+  const bool was_initialised = initialised_;
+  propagate_to(inc);
+  if (!was_initialised && !initialised_) {
+    level_f_sum_ += inc.dv_mps;
+    level_time_ += inc.dt_s;
+  }
+  last_inc_ = inc;
+  detect_standstill(inc);
+  t_last_ = t_s;
+  return InputStatus::Ok;
+}
+
+// Propagate across `inc`, which starts at t_last_, stopping at every pending
+// fix inside it; t_last_ ends at its end.
+template <int NB, int NC>
+void InsFilter<NB, NC>::propagate_to(const Increment& inc) {
+  Increment rest = inc;
+  while (pending_count_ > 0 && pending_[0].t_s <= t_last_ + rest.dt_s) {
+    const FixInput fix = pending_[0];
+    std::copy(pending_.begin() + 1, pending_.begin() + pending_count_, pending_.begin());
+    --pending_count_;
+    const double frac = std::clamp((fix.t_s - t_last_) / rest.dt_s, 0.0, 1.0);
+    Increment first, second;
+    split_increment(rest, frac, first, second);
+    if (initialised_) core_.propagate(first);
+    t_last_ += first.dt_s;
+    if (initialised_) {
+      process_fix(fix);
+    } else if (level_time_ + first.dt_s >= cfg_.level_time_s - 0.5 * dt_nominal_) {
+      level_f_sum_ += first.dv_mps;
+      level_time_ += first.dt_s;
+      initialise(fix);
+    } else {
+      ++counters_.fixes_before_alignment;
+    }
+    rest = second;
+  }
+  t_last_ += rest.dt_s;
+  if (!initialised_) return;
+  core_.propagate(rest);
+  const double pos_var = core_.P.template block<3, 3>(es::pos, es::pos).trace();
+  if (!std::isfinite(pos_var) || pos_var > 3.0 * cfg_.max_position_sigma_m * cfg_.max_position_sigma_m ||
+      !core_.nav.r_ecef_m.allFinite())
+    counters_.diverged = true;
+}
+
+template <int NB, int NC>
+void InsFilter<NB, NC>::initialise(const FixInput& fix) {
+  const Vec3 f_mean = level_f_sum_ / level_time_;
+  Euler e = levelled(f_mean);
+  e.yaw_rad = heading_known_ ? cfg_.initial_yaw_rad : 0.0;
+  const Geodetic llh = ecef_to_geodetic(fix.r_ecef_m);
+  core_.nav.q_eb = quat_body_to_ecef(e, llh.lat_rad, llh.lon_rad);
+  core_.nav.r_ecef_m = fix.r_ecef_m - core_.nav.q_eb * cfg_.lever_arm_body_m;
+  core_.nav.v_ecef_mps = fix.v_ecef_mps.allFinite() ? fix.v_ecef_mps : Vec3::Zero();
+  core_.nav.t_s = fix.t_s;
+  core_.imu = ImuErrorEstimate{};
+
+  auto& P = core_.P;
+  P.setZero();
+  const Mat3 c_bn = core_.nav.q_eb.toRotationMatrix().transpose() * rot_ned_to_ecef(llh.lat_rad, llh.lon_rad);
+  Vec3 att = cfg_.attitude_sigma_rad;
+  if (!heading_known_) att.z() = M_PI;
+  P.template block<3, 3>(es::att, es::att) = c_bn * square(att).asDiagonal() * c_bn.transpose();
+  P.template block<3, 3>(es::vel, es::vel) = Mat3::Identity() * cfg_.velocity_sigma_mps * cfg_.velocity_sigma_mps;
+  P.template block<3, 3>(es::pos, es::pos) = Mat3::Identity() * cfg_.position_sigma_m * cfg_.position_sigma_m;
+  P.template block<3, 3>(es::bg, es::bg) = square(cfg_.gyro_bias_sigma_rad_per_s).asDiagonal();
+  P.template block<3, 3>(es::ba, es::ba) = square(cfg_.accel_bias_sigma_mps2).asDiagonal();
+  if constexpr (NB == 7) {
+    P.template block<3, 3>(es::sg, es::sg) = square(cfg_.gyro_scale_factor_sigma).asDiagonal();
+    P.template block<3, 3>(es::sa, es::sa) = square(cfg_.accel_scale_factor_sigma).asDiagonal();
+  }
+  if constexpr (NC == 2) {
+    P(Core::kClock, Core::kClock) = cfg_.clock_bias_sigma_m * cfg_.clock_bias_sigma_m;
+    P(Core::kClock + 1, Core::kClock + 1) = cfg_.clock_drift_sigma_mps * cfg_.clock_drift_sigma_mps;
+  }
+  initialised_ = true;
+  have_prev_fix_ = true;
+  prev_fix_ = fix;
+  ++counters_.fixes_accepted;
+}
+
+template <int NB, int NC>
+void InsFilter<NB, NC>::set_heading(double course_rad) {
+  const Geodetic llh = ecef_to_geodetic(core_.nav.r_ecef_m);
+  Euler e = euler_from_body_to_ecef(core_.nav.q_eb, llh.lat_rad, llh.lon_rad);
+  e.yaw_rad = course_rad;
+  core_.nav.q_eb = quat_body_to_ecef(e, llh.lat_rad, llh.lon_rad);
+  // The old attitude covariance described errors about a wrong heading: restart
+  // the attitude block (roll and pitch keep their sigmas) without correlations.
+  auto& P = core_.P;
+  const Mat3 c_bn = core_.nav.q_eb.toRotationMatrix().transpose() * rot_ned_to_ecef(llh.lat_rad, llh.lon_rad);
+  const Mat3 old_ned = c_bn.transpose() * P.template block<3, 3>(es::att, es::att) * c_bn;
+  Vec3 var(old_ned(0, 0), old_ned(1, 1), cfg_.heading_sigma_rad * cfg_.heading_sigma_rad);
+  P.template middleRows<3>(es::att).setZero();
+  P.template middleCols<3>(es::att).setZero();
+  P.template block<3, 3>(es::att, es::att) = c_bn * var.asDiagonal() * c_bn.transpose();
+  heading_known_ = true;
+}
+
+template <int NB, int NC>
+template <int M>
+void InsFilter<NB, NC>::record(int kind, const UpdateResult<M>& r, int dof) {
+  UpdateRecord u;
+  u.t_s = core_.nav.t_s;
+  u.kind = kind;
+  u.dof = dof;
+  u.nis = r.nis;
+  u.gate = gate(dof);
+  u.accepted = r.accepted;
+  u.guarded = r.guarded;
+  u.innovation.fill(std::numeric_limits<double>::quiet_NaN());
+  u.innovation_sigma.fill(std::numeric_limits<double>::quiet_NaN());
+  for (int i = 0; i < M && i < 3; ++i) {
+    u.innovation[static_cast<std::size_t>(i)] = r.innovation(i);
+    u.innovation_sigma[static_cast<std::size_t>(i)] = r.innovation_sigma(i);
+  }
+  if (!r.accepted) ++counters_.updates_rejected;
+  if (r.guarded) ++counters_.updates_guarded;
+  last_update_ = u;
+  if (log_) log_->push_back(u);
+}
+
+template <int NB, int NC>
+void InsFilter<NB, NC>::process_fix(const FixInput& fix) {
+  const Geodetic llh = ecef_to_geodetic(fix.r_ecef_m);
+  const Mat3 c_en = rot_ned_to_ecef(llh.lat_rad, llh.lon_rad);
+
+  // Heading from the course over ground once moving, if not configured.
+  if (!heading_known_) {
+    Vec3 v = fix.v_ecef_mps;
+    if (!v.allFinite() && have_prev_fix_ && fix.t_s - prev_fix_.t_s > 0.0 && fix.t_s - prev_fix_.t_s <= 2.0)
+      v = (fix.r_ecef_m - prev_fix_.r_ecef_m) / (fix.t_s - prev_fix_.t_s);
+    const Vec3 v_ned = c_en.transpose() * v;
+    if (v.allFinite() && std::hypot(v_ned.x(), v_ned.y()) >= cfg_.heading_min_speed_mps) {
+      set_heading(std::atan2(v_ned.y(), v_ned.x()));
+      core_.nav.v_ecef_mps = v;
+      auto& P = core_.P;
+      P.template middleRows<3>(es::vel).setZero();
+      P.template middleCols<3>(es::vel).setZero();
+      P.template block<3, 3>(es::vel, es::vel) = Mat3::Identity() * cfg_.velocity_sigma_mps * cfg_.velocity_sigma_mps;
+    }
+  }
+  prev_fix_ = fix;
+  have_prev_fix_ = true;
+
+  Mat3 r_cov;
+  if ((cfg_.fix_sigma_ecef_m.array() > 0.0).all()) {
+    r_cov = square(cfg_.fix_sigma_ecef_m).asDiagonal();
+  } else {
+    const double sh = cfg_.fix_uere_m * fix.hdop / std::sqrt(2.0), sv = cfg_.fix_uere_m * fix.vdop;
+    r_cov = c_en * Vec3(sh * sh, sh * sh, sv * sv).asDiagonal() * c_en.transpose();
+  }
+  const auto m = position_fix(core_, fix.r_ecef_m, r_cov, cfg_.lever_arm_body_m);
+  bool accepted;
+  if (fix.mode == 3) {
+    const Eigen::Matrix<double, 2, 3> ne = c_en.transpose().template topRows<2>();
+    const auto m2 = project(m, ne);
+    const auto r = core_.update(m2.y, m2.H, m2.R, gate(2));
+    record(kFix2D, r, 2);
+    accepted = r.accepted;
+  } else {
+    const auto r = core_.update(m.y, m.H, m.R, gate(3));
+    record(kFix3D, r, 3);
+    accepted = r.accepted;
+  }
+  ++(accepted ? counters_.fixes_accepted : counters_.fixes_rejected);
+
+  if (cfg_.use_fix_velocity && fix.v_ecef_mps.allFinite() && heading_known_) {
+    const Vec3 w_eb = last_inc_.dtheta_rad / last_inc_.dt_s - core_.imu.gyro_bias_rad_per_s -
+                      core_.nav.q_eb.conjugate() * earth_rate_ecef();
+    const double s = cfg_.fix_velocity_sigma_mps;
+    const auto mv = gnss_velocity(core_, fix.v_ecef_mps, Mat3::Identity() * s * s, cfg_.lever_arm_body_m, w_eb);
+    record(kFixVelocity, core_.update(mv.y, mv.H, mv.R, gate(3)), 3);
+  }
+}
+
+template <int NB, int NC>
+void InsFilter<NB, NC>::detect_standstill(const Increment& inc) {
+  const Vec3 f = inc.dv_mps / inc.dt_s, w = inc.dtheta_rad / inc.dt_s;
+  const auto head = static_cast<std::size_t>(ring_head_);
+  if (ring_count_ == ring_size_) {
+    sum_f_ -= ring_f_[head];
+    sum_f2_ -= square(ring_f_[head]);
+    sum_w_ -= ring_w_[head];
+    sum_w2_ -= square(ring_w_[head]);
+  } else {
+    ++ring_count_;
+  }
+  ring_f_[head] = f;
+  ring_w_[head] = w;
+  sum_f_ += f;
+  sum_f2_ += square(f);
+  sum_w_ += w;
+  sum_w2_ += square(w);
+  ring_head_ = (ring_head_ + 1) % ring_size_;
+
+  standstill_ = false;
+  if (!initialised_ || !cfg_.zero_velocity_updates || ring_count_ < ring_size_) {
+    standstill_run_ = 0;
+    return;
+  }
+  const double n = ring_count_;
+  const Vec3 mean_f = sum_f_ / n, mean_w = sum_w_ / n;
+  const Vec3 var_f = (sum_f2_ / n - square(mean_f)).cwiseMax(0.0);
+  const Vec3 var_w = (sum_w2_ / n - square(mean_w)).cwiseMax(0.0);
+  const Vec3 rate = mean_w - core_.imu.gyro_bias_rad_per_s;
+  const Vec3 earth_b = core_.nav.q_eb.conjugate() * earth_rate_ecef();
+  standstill_ = var_f.maxCoeff() < cfg_.standstill_accel_std_mps2 * cfg_.standstill_accel_std_mps2 &&
+                var_w.maxCoeff() < cfg_.standstill_gyro_std_rad_per_s * cfg_.standstill_gyro_std_rad_per_s &&
+                (rate - earth_b).norm() < cfg_.standstill_gyro_mean_rad_per_s &&
+                core_.nav.v_ecef_mps.norm() < cfg_.standstill_max_speed_mps;
+  if (!standstill_) {
+    standstill_run_ = 0;
+    return;
+  }
+  ++counters_.standstill_samples;
+  ++standstill_run_;
+  // Zero velocity about 8 times per window; zero rate once per full window of
+  // new samples (its mean's noise is independent between windows).
+  if (standstill_run_ % std::max(1, ring_size_ / 4) == 0) {
+    const auto m = zero_velocity(core_, cfg_.zero_velocity_sigma_mps);
+    record(kZeroVelocity, core_.update(m.y, m.H, m.R, gate(3)), 3);
+    ++counters_.zero_velocity_updates;
+  }
+  if (standstill_run_ % ring_size_ == 0) {
+    const double window_s = n * dt_nominal_;
+    const Vec3 var = square(cfg_.gyro_arw_rad_per_sqrt_s) / window_s +
+                     Vec3::Constant(cfg_.zero_rate_sigma_rad_per_s * cfg_.zero_rate_sigma_rad_per_s);
+    const auto m = zero_rate(core_, rate.cwiseQuotient(Vec3::Ones() + core_.imu.gyro_scale_factor), var);
+    record(kZeroRate, core_.update(m.y, m.H, m.R, gate(3)), 3);
+    ++counters_.zero_rate_updates;
+  }
+}
+
+template class InsFilter<5, 0>;
+template class InsFilter<7, 0>;
+template class InsFilter<5, 2>;
+template class InsFilter<7, 2>;
+
+}  // namespace gpsins
