@@ -184,6 +184,7 @@ void InsFilter<NB, NC>::propagate_to(const Increment& inc) {
   t_last_ += rest.dt_s;
   if (!initialised_) return;
   core_.propagate(rest);
+  if (!heading_known_) decouple_yaw();
   const double pos_var = core_.P.template block<3, 3>(es::pos, es::pos).trace();
   if (!std::isfinite(pos_var) || pos_var > 3.0 * cfg_.max_position_sigma_m * cfg_.max_position_sigma_m ||
       !core_.nav.r_ecef_m.allFinite())
@@ -226,21 +227,40 @@ void InsFilter<NB, NC>::initialise(const FixInput& fix) {
   ++counters_.fixes_accepted;
 }
 
+// Until a heading is known its error is anything but small, so the linear
+// model must not couple it to the other states: keep the attitude error about
+// the local vertical uncorrelated and at its initial spread.
 template <int NB, int NC>
-void InsFilter<NB, NC>::set_heading(double course_rad) {
-  const Geodetic llh = ecef_to_geodetic(core_.nav.r_ecef_m);
+void InsFilter<NB, NC>::decouple_yaw() {
+  const Vec3 up_b = core_.nav.q_eb.conjugate() * core_.nav.r_ecef_m.normalized();
+  const Mat3 keep = Mat3::Identity() - up_b * up_b.transpose();
+  auto& P = core_.P;
+  P.template middleRows<3>(es::att) = (keep * P.template middleRows<3>(es::att)).eval();
+  P.template middleCols<3>(es::att) = (P.template middleCols<3>(es::att) * keep).eval();
+  P.template block<3, 3>(es::att, es::att) += up_b * up_b.transpose() * (M_PI * M_PI);
+}
+
+// First heading from the course over ground: the navigation states restart at
+// the fix (what the filter did before, without a heading, is not trustworthy
+// once moving); the IMU error estimates learnt so far are kept.
+template <int NB, int NC>
+void InsFilter<NB, NC>::set_heading(const FixInput& fix, const Vec3& v_ecef, double course_rad) {
+  const Geodetic llh = ecef_to_geodetic(fix.r_ecef_m);
   Euler e = euler_from_body_to_ecef(core_.nav.q_eb, llh.lat_rad, llh.lon_rad);
   e.yaw_rad = course_rad;
-  core_.nav.q_eb = quat_body_to_ecef(e, llh.lat_rad, llh.lon_rad);
-  // The old attitude covariance described errors about a wrong heading: restart
-  // the attitude block (roll and pitch keep their sigmas) without correlations.
   auto& P = core_.P;
+  const Mat3 c_bn_old = core_.nav.q_eb.toRotationMatrix().transpose() * rot_ned_to_ecef(llh.lat_rad, llh.lon_rad);
+  const Mat3 old_ned = c_bn_old.transpose() * P.template block<3, 3>(es::att, es::att) * c_bn_old;
+  core_.nav.q_eb = quat_body_to_ecef(e, llh.lat_rad, llh.lon_rad);
+  core_.nav.r_ecef_m = fix.r_ecef_m - core_.nav.q_eb * cfg_.lever_arm_body_m;
+  core_.nav.v_ecef_mps = v_ecef;
+  P.template topRows<9>().setZero();
+  P.template leftCols<9>().setZero();
   const Mat3 c_bn = core_.nav.q_eb.toRotationMatrix().transpose() * rot_ned_to_ecef(llh.lat_rad, llh.lon_rad);
-  const Mat3 old_ned = c_bn.transpose() * P.template block<3, 3>(es::att, es::att) * c_bn;
-  Vec3 var(old_ned(0, 0), old_ned(1, 1), cfg_.heading_sigma_rad * cfg_.heading_sigma_rad);
-  P.template middleRows<3>(es::att).setZero();
-  P.template middleCols<3>(es::att).setZero();
+  const Vec3 var(old_ned(0, 0), old_ned(1, 1), cfg_.heading_sigma_rad * cfg_.heading_sigma_rad);
   P.template block<3, 3>(es::att, es::att) = c_bn * var.asDiagonal() * c_bn.transpose();
+  P.template block<3, 3>(es::vel, es::vel) = Mat3::Identity() * cfg_.velocity_sigma_mps * cfg_.velocity_sigma_mps;
+  P.template block<3, 3>(es::pos, es::pos) = Mat3::Identity() * cfg_.position_sigma_m * cfg_.position_sigma_m;
   heading_known_ = true;
 }
 
@@ -261,6 +281,7 @@ void InsFilter<NB, NC>::record(int kind, const UpdateResult<M>& r, int dof) {
     u.innovation[static_cast<std::size_t>(i)] = r.innovation(i);
     u.innovation_sigma[static_cast<std::size_t>(i)] = r.innovation_sigma(i);
   }
+  if (!heading_known_ && initialised_) decouple_yaw();
   if (!r.accepted) ++counters_.updates_rejected;
   if (r.guarded) ++counters_.updates_guarded;
   last_update_ = u;
@@ -278,14 +299,8 @@ void InsFilter<NB, NC>::process_fix(const FixInput& fix) {
     if (!v.allFinite() && have_prev_fix_ && fix.t_s - prev_fix_.t_s > 0.0 && fix.t_s - prev_fix_.t_s <= 2.0)
       v = (fix.r_ecef_m - prev_fix_.r_ecef_m) / (fix.t_s - prev_fix_.t_s);
     const Vec3 v_ned = c_en.transpose() * v;
-    if (v.allFinite() && std::hypot(v_ned.x(), v_ned.y()) >= cfg_.heading_min_speed_mps) {
-      set_heading(std::atan2(v_ned.y(), v_ned.x()));
-      core_.nav.v_ecef_mps = v;
-      auto& P = core_.P;
-      P.template middleRows<3>(es::vel).setZero();
-      P.template middleCols<3>(es::vel).setZero();
-      P.template block<3, 3>(es::vel, es::vel) = Mat3::Identity() * cfg_.velocity_sigma_mps * cfg_.velocity_sigma_mps;
-    }
+    if (v.allFinite() && std::hypot(v_ned.x(), v_ned.y()) >= cfg_.heading_min_speed_mps)
+      set_heading(fix, v, std::atan2(v_ned.y(), v_ned.x()));
   }
   prev_fix_ = fix;
   have_prev_fix_ = true;
@@ -373,7 +388,10 @@ void InsFilter<NB, NC>::detect_standstill(const Increment& inc) {
     const double window_s = n * dt_nominal_;
     const Vec3 var = square(cfg_.gyro_arw_rad_per_sqrt_s) / window_s +
                      Vec3::Constant(cfg_.zero_rate_sigma_rad_per_s * cfg_.zero_rate_sigma_rad_per_s);
-    const auto m = zero_rate(core_, rate.cwiseQuotient(Vec3::Ones() + core_.imu.gyro_scale_factor), var);
+    auto m = zero_rate(core_, rate.cwiseQuotient(Vec3::Ones() + core_.imu.gyro_scale_factor), var);
+    // Without a heading the attitude coupling (Earth rate seen through a wrong
+    // yaw) is far outside the linear range: use the update for the biases only.
+    if (!heading_known_) m.H.template middleCols<3>(es::att).setZero();
     record(kZeroRate, core_.update(m.y, m.H, m.R, gate(3)), 3);
     ++counters_.zero_rate_updates;
   }

@@ -104,7 +104,8 @@ class InsFilter {
   void propagate_to(const Increment& inc);
   void process_fix(const FixInput& fix);
   void initialise(const FixInput& fix);
-  void set_heading(double course_rad);
+  void decouple_yaw();
+  void set_heading(const FixInput& fix, const Vec3& v_ecef, double course_rad);
   void detect_standstill(const Increment& inc);
   template <int M>
   void record(int kind, const UpdateResult<M>& r, int dof);

@@ -55,3 +55,38 @@ def simulate(sc: Scenario, seed: int = 0) -> Simulation:
     g = gnss.simulate(sc, tr, np.random.default_rng([seed, 2]))
     return Simulation(sc, seed, tr, rate, tr.t[trajectory.SUBSTEPS::trajectory.SUBSTEPS], dtheta, dv, mth, mdv,
                       errors, g)
+
+
+def imu_table(s: Simulation) -> np.ndarray:
+    """(n, 7) [t, dtheta xyz, dv xyz]: the unit's increments on the true time line."""
+    return np.column_stack([s.imu_t, s.imu_dtheta, s.imu_dv])
+
+
+def fix_table(s: Simulation) -> np.ndarray:
+    """(m, 10) [t, r xyz, v xyz, hdop, vdop, mode]: the receiver's fixes on the true time line."""
+    return np.array([[f.t, *f.r_ecef, *f.v_ecef, f.hdop, f.vdop, f.mode] for f in s.gnss.fixes]).reshape(-1, 10)
+
+
+NOISE_KEYS = ("gyro_arw_rad_per_sqrt_s", "gyro_bias_instability_rad_per_s", "gyro_rrw_rad_per_s_sqrt_s",
+              "accel_vrw_mps_per_sqrt_s", "accel_bias_instability_mps2", "accel_rrw_mps2_per_sqrt_s")
+
+
+def imu_noise_truth(model) -> dict:
+    """The drawn unit's noise coefficients and turn-on residuals, named as the filter's
+    configuration names them (``[imu_noise]`` and ``*_bias_residual_*``).
+
+    ``model``: the scenario's ImuModel, or the ``imu`` table of a truth file's model.
+    """
+    get = model.get if isinstance(model, dict) else lambda k: getattr(model, k)
+    noise = {k: [float(x) for x in get(k)] for k in NOISE_KEYS}
+    terms = get("terms")
+    for flag, keys in (("white_noise", ("gyro_arw_rad_per_sqrt_s", "accel_vrw_mps_per_sqrt_s")),
+                       ("bias_instability", ("gyro_bias_instability_rad_per_s", "accel_bias_instability_mps2")),
+                       ("rate_random_walk", ("gyro_rrw_rad_per_s_sqrt_s", "accel_rrw_mps2_per_sqrt_s"))):
+        if not terms[flag]:
+            for k in keys:
+                noise[k] = [0.0, 0.0, 0.0]
+    on = terms["turn_on_bias"]
+    return {"imu_noise": noise,
+            "gyro_bias_residual_rad_per_s": float(get("gyro_bias_residual_rad_per_s")) if on else 0.0,
+            "accel_bias_residual_mps2": float(get("accel_bias_residual_mps2")) if on else 0.0}

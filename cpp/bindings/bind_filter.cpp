@@ -1,0 +1,352 @@
+// pybind11 face of the integrated filter: InsConfig, a streaming InsFilter and
+// a batch run() that loops in C++ over NumPy arrays. Input errors raise
+// ValueError naming the array, the row and the reason.
+#include <pybind11/eigen.h>
+#include <pybind11/numpy.h>
+#include <pybind11/pybind11.h>
+
+#include <string>
+#include <variant>
+#include <vector>
+
+#include "gpsins/ins_filter.hpp"
+
+namespace py = pybind11;
+using namespace gpsins;
+
+namespace {
+
+using Array = py::array_t<double, py::array::c_style | py::array::forcecast>;
+using AnyFilter = std::variant<InsFilter<5, 0>, InsFilter<7, 0>, InsFilter<5, 2>, InsFilter<7, 2>>;
+
+AnyFilter make_filter(const InsConfig& cfg, bool tight) {
+  if (tight) {
+    if (cfg.scale_factor_states) return InsFilter<7, 2>(cfg);
+    return InsFilter<5, 2>(cfg);
+  }
+  if (cfg.scale_factor_states) return InsFilter<7, 0>(cfg);
+  return InsFilter<5, 0>(cfg);
+}
+
+constexpr int kImuCols = 7;   // t, dtheta xyz, dv xyz
+constexpr int kFixCols = 10;  // t, r xyz, v xyz, hdop, vdop, mode
+
+FixInput fix_of(const double* p) {
+  FixInput f;
+  f.t_s = p[0];
+  f.r_ecef_m = Vec3(p[1], p[2], p[3]);
+  f.v_ecef_mps = Vec3(p[4], p[5], p[6]);
+  f.hdop = p[7];
+  f.vdop = p[8];
+  f.mode = std::isfinite(p[9]) ? static_cast<int>(p[9]) : 0;
+  return f;
+}
+
+[[noreturn]] void input_error(const char* what, py::ssize_t row, double t, InputStatus s) {
+  throw py::value_error(std::string(what) + " row " + std::to_string(row) + " (t = " + std::to_string(t) +
+                        " s): " + input_status_text(s));
+}
+
+Array table(py::handle obj, int cols, const char* name) {
+  Array a = Array::ensure(obj);
+  if (!a) throw py::type_error(std::string(name) + ": not convertible to a float array");
+  if (a.ndim() != 2 || a.shape(1) != cols)
+    throw py::value_error(std::string(name) + ": expected shape (n, " + std::to_string(cols) + "), got ndim " +
+                          std::to_string(a.ndim()) + (a.ndim() == 2 ? ", " + std::to_string(a.shape(1)) + " columns" : ""));
+  return a;
+}
+
+py::dict counters_dict(const Counters& c) {
+  py::dict d;
+  d["imu_samples"] = c.imu_samples;
+  d["imu_gaps_bridged"] = c.imu_gaps_bridged;
+  d["fixes"] = c.fixes;
+  d["fixes_accepted"] = c.fixes_accepted;
+  d["fixes_rejected"] = c.fixes_rejected;
+  d["fixes_without_solution"] = c.fixes_without_solution;
+  d["fixes_before_alignment"] = c.fixes_before_alignment;
+  d["fixes_late"] = c.fixes_late;
+  d["zero_velocity_updates"] = c.zero_velocity_updates;
+  d["zero_rate_updates"] = c.zero_rate_updates;
+  d["updates_rejected"] = c.updates_rejected;
+  d["updates_guarded"] = c.updates_guarded;
+  d["standstill_samples"] = c.standstill_samples;
+  d["diverged"] = c.diverged;
+  return d;
+}
+
+py::dict update_dict(const UpdateRecord& u) {
+  py::dict d;
+  d["t"] = u.t_s;
+  d["kind"] = u.kind;
+  d["id"] = u.id;
+  d["dof"] = u.dof;
+  d["nis"] = u.nis;
+  d["gate"] = u.gate;
+  d["accepted"] = u.accepted;
+  d["guarded"] = u.guarded;
+  d["innovation"] = py::make_tuple(u.innovation[0], u.innovation[1], u.innovation[2]);
+  d["innovation_sigma"] = py::make_tuple(u.innovation_sigma[0], u.innovation_sigma[1], u.innovation_sigma[2]);
+  return d;
+}
+
+// Row layout of a batch's state output.
+template <int NB, int NC>
+struct StateRow {
+  static constexpr int N = 3 * NB + NC;
+  static constexpr int kCols = 1 + 3 + 3 + 4 + 3 + 3 + (NB == 7 ? 6 : 0) + NC + N + 1;
+  static void write(const InsFilter<NB, NC>& f, double* o) {
+    const auto& e = f.core();
+    int k = 0;
+    o[k++] = e.nav.t_s;
+    for (int i = 0; i < 3; ++i) o[k++] = e.nav.r_ecef_m(i);
+    for (int i = 0; i < 3; ++i) o[k++] = e.nav.v_ecef_mps(i);
+    o[k++] = e.nav.q_eb.w();
+    o[k++] = e.nav.q_eb.x();
+    o[k++] = e.nav.q_eb.y();
+    o[k++] = e.nav.q_eb.z();
+    for (int i = 0; i < 3; ++i) o[k++] = e.imu.gyro_bias_rad_per_s(i);
+    for (int i = 0; i < 3; ++i) o[k++] = e.imu.accel_bias_mps2(i);
+    if constexpr (NB == 7) {
+      for (int i = 0; i < 3; ++i) o[k++] = e.imu.gyro_scale_factor(i);
+      for (int i = 0; i < 3; ++i) o[k++] = e.imu.accel_scale_factor(i);
+    }
+    if constexpr (NC == 2) {
+      o[k++] = e.clock(0);
+      o[k++] = e.clock(1);
+    }
+    const auto s = e.sigma();
+    for (int i = 0; i < N; ++i) o[k++] = s(i);
+    o[k++] = (f.standstill() ? 1.0 : 0.0) + (f.heading_known() ? 2.0 : 0.0);  // flags
+  }
+};
+
+Array from_rows(const std::vector<double>& v, py::ssize_t cols) {
+  const py::ssize_t n = static_cast<py::ssize_t>(v.size()) / cols;
+  Array a({n, cols});
+  std::copy(v.begin(), v.end(), a.mutable_data());
+  return a;
+}
+
+template <int NB, int NC>
+py::dict run_batch(InsFilter<NB, NC>& f, const Array& imu, const Array& fixes, int output_every, bool with_cov) {
+  using Row = StateRow<NB, NC>;
+  const py::ssize_t n = imu.shape(0), m = fixes.shape(0);
+  std::vector<double> rows;
+  rows.reserve(static_cast<std::size_t>((n / output_every + 1) * Row::kCols));
+  constexpr int N = Row::N;
+  std::vector<double> covs;
+  if (with_cov) covs.reserve(static_cast<std::size_t>((n / output_every + 1) * N * N));
+  std::vector<UpdateRecord> log;
+  log.reserve(static_cast<std::size_t>(m * 2 + n / 8 + 16));
+  f.set_update_log(&log);
+  const double* pi = imu.data();
+  const double* pf = fixes.data();
+  py::ssize_t j = 0, bad_row = -1;
+  const char* bad_what = nullptr;
+  double bad_t = 0.0;
+  InputStatus bad = InputStatus::Ok;
+  {
+    py::gil_scoped_release release;
+    for (py::ssize_t k = 0; k < n && bad == InputStatus::Ok; ++k) {
+      const double* r = pi + k * kImuCols;
+      // Fixes up to this sample's time go first: the filter holds them until the
+      // increment that spans their time arrives, and splits it there.
+      while (j < m && pf[j * kFixCols] <= r[0]) {
+        const InputStatus s = f.push_fix(fix_of(pf + j * kFixCols));
+        if (s != InputStatus::Ok) {
+          bad = s; bad_row = j; bad_what = "fixes"; bad_t = pf[j * kFixCols];
+          break;
+        }
+        ++j;
+      }
+      if (bad != InputStatus::Ok) break;
+      const InputStatus s = f.push_imu(r[0], Vec3(r[1], r[2], r[3]), Vec3(r[4], r[5], r[6]));
+      if (s != InputStatus::Ok) {
+        bad = s; bad_row = k; bad_what = "imu"; bad_t = r[0];
+        break;
+      }
+      if (f.initialised() && k % output_every == 0) {
+        const std::size_t at = rows.size();
+        rows.resize(at + Row::kCols);
+        Row::write(f, rows.data() + at);
+        if (with_cov) {
+          const std::size_t c0 = covs.size();
+          covs.resize(c0 + N * N);
+          Eigen::Map<Eigen::Matrix<double, N, N, Eigen::RowMajor>>(covs.data() + c0) = f.core().P;
+        }
+      }
+    }
+  }
+  f.set_update_log(nullptr);
+  if (bad != InputStatus::Ok) input_error(bad_what, bad_row, bad_t, bad);
+
+  py::dict out;
+  out["state"] = from_rows(rows, Row::kCols);
+  if (with_cov) {
+    Array cov({static_cast<py::ssize_t>(covs.size() / (N * N)), py::ssize_t(N), py::ssize_t(N)});
+    std::copy(covs.begin(), covs.end(), cov.mutable_data());
+    out["covariance"] = cov;
+  }
+  const auto nu = static_cast<py::ssize_t>(log.size());
+  Array ut({nu}), nis({nu}), gate({nu}), innov({nu, py::ssize_t(3)}), isig({nu, py::ssize_t(3)});
+  py::array_t<int> kind({nu}), id({nu}), dof({nu});
+  py::array_t<bool> acc({nu}), guarded({nu});
+  for (py::ssize_t i = 0; i < nu; ++i) {
+    const auto& u = log[static_cast<std::size_t>(i)];
+    ut.mutable_at(i) = u.t_s;
+    nis.mutable_at(i) = u.nis;
+    gate.mutable_at(i) = u.gate;
+    kind.mutable_at(i) = u.kind;
+    id.mutable_at(i) = u.id;
+    dof.mutable_at(i) = u.dof;
+    acc.mutable_at(i) = u.accepted;
+    guarded.mutable_at(i) = u.guarded;
+    for (py::ssize_t c = 0; c < 3; ++c) {
+      innov.mutable_at(i, c) = u.innovation[static_cast<std::size_t>(c)];
+      isig.mutable_at(i, c) = u.innovation_sigma[static_cast<std::size_t>(c)];
+    }
+  }
+  py::dict upd;
+  upd["t"] = ut;
+  upd["kind"] = kind;
+  upd["id"] = id;
+  upd["dof"] = dof;
+  upd["nis"] = nis;
+  upd["gate"] = gate;
+  upd["accepted"] = acc;
+  upd["guarded"] = guarded;
+  upd["innovation"] = innov;
+  upd["innovation_sigma"] = isig;
+  out["updates"] = upd;
+  out["counters"] = counters_dict(f.counters());
+  out["fixes_after_end"] = m - j;
+  out["n_states"] = NB * 3 + NC;
+  return out;
+}
+
+class PyFilter {
+ public:
+  PyFilter(const InsConfig& cfg, const std::string& mode) : f_(make_filter(cfg, parse_mode(mode))) {}
+
+  static bool parse_mode(const std::string& mode) {
+    if (mode == "loose") return false;
+    if (mode == "tight") return true;
+    throw py::value_error("mode must be 'loose' or 'tight', got '" + mode + "'");
+  }
+
+  void push_imu(double t, const Vec3& dtheta, const Vec3& dv) {
+    const InputStatus s = std::visit([&](auto& f) { return f.push_imu(t, dtheta, dv); }, f_);
+    if (s != InputStatus::Ok) input_error("imu", imu_count_, t, s);
+    ++imu_count_;
+  }
+  void push_fix(double t, const Vec3& r, const Vec3& v, double hdop, double vdop, int mode) {
+    FixInput fix;
+    fix.t_s = t;
+    fix.r_ecef_m = r;
+    fix.v_ecef_mps = v;
+    fix.hdop = hdop;
+    fix.vdop = vdop;
+    fix.mode = mode;
+    const InputStatus s = std::visit([&](auto& f) { return f.push_fix(fix); }, f_);
+    if (s != InputStatus::Ok) input_error("fix", fix_count_, t, s);
+    ++fix_count_;
+  }
+  py::dict run(py::handle imu, py::handle fixes, int output_every, bool with_cov) {
+    if (output_every < 1) throw py::value_error("output_every must be >= 1");
+    const Array a = table(imu, kImuCols, "imu"), b = table(fixes, kFixCols, "fixes");
+    return std::visit([&](auto& f) { return run_batch(f, a, b, output_every, with_cov); }, f_);
+  }
+
+  template <class G>
+  auto with(G&& g) const { return std::visit([&](const auto& f) { return g(f); }, f_); }
+
+ private:
+  AnyFilter f_;
+  py::ssize_t imu_count_ = 0, fix_count_ = 0;
+};
+
+}  // namespace
+
+void bind_filter(py::module_& m) {
+  py::enum_<BiasModel>(m, "BiasModel")
+      .value("random_walk", BiasModel::RandomWalk)
+      .value("gauss_markov", BiasModel::GaussMarkov)
+      .value("constant", BiasModel::Constant);
+
+  py::class_<BiasConfig>(m, "BiasConfig")
+      .def(py::init<>())
+      .def_readwrite("model", &BiasConfig::model)
+      .def_readwrite("random_walk_per_sqrt_s", &BiasConfig::random_walk_per_sqrt_s)
+      .def_readwrite("gm_sigma", &BiasConfig::gm_sigma)
+      .def_readwrite("gm_tau_s", &BiasConfig::gm_tau_s);
+
+  py::class_<InsConfig> c(m, "InsConfig", "Filter configuration (see gpsins.filter for the TOML names).");
+  c.def(py::init<>());
+#define GPSINS_FIELD(name) c.def_readwrite(#name, &InsConfig::name)
+  GPSINS_FIELD(imu_rate_hz);
+  GPSINS_FIELD(max_gap_s);
+  GPSINS_FIELD(gyro_bias_cal_rad_per_s);
+  GPSINS_FIELD(accel_bias_cal_mps2);
+  GPSINS_FIELD(gyro_scale_factor_cal);
+  GPSINS_FIELD(accel_scale_factor_cal);
+  GPSINS_FIELD(gyro_arw_rad_per_sqrt_s);
+  GPSINS_FIELD(accel_vrw_mps_per_sqrt_s);
+  GPSINS_FIELD(gyro_bias);
+  GPSINS_FIELD(accel_bias);
+  GPSINS_FIELD(scale_factor_states);
+  GPSINS_FIELD(gyro_scale_factor_sigma);
+  GPSINS_FIELD(accel_scale_factor_sigma);
+  GPSINS_FIELD(attitude_sigma_rad);
+  GPSINS_FIELD(velocity_sigma_mps);
+  GPSINS_FIELD(position_sigma_m);
+  GPSINS_FIELD(gyro_bias_sigma_rad_per_s);
+  GPSINS_FIELD(accel_bias_sigma_mps2);
+  GPSINS_FIELD(clock_bias_sigma_m);
+  GPSINS_FIELD(clock_drift_sigma_mps);
+  GPSINS_FIELD(clock_bias_noise_m_per_sqrt_s);
+  GPSINS_FIELD(clock_drift_noise_mps_per_sqrt_s);
+  GPSINS_FIELD(level_time_s);
+  GPSINS_FIELD(initial_yaw_rad);
+  GPSINS_FIELD(heading_min_speed_mps);
+  GPSINS_FIELD(heading_sigma_rad);
+  GPSINS_FIELD(lever_arm_body_m);
+  GPSINS_FIELD(fix_uere_m);
+  GPSINS_FIELD(fix_sigma_ecef_m);
+  GPSINS_FIELD(use_fix_velocity);
+  GPSINS_FIELD(fix_velocity_sigma_mps);
+  GPSINS_FIELD(zero_velocity_updates);
+  GPSINS_FIELD(standstill_window_s);
+  GPSINS_FIELD(standstill_accel_std_mps2);
+  GPSINS_FIELD(standstill_gyro_std_rad_per_s);
+  GPSINS_FIELD(standstill_gyro_mean_rad_per_s);
+  GPSINS_FIELD(standstill_max_speed_mps);
+  GPSINS_FIELD(zero_velocity_sigma_mps);
+  GPSINS_FIELD(zero_rate_sigma_rad_per_s);
+  GPSINS_FIELD(gate_probability);
+  GPSINS_FIELD(max_position_sigma_m);
+#undef GPSINS_FIELD
+
+  py::class_<PyFilter>(m, "InsFilter", "Streaming integrated navigation filter (one IMU sample or fix at a time).")
+      .def(py::init<const InsConfig&, const std::string&>(), py::arg("config"), py::arg("mode") = "loose")
+      .def("push_imu", &PyFilter::push_imu, py::arg("t"), py::arg("dtheta"), py::arg("dv"))
+      .def("push_fix", &PyFilter::push_fix, py::arg("t"), py::arg("r_ecef"), py::arg("v_ecef"), py::arg("hdop"),
+           py::arg("vdop"), py::arg("mode") = 2)
+      .def("run", &PyFilter::run, py::arg("imu"), py::arg("fixes"), py::arg("output_every") = 1, py::arg("covariance") = false,
+           "Batch: imu (n, 7) [t, dtheta xyz, dv xyz], fixes (m, 10) [t, r xyz, v xyz, hdop, vdop, mode].")
+      .def_property_readonly("initialised", [](const PyFilter& p) { return p.with([](const auto& f) { return f.initialised(); }); })
+      .def_property_readonly("standstill", [](const PyFilter& p) { return p.with([](const auto& f) { return f.standstill(); }); })
+      .def_property_readonly("n_states", [](const PyFilter& p) { return p.with([](const auto& f) { return static_cast<int>(f.N); }); })
+      .def_property_readonly("t", [](const PyFilter& p) { return p.with([](const auto& f) { return f.core().nav.t_s; }); })
+      .def_property_readonly("r_ecef", [](const PyFilter& p) { return p.with([](const auto& f) { return Vec3(f.core().nav.r_ecef_m); }); })
+      .def_property_readonly("v_ecef", [](const PyFilter& p) { return p.with([](const auto& f) { return Vec3(f.core().nav.v_ecef_mps); }); })
+      .def_property_readonly("q_eb", [](const PyFilter& p) {
+        return p.with([](const auto& f) { const Quat& q = f.core().nav.q_eb; return Eigen::Vector4d(q.w(), q.x(), q.y(), q.z()); }); })
+      .def_property_readonly("gyro_bias", [](const PyFilter& p) { return p.with([](const auto& f) { return Vec3(f.core().imu.gyro_bias_rad_per_s); }); })
+      .def_property_readonly("accel_bias", [](const PyFilter& p) { return p.with([](const auto& f) { return Vec3(f.core().imu.accel_bias_mps2); }); })
+      .def_property_readonly("clock", [](const PyFilter& p) { return p.with([](const auto& f) { return Eigen::Vector2d(f.core().clock); }); })
+      .def_property_readonly("covariance", [](const PyFilter& p) {
+        return p.with([](const auto& f) { return Eigen::MatrixXd(f.core().P); }); })
+      .def_property_readonly("counters", [](const PyFilter& p) { return p.with([](const auto& f) { return counters_dict(f.counters()); }); })
+      .def_property_readonly("last_update", [](const PyFilter& p) { return p.with([](const auto& f) { return update_dict(f.last_update()); }); });
+}

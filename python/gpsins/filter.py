@@ -1,0 +1,297 @@
+"""The integrated navigation filter from Python: configuration and batch runs.
+
+A configuration is a TOML table whose keys are the core's `InsConfig` names
+(units in the names), plus a few conveniences:
+
+- ``preset = "default" | "report2005"`` starts from a bundled preset
+  (``gpsins/presets/*.toml``); the file's own keys then override it.
+- ``*_deg`` keys (``attitude_sigma_deg``, ``initial_yaw_deg``, ``heading_sigma_deg``)
+  are converted to the radian fields.
+- ``[imu_noise]`` holds the IMU's Allan coefficients (what ``gpsins allan``
+  reports, or what the simulator drew): white noise N gives the continuous
+  density V = N^2; bias instability B and rate random walk K give a random-walk
+  bias (see ``bias_models``). A Gauss-Markov process with stationary sigma s has
+  an Allan-deviation peak of 0.617 s (seed 000, ERRATA), so s = 0.664 B / 0.617
+  matches the flat floor 0.664 B; its short-term wander 2 s^2 / T, with T =
+  ``bias_tau_s``, plus K^2 drives the random walk.
+- ``gyro_bias_residual_rad_per_s`` / ``accel_bias_residual_mps2``: turn-on bias
+  left after calibration; P0 of the bias states is this plus the process spread.
+- ``[gyro_bias]`` / ``[accel_bias]``: explicit bias models (``model`` =
+  random_walk | gauss_markov | constant) override what [imu_noise] gives.
+
+Vector fields take three numbers or one (used for every axis). Unknown keys are
+errors naming the source and the key.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+from . import _core
+
+PRESETS = ("default", "report2005")
+IMU_COLUMNS = ("t", "dtheta_x", "dtheta_y", "dtheta_z", "dv_x", "dv_y", "dv_z")
+FIX_COLUMNS = ("t", "x", "y", "z", "vx", "vy", "vz", "hdop", "vdop", "mode")
+UPDATE_KINDS = {1: "fix_3d", 2: "fix_2d", 3: "fix_velocity", 4: "zero_velocity", 5: "zero_rate", 6: "pseudorange"}
+
+GM_PEAK_PER_SIGMA = 0.617  # ADEV peak of a Gauss-Markov process / its stationary sigma
+FLAT_PER_B = 0.664  # ADEV floor of bias instability B
+
+_DEGREE_KEYS = {"attitude_sigma_deg": "attitude_sigma_rad", "initial_yaw_deg": "initial_yaw_rad",
+                "heading_sigma_deg": "heading_sigma_rad"}
+_EXTRA_KEYS = {"preset", "mode", "imu_noise", "gyro_bias_residual_rad_per_s", "accel_bias_residual_mps2"}
+_NOISE_KEYS = {"gyro_arw_rad_per_sqrt_s", "gyro_bias_instability_rad_per_s", "gyro_rrw_rad_per_s_sqrt_s",
+               "accel_vrw_mps_per_sqrt_s", "accel_bias_instability_mps2", "accel_rrw_mps2_per_sqrt_s", "bias_tau_s"}
+_BIAS_KEYS = {"model", "random_walk_per_sqrt_s", "gm_sigma", "gm_tau_s"}
+
+
+class ConfigError(ValueError):
+    pass
+
+
+def _core_fields() -> set[str]:
+    return {k for k in dir(_core.InsConfig()) if not k.startswith("_")}
+
+
+def _preset(name: str) -> dict:
+    if name not in PRESETS:
+        raise ConfigError(f"unknown preset '{name}' (known: {', '.join(PRESETS)})")
+    text = resources.files(__package__).joinpath("presets", f"{name}.toml").read_text("utf-8")
+    return tomllib.loads(text)
+
+
+def _merge(base: dict, over: dict) -> dict:
+    out = dict(base)
+    for k, v in over.items():
+        out[k] = _merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+    return out
+
+
+def load_config(source: str | Path | dict | None = None, overrides: dict | None = None) -> dict:
+    """The full configuration table: a preset name, a TOML file, or a dict, then overrides.
+
+    A file or dict without ``preset`` starts from ``default``.
+    """
+    if source is None:
+        data, where = {}, "<defaults>"
+    elif isinstance(source, dict):
+        data, where = dict(source), "<dict>"
+    elif str(source) in PRESETS and not Path(str(source)).suffix:
+        data, where = {"preset": str(source)}, f"preset {source}"
+    else:
+        path = Path(source)
+        try:
+            data = tomllib.loads(path.read_text(encoding="utf-8"))
+        except (OSError, tomllib.TOMLDecodeError) as e:
+            raise ConfigError(f"{path}: {e}") from e
+        data = data.get("filter", data)
+        where = str(path)
+    cfg = _merge(_preset(data.get("preset", "default")), data)
+    cfg["preset"] = data.get("preset", "default")
+    if overrides:
+        cfg = _merge(cfg, overrides)
+    check_config(cfg, where)
+    return cfg
+
+
+def check_config(cfg: dict, where: str = "<config>") -> None:
+    allowed = _core_fields() | set(_DEGREE_KEYS) | _EXTRA_KEYS
+    unknown = sorted(set(cfg) - allowed)
+    if unknown:
+        raise ConfigError(f"{where}: unknown key(s) {', '.join(unknown)}")
+    bad = sorted(set(cfg.get("imu_noise", {})) - _NOISE_KEYS)
+    if bad:
+        raise ConfigError(f"{where}: unknown key(s) in [imu_noise]: {', '.join(bad)}")
+    for sec in ("gyro_bias", "accel_bias"):
+        if sec in cfg and not isinstance(cfg[sec], dict):
+            raise ConfigError(f"{where}: [{sec}] must be a table")
+        bad = sorted(set(cfg.get(sec, {})) - _BIAS_KEYS)
+        if bad:
+            raise ConfigError(f"{where}: unknown key(s) in [{sec}]: {', '.join(bad)}")
+    if cfg.get("mode", "loose") not in ("loose", "tight"):
+        raise ConfigError(f"{where}: mode must be 'loose' or 'tight', got {cfg.get('mode')!r}")
+
+
+def _vec3(value, key: str) -> np.ndarray:
+    v = np.broadcast_to(np.asarray(value, dtype=float), (3,)) if np.ndim(value) <= 1 else None
+    if v is None or not np.all(np.isfinite(v)):
+        raise ConfigError(f"{key}: expected one or three finite numbers, got {value!r}")
+    return v.copy()
+
+
+def bias_models(noise: dict, tau_s: float) -> tuple[dict, dict, np.ndarray, np.ndarray]:
+    """Random-walk bias models from Allan coefficients; also the bias spread they stand for.
+
+    The bias state carries the turn-on residual (constant) plus the drift, so it
+    must not decay: a random walk whose driving noise is K^2 plus the short-term
+    wander of a Gauss-Markov process standing for the bias instability
+    (2 s^2 / T, s = 0.664 B / 0.617, T = bias_tau_s).
+    """
+    out, sig = [], []
+    for b_key, k_key in (("gyro_bias_instability_rad_per_s", "gyro_rrw_rad_per_s_sqrt_s"),
+                         ("accel_bias_instability_mps2", "accel_rrw_mps2_per_sqrt_s")):
+        s_bi = FLAT_PER_B / GM_PEAK_PER_SIGMA * _vec3(noise.get(b_key, 0.0), b_key)
+        k = _vec3(noise.get(k_key, 0.0), k_key)
+        drive = k ** 2 + 2.0 * s_bi ** 2 / tau_s
+        out.append({"model": "random_walk", "random_walk_per_sqrt_s": np.sqrt(drive).tolist()})
+        sig.append(s_bi)
+    return out[0], out[1], sig[0], sig[1]
+
+
+def core_config(cfg: dict) -> _core.InsConfig:
+    """The C++ InsConfig for a configuration table (see the module doc)."""
+    c = _core.InsConfig()
+    fields = _core_fields()
+    table = dict(cfg)
+    noise = table.pop("imu_noise", None)
+    gyro_residual = table.pop("gyro_bias_residual_rad_per_s", None)
+    accel_residual = table.pop("accel_bias_residual_mps2", None)
+    for k in ("preset", "mode"):
+        table.pop(k, None)
+    for deg, rad in _DEGREE_KEYS.items():
+        if deg in table:
+            value = table.pop(deg)
+            table[rad] = np.radians(value).tolist() if np.ndim(value) else math.radians(value)
+
+    if noise:
+        tau = float(noise.get("bias_tau_s", 100.0))
+        gb, ab, g_sig, a_sig = bias_models(noise, tau)
+        table.setdefault("gyro_arw_rad_per_sqrt_s", noise.get("gyro_arw_rad_per_sqrt_s"))
+        table.setdefault("accel_vrw_mps_per_sqrt_s", noise.get("accel_vrw_mps_per_sqrt_s"))
+        table["gyro_bias"] = {**gb, **table.get("gyro_bias", {})}
+        table["accel_bias"] = {**ab, **table.get("accel_bias", {})}
+        if gyro_residual is not None:
+            table.setdefault("gyro_bias_sigma_rad_per_s", np.hypot(_vec3(gyro_residual, "gyro"), g_sig).tolist())
+        if accel_residual is not None:
+            table.setdefault("accel_bias_sigma_mps2", np.hypot(_vec3(accel_residual, "accel"), a_sig).tolist())
+    else:
+        if gyro_residual is not None:
+            table.setdefault("gyro_bias_sigma_rad_per_s", gyro_residual)
+        if accel_residual is not None:
+            table.setdefault("accel_bias_sigma_mps2", accel_residual)
+
+    for key, value in table.items():
+        if key not in fields or value is None:
+            continue
+        if key in ("gyro_bias", "accel_bias"):
+            b = _core.BiasConfig()
+            for bk, bv in value.items():
+                if bk == "model":
+                    try:
+                        b.model = getattr(_core.BiasModel, bv)
+                    except AttributeError:
+                        raise ConfigError(f"[{key}] model: unknown '{bv}' (random_walk, gauss_markov, constant)")
+                else:
+                    setattr(b, bk, _vec3(bv, f"[{key}] {bk}"))
+            setattr(c, key, b)
+            continue
+        current = getattr(c, key)
+        try:
+            if isinstance(current, np.ndarray):
+                setattr(c, key, _vec3(value, key))
+            elif isinstance(current, bool):
+                if not isinstance(value, bool):
+                    raise ConfigError(f"{key}: expected true or false, got {value!r}")
+                setattr(c, key, value)
+            else:
+                setattr(c, key, float(value))
+        except (TypeError, ValueError) as e:
+            if isinstance(e, ConfigError):
+                raise
+            raise ConfigError(f"{key}: {e}") from e
+    return c
+
+
+def to_toml(cfg: dict) -> str:
+    """Write a configuration table back as TOML (scalars, lists, one level of tables)."""
+    def val(v):
+        if isinstance(v, bool):
+            return "true" if v else "false"
+        if isinstance(v, str):
+            return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+        if isinstance(v, (list, tuple, np.ndarray)):
+            return "[" + ", ".join(val(x) for x in np.asarray(v).tolist()) + "]"
+        if isinstance(v, float) and math.isnan(v):
+            return "nan"
+        return repr(float(v)) if isinstance(v, float) else str(v)
+
+    lines = [f"{k} = {val(v)}" for k, v in cfg.items() if not isinstance(v, dict)]
+    for k, v in cfg.items():
+        if isinstance(v, dict):
+            lines += ["", f"[{k}]"] + [f"{kk} = {val(vv)}" for kk, vv in v.items()]
+    return "\n".join(lines) + "\n"
+
+
+@dataclass
+class Solution:
+    """A batch run's output: states at IMU epochs, every update, and the counters."""
+
+    mode: str
+    n_states: int
+    t: np.ndarray
+    r_ecef: np.ndarray
+    v_ecef: np.ndarray
+    q_eb: np.ndarray  # (n, 4) w, x, y, z
+    gyro_bias: np.ndarray
+    accel_bias: np.ndarray
+    sigma: np.ndarray  # (n, n_states) error-state standard deviations
+    standstill: np.ndarray
+    heading_known: np.ndarray  # False while aligning: the heading is not yet known
+    updates: dict
+    counters: dict
+    scale_factors: np.ndarray | None = None  # (n, 6) gyro xyz, accel xyz
+    clock: np.ndarray | None = None  # (n, 2) bias m, drift m/s
+    covariance: np.ndarray | None = None
+    extra: dict = field(default_factory=dict)
+
+    @classmethod
+    def from_batch(cls, out: dict, mode: str, scale_factors: bool) -> "Solution":
+        s = out["state"]
+        n = int(out["n_states"])
+        k = 17
+        sf = None
+        if scale_factors:
+            sf, k = s[:, k:k + 6], k + 6
+        clock = None
+        if mode == "tight":
+            clock, k = s[:, k:k + 2], k + 2
+        return cls(mode, n, s[:, 0], s[:, 1:4], s[:, 4:7], s[:, 7:11], s[:, 11:14], s[:, 14:17],
+                   s[:, k:k + n], (s[:, k + n].astype(int) & 1) > 0, (s[:, k + n].astype(int) & 2) > 0, out["updates"], out["counters"], sf, clock,
+                   out.get("covariance"), {"fixes_after_end": out["fixes_after_end"]})
+
+    def llh(self) -> np.ndarray:
+        return _core.ecef_to_geodetic(self.r_ecef)
+
+    def ypr(self) -> np.ndarray:
+        """Yaw, pitch, roll (rad) relative to local NED."""
+        llh = self.llh()
+        return _core.euler_from_body_to_ecef(self.q_eb, llh)
+
+
+def run(imu: np.ndarray, fixes: np.ndarray, config=None, *, mode: str | None = None, output_every: int = 1,
+        covariance: bool = False) -> Solution:
+    """Run the filter over whole arrays in C++.
+
+    imu: (n, 7) [t, dtheta xyz (rad), dv xyz (m/s)] at the IMU's sampling instants.
+    fixes: (m, 10) [t, r_ecef xyz, v_ecef xyz (NaN if none), hdop, vdop, mode (2 = 3D, 3 = 2D)].
+    config: a configuration table, preset name or TOML path (see load_config).
+    """
+    cfg = config if isinstance(config, dict) and "preset" in config else load_config(config)
+    mode = mode or cfg.get("mode", "loose")
+    core = core_config(cfg)
+    f = _core.InsFilter(core, mode)
+    out = f.run(np.ascontiguousarray(imu, dtype=float), np.ascontiguousarray(fixes, dtype=float).reshape(-1, 10),
+                output_every, covariance)
+    return Solution.from_batch(out, mode, core.scale_factor_states)
+
+
+def streaming(config=None, mode: str | None = None) -> "_core.InsFilter":
+    """A streaming filter: push_imu(t, dtheta, dv), push_fix(...), then read its state."""
+    cfg = config if isinstance(config, dict) and "preset" in config else load_config(config)
+    return _core.InsFilter(core_config(cfg), mode or cfg.get("mode", "loose"))
