@@ -1,0 +1,222 @@
+"""The loosely coupled filter against the simulator's truth (its own NumPy models),
+published chi-square bands and the report's tables."""
+
+import math
+import tomllib
+
+import numpy as np
+import pytest
+
+from gpsins import evaluate, filter as flt, sim
+from gpsins.sim.scenario import parse
+
+START = {"gps_week": 1590, "gps_tow_s": 419400.0, "lat_deg": 59.37, "lon_deg": 17.95, "height_m": 30.0,
+         "heading_deg": 160.0}
+
+# 12 s standing, then 63 s of driving with turns, grades and speed changes.
+DRIVE = [
+    {"label": "stand", "duration_s": 12, "speed_mps": 0},
+    {"label": "go", "duration_s": 6, "speed_mps": 9},
+    {"label": "right", "duration_s": 10, "turn_deg": 90, "grade_deg": 2},
+    {"label": "straight", "duration_s": 8, "speed_mps": 14, "grade_deg": 0},
+    {"label": "left", "duration_s": 9, "turn_deg": -60},
+    {"label": "slow", "duration_s": 10, "speed_mps": 7, "turn_deg": 30, "grade_deg": -3},
+    {"label": "s-bend", "duration_s": 10, "turn_deg": -45, "speed_mps": 11},
+    {"label": "last", "duration_s": 10, "turn_deg": 20, "grade_deg": 0},
+]
+
+
+def scenario(segments, **extra):
+    return parse({"name": "test", "start": START, "segment": segments, **extra})
+
+
+def truth_of(s):
+    tr = s.truth
+    return evaluate.Truth(tr.t, tr.r_ecef, tr.v_ecef, tr.q_eb)
+
+
+def run_sim(s, overrides=None, **kw):
+    cfg = flt.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), **(overrides or {})})
+    return flt.run(sim.imu_table(s), sim.fix_table(s), cfg, covariance=True, **kw)
+
+
+@pytest.fixture(scope="module")
+def default_run():
+    s = sim.simulate(sim.load("default"), seed=0)
+    return s, run_sim(s)
+
+
+def test_standing_still_levels_to_the_accelerometer_biases_and_learns_the_gyro_biases():
+    s = sim.simulate(scenario([{"label": "parked", "duration_s": 120, "speed_mps": 0}]), seed=4)
+    cfg = flt.load_config(None, sim.imu_noise_truth(s.scenario.imu))
+    sol = flt.run(sim.imu_table(s), sim.fix_table(s), cfg, covariance=True)
+    err = evaluate.nav_errors(sol, truth_of(s))
+    end = sol.t > sol.t[-1] - 10.0
+    # What levelling sees: the calibrated specific force's mean over the last 10 s, in
+    # the filter's body axes, levelled here with NumPy (independent of the core).
+    m = s.scenario.imu
+    dt = np.diff(s.imu_t).mean()
+    f = (s.imu_dv / dt - np.array(m.accel_bias_mps2)) / (1.0 + np.array(m.accel_scale_factor))
+    f = f[s.imu_t > s.imu_t[-1] - 10.0]
+    f_true = s.truth.f_body[s.truth_at_imu][s.imu_t > s.imu_t[-1] - 10.0]
+    # Remove the part the filter can see (the vertical bias) and keep the horizontal one.
+    bias = f.mean(0) - f_true.mean(0)
+    f_seen = f_true.mean(0) + np.array([bias[0], bias[1], 0.0])
+    implied_roll = math.degrees(math.atan2(-f_seen[1], -f_seen[2]) - math.atan2(-f_true.mean(0)[1], -f_true.mean(0)[2]))
+    implied_pitch = math.degrees(math.atan2(f_seen[0], math.hypot(f_seen[1], f_seen[2]))
+                                 - math.atan2(f_true.mean(0)[0], math.hypot(f_true.mean(0)[1], f_true.mean(0)[2])))
+    roll_err, pitch_err = err.ypr_deg[end, 2].mean(), err.ypr_deg[end, 1].mean()
+    assert abs(implied_roll) > 0.05 or abs(implied_pitch) > 0.05  # the biases do tilt the solution
+    assert abs(roll_err - implied_roll) < 0.1
+    assert abs(pitch_err - implied_pitch) < 0.1
+    # Gyro biases and the vertical accelerometer bias converge to the truth (total bias incl. drift).
+    gb_true = (s.imu_errors.gyro_bias_rad_per_s + s.imu_errors.gyro_bias_drift[-1]) - np.array(m.gyro_bias_rad_per_s)
+    ab_true = (s.imu_errors.accel_bias_mps2 + s.imu_errors.accel_bias_drift[-1]) - np.array(m.accel_bias_mps2)
+    g_sig, a_sig = sol.sigma[-1, 9:12], sol.sigma[-1, 12:15]
+    assert np.all(np.abs(sol.gyro_bias[-1] - gb_true) < 3 * g_sig)
+    assert np.all(g_sig < 0.25 * flt.core_config(cfg).gyro_bias_sigma_rad_per_s)
+    assert abs(sol.accel_bias[-1, 2] - ab_true[2]) < 3 * a_sig[2]
+    assert a_sig[2] < 0.2 * flt.core_config(cfg).accel_bias_sigma_mps2[2]
+    # The horizontal accelerometer biases are unobservable at rest: their sigma must not shrink
+    # (x and y are not exactly horizontal, so allow a little).
+    assert np.all(a_sig[:2] > 0.9 * flt.core_config(cfg).accel_bias_sigma_mps2[:2])
+    # Position within the fix noise: the fixes' own error spread.
+    fix = sim.fix_table(s)
+    fix = fix[(fix[:, 9] == 2) & (fix[:, 0] > s.truth.t[0]) & (fix[:, 0] < s.truth.t[-1])]
+    fix_err = np.linalg.norm(fix[:, 1:4] - truth_of(s).at(fix[:, 0]).r_ecef, axis=1)
+    assert np.sqrt(np.mean(err.r_ned[end] ** 2)) * math.sqrt(3) < 1.5 * np.sqrt(np.mean(fix_err ** 2))
+
+
+def test_default_drive_errors_stay_inside_three_sigma(default_run):
+    s, sol = default_run
+    err = evaluate.nav_errors(sol, truth_of(s))
+    hk = sol.heading_known
+    assert hk.mean() > 0.85  # heading from the course within a few seconds of driving off
+    inside = np.abs(err.e9[hk]) <= 3.0 * sol.sigma[hk, :9]
+    frac = inside.mean(0)
+    assert np.all(frac >= 0.95), frac
+    assert sol.counters["fixes_rejected"] == 0 and not sol.counters["diverged"]
+
+
+def test_nees_of_the_navigation_states_is_consistent_over_five_seeds():
+    sc = scenario(DRIVE)
+    runs = []
+    for seed in range(5):
+        s = sim.simulate(sc, seed=seed)
+        sol = run_sim(s)
+        err = evaluate.nav_errors(sol, truth_of(s))
+        t0 = sol.t[np.argmax(sol.heading_known)]
+        sel = (sol.t >= t0) & (sol.t < t0 + 60.0)
+        assert sel.sum() > 60 * 60
+        runs.append(evaluate.nees(err.e9[sel][: 60 * 63], sol.covariance[sel][: 60 * 63, :9, :9]))
+    n = min(len(r) for r in runs)
+    avg = np.mean([r[:n] for r in runs], axis=0)
+    lo, hi = evaluate.nees_band(9, 5)
+    print(f"time-averaged NEES over 5 seeds x 60 s: {avg.mean():.2f}, band {lo:.2f}..{hi:.2f}")
+    assert lo <= avg.mean() <= hi
+
+
+def test_streaming_and_batch_give_identical_results():
+    s = sim.simulate(scenario(DRIVE[:3]), seed=1)
+    cfg = flt.load_config(None, sim.imu_noise_truth(s.scenario.imu))
+    imu, fixes = sim.imu_table(s), sim.fix_table(s)
+    batch = flt.run(imu, fixes, cfg)
+    f = flt.streaming(cfg)
+    j, last = 0, None
+    for row in imu:
+        while j < len(fixes) and fixes[j, 0] <= row[0]:
+            x = fixes[j]
+            f.push_fix(x[0], x[1:4], x[4:7], x[7], x[8], int(x[9]))
+            j += 1
+        f.push_imu(row[0], row[1:4], row[4:7])
+        last = (f.t, f.r_ecef.copy(), f.q_eb.copy())
+    assert last[0] == batch.t[-1]
+    assert np.array_equal(last[1], batch.r_ecef[-1])
+    assert np.array_equal(last[2], batch.q_eb[-1])
+    assert f.counters == batch.counters
+
+
+def test_a_fix_between_samples_is_applied_at_its_own_time():
+    s = sim.simulate(scenario(DRIVE[:3]), seed=2)
+    imu, fixes = sim.imu_table(s), sim.fix_table(s)
+    sol = flt.run(imu, fixes, flt.load_config(None, sim.imu_noise_truth(s.scenario.imu)))
+    u = sol.updates
+    fix_updates = u["t"][(u["kind"] == 1) | (u["kind"] == 2)]
+    used = fixes[(fixes[:, 9] == 2) | (fixes[:, 9] == 3)][:, 0]
+    # Every fix after the one that initialises the filter is applied exactly at its time,
+    # which is not an IMU sampling instant (the simulated IMU does not sample on GPS seconds).
+    gap = np.min(np.abs(fix_updates[:, None] - used[None, :]), axis=1)
+    assert gap.max() < 1e-9
+    after_end = sol.extra["fixes_after_end"]
+    assert len(fix_updates) == len(used) - sol.counters["fixes_before_alignment"] - 1 - after_end
+    assert np.min(np.abs(imu[:, 0][:, None] - used[None, :]), axis=0).min() > 1e-4
+
+
+def test_dropped_imu_frames_are_bridged_and_counted():
+    s = sim.simulate(scenario(DRIVE[:4]), seed=3)
+    imu = sim.imu_table(s)
+    keep = np.ones(len(imu), bool)
+    keep[[1500, 1501, 1502, 2200]] = False
+    sol = flt.run(imu[keep], sim.fix_table(s), flt.load_config(None, sim.imu_noise_truth(s.scenario.imu)),
+                  covariance=True)
+    assert sol.counters["imu_gaps_bridged"] == 2
+    assert sol.counters["imu_samples"] == keep.sum()
+    err = evaluate.nav_errors(sol, truth_of(s))
+    hk = sol.heading_known
+    assert np.mean(np.abs(err.e9[hk]) <= 3 * sol.sigma[hk, :9]) > 0.95
+
+
+@pytest.mark.parametrize("mutate, message", [
+    (lambda imu, fx: imu.__setitem__((40, 3), np.nan), "imu row 40"),
+    (lambda imu, fx: imu.__setitem__((41, 0), imu[39, 0]), "imu row 41"),
+    (lambda imu, fx: imu.__setitem__((slice(300, None), 0), imu[300:, 0] + 2.0), "imu row 300"),
+    (lambda imu, fx: fx.__setitem__((3, 2), np.inf), "fixes row 3"),
+])
+def test_bad_input_names_the_row(mutate, message):
+    s = sim.simulate(scenario(DRIVE[:1]), seed=0)
+    imu, fixes = sim.imu_table(s), sim.fix_table(s)
+    mutate(imu, fixes)
+    with pytest.raises(ValueError, match=message):
+        flt.run(imu, fixes, "default")
+
+
+def test_wrong_shapes_and_unknown_config_keys_are_errors():
+    with pytest.raises(ValueError, match=r"imu: expected shape \(n, 7\)"):
+        flt.run(np.zeros((5, 6)), np.zeros((0, 10)))
+    with pytest.raises(flt.ConfigError, match="unknown key.*gyro_arw_typo"):
+        flt.load_config(None, {"gyro_arw_typo": 1.0})
+    with pytest.raises(flt.ConfigError, match="unknown preset"):
+        flt.load_config({"preset": "nope"})
+
+
+def test_report2005_preset_holds_the_reports_tables():
+    cfg = flt.load_config("report2005")
+    c = flt.core_config(cfg)
+    assert np.allclose(c.fix_sigma_ecef_m, [1.8, 1.4, 2.0])  # Table 7.1
+    assert np.allclose(np.degrees(c.attitude_sigma_rad), [5, 5, 7])  # Table 7.2
+    assert c.velocity_sigma_mps == 1 and c.position_sigma_m == 10
+    assert np.allclose(c.gyro_bias_sigma_rad_per_s, 5e-6) and np.allclose(c.accel_bias_sigma_mps2, 5e-3)
+    # Table 7.3: gyro as printed; accelerometer densities times 20. z gyro ~1e-3 (ERRATA).
+    assert np.allclose(c.gyro_arw_rad_per_sqrt_s, [1.1167e-3, 1.1023e-3, 9.945e-4])
+    assert np.allclose(c.accel_vrw_mps_per_sqrt_s, 20 * np.array([7.888e-3, 6.7713e-3, 9.3595e-3]))
+    assert str(c.gyro_bias.model).endswith("constant")
+
+
+def test_config_round_trips_through_toml():
+    cfg = flt.load_config(None, {"use_fix_velocity": True, "lever_arm_body_m": [0.5, 0.0, -1.2]})
+    again = flt.load_config(tomllib.loads(flt.to_toml(cfg)))
+    a, b = flt.core_config(cfg), flt.core_config(again)
+    for k in ("lever_arm_body_m", "gyro_arw_rad_per_sqrt_s", "attitude_sigma_rad", "gyro_bias_sigma_rad_per_s"):
+        assert np.array_equal(getattr(a, k), getattr(b, k)), k
+    assert b.use_fix_velocity
+
+
+def test_imu_noise_turns_into_random_walk_biases_with_the_seed_conversions():
+    noise = {"gyro_arw_rad_per_sqrt_s": 4.36e-5, "gyro_bias_instability_rad_per_s": 1e-4,
+             "gyro_rrw_rad_per_s_sqrt_s": 2e-5, "accel_vrw_mps_per_sqrt_s": 1e-3,
+             "accel_bias_instability_mps2": 0.0, "accel_rrw_mps2_per_sqrt_s": 0.0, "bias_tau_s": 50.0}
+    c = flt.core_config(flt.load_config(None, {"imu_noise": noise}))
+    assert np.allclose(c.gyro_arw_rad_per_sqrt_s, 4.36e-5)  # V = N^2: the density is N itself
+    s = 0.664 / 0.617 * 1e-4
+    assert np.allclose(c.gyro_bias.random_walk_per_sqrt_s, math.sqrt(2e-5 ** 2 + 2 * s * s / 50.0))
+    assert np.allclose(c.accel_bias.random_walk_per_sqrt_s, 0.0)
