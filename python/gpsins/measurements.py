@@ -1,0 +1,140 @@
+"""Decoded measurements of a logger session: the stage between records on disk
+and time alignment.
+
+GPS: measurement blocks (ID 23: time of week, stamp, pseudoranges), the
+receiver's fixes (ID 21 time, week and ECEF position/velocity paired with the
+ID 20 that carries HDOP, VDOP and the navigation mode), ephemeris subframes
+(ID 22), Klobuchar coefficients (ID 75) and the GPS week (ID 21/49).
+IMU: increments, status, counters and stamps; frames whose valid bit is clear
+or that flag a range or test failure are left out and counted.
+
+Nothing good is dropped silently: every skipped record is counted in
+``skipped`` with the reason.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from gpsins_logger import bp3010, superstar2 as ss2
+
+from . import logs
+
+SECONDS_PER_WEEK = 604800.0
+FIX_PAIR_WINDOW_S = 0.2  # an ID 20 and its ID 21 are sent together
+
+
+@dataclass
+class GpsMeasurements:
+    week: int  # week of the first measurement block; times below count from its start
+    tow: np.ndarray  # (n,) receiver time of each ID 23, s (continuing past the week end)
+    stamps: np.ndarray  # (n,) system stamps
+    blocks: list[ss2.Measurements]
+    fixes: np.ndarray  # (m, 10) [t, r xyz, v xyz, hdop, vdop, mode], t in the same time base
+    fix_sats: np.ndarray  # (m,) satellites used
+    ephemerides: list[tuple[float, ss2.EphemerisWords]]  # (receive time, words)
+    iono: ss2.IonoUtc | None
+    leap_s: int | None
+
+
+@dataclass
+class Decoded:
+    gps: GpsMeasurements
+    imu: logs.ImuLog  # valid frames only
+    skipped: Counter = field(default_factory=Counter)
+    sidecar: dict = field(default_factory=dict)
+    directory: Path | None = None
+
+
+def _bad_imu(status: np.ndarray) -> np.ndarray:
+    return ((status & bp3010.STATUS_VALID) == 0) | ((status & (bp3010.STATUS_GYRO_OVERRANGE | bp3010.STATUS_ACCEL_OVERRANGE
+                                                                        | bp3010.STATUS_BIT_FAILURE)) != 0)
+
+
+def decode_gps(files: logs.SensorFiles, skipped: Counter) -> GpsMeasurements:
+    frames = files.frames()
+    stamps = files.stamps
+    week = None
+    tows, tstamps, blocks = [], [], []
+    nav_user: list[tuple[float, ss2.NavUser]] = []
+    nav_ecef: list[tuple[float, ss2.NavEcef]] = []
+    ephs, iono, leap = [], None, None
+    weeks = []  # (index in blocks when seen, week)
+    for fr, st in zip(frames, stamps):
+        try:
+            msg_id, payload = ss2.decode_frame(fr)
+            if msg_id == ss2.ID_MEASUREMENTS:
+                m = ss2.Measurements.decode(payload)
+                blocks.append(m)
+                tows.append(m.tow_s)
+                tstamps.append(st)
+            elif msg_id == ss2.ID_NAV_USER:
+                nav_user.append((st, ss2.NavUser.decode(payload)))
+            elif msg_id == ss2.ID_NAV_ECEF:
+                e = ss2.NavEcef.decode(payload)
+                nav_ecef.append((st, e))
+                weeks.append((len(blocks), e.week))
+            elif msg_id == ss2.ID_RECEIVER_STATUS:
+                weeks.append((len(blocks), ss2.ReceiverStatus.decode(payload).week))
+            elif msg_id == ss2.ID_EPHEMERIS:
+                ephs.append((st, ss2.EphemerisWords.decode(payload)))
+            elif msg_id == ss2.ID_IONO_UTC:
+                iono = ss2.IonoUtc.decode(payload)
+                leap = iono.leap_s
+            elif msg_id == ss2.ID_LEAP:
+                leap = ss2.LeapSeconds.decode(payload).leap_s
+        except ss2.ProtocolError:
+            skipped["gps frames that do not decode"] += 1
+    if not blocks:
+        raise logs.LogError("no GPS measurement blocks (ID 23) in the session: GPS time is unknown")
+    if not weeks:
+        raise logs.LogError("no GPS week in the session (ID 21 or 49)")
+    week = weeks[0][1]
+    tow = np.array(tows)
+    # Time of week continues past a week rollover (tow drops by a week).
+    tow = tow + SECONDS_PER_WEEK * np.concatenate([[0], np.cumsum(np.diff(tow) < -SECONDS_PER_WEEK / 2)])
+
+    # Pair each ID 21 with the ID 20 sent next to it.
+    fixes, sats = [], []
+    ustamps = np.array([s for s, _ in nav_user])
+    for st, e in nav_ecef:
+        t = (e.week - week) * SECONDS_PER_WEEK + e.tow_s
+        k = int(np.argmin(np.abs(ustamps - st))) if len(ustamps) else -1
+        if k < 0 or abs(ustamps[k] - st) > FIX_PAIR_WINDOW_S:
+            skipped["ID 21 fixes without an ID 20 (no HDOP/VDOP/mode)"] += 1
+            continue
+        u = nav_user[k][1]
+        mode = u.nav_mode if u.has_fix and np.any([e.x_m, e.y_m, e.z_m]) else 0
+        mode = {4: 2, 5: 3}.get(mode, mode)
+        fixes.append([t, e.x_m, e.y_m, e.z_m, e.vx_mps, e.vy_mps, e.vz_mps, max(u.hdop, 0.1), max(u.vdop, 0.1),
+                      mode])
+        sats.append(u.sats_used)
+    return GpsMeasurements(week, tow, np.array(tstamps), blocks, np.array(fixes).reshape(-1, 10),
+                           np.array(sats, dtype=int), ephs, iono, leap)
+
+
+def decode_session(directory: str | Path) -> Decoded:
+    session = logs.read_session(directory)
+    skipped: Counter = Counter()
+    for name, sensor in session.sensors.items():
+        st = sensor.stats()
+        if st["discarded_bytes"]:
+            skipped[f"{name}: bytes between frames (garbage or damaged frames)"] += st["discarded_bytes"]
+        if st["truncated_tail_bytes"]:
+            skipped[f"{name}: truncated last record, bytes"] += st["truncated_tail_bytes"]
+    if "gps" not in session.sensors or not session.sensors["gps"].count:
+        raise logs.LogError(f"{directory}: no GPS records")
+    if "imu" not in session.sensors or not session.sensors["imu"].count:
+        raise logs.LogError(f"{directory}: no IMU records")
+    gps = decode_gps(session.sensors["gps"], skipped)
+    imu = session.imu()
+    bad = _bad_imu(imu.status)
+    if bad.any():
+        skipped["imu: frames flagged invalid, over range or test failure"] += int(bad.sum())
+        keep = ~bad
+        imu = logs.ImuLog(imu.stamps[keep], imu.dtheta_rad[keep], imu.dv_mps[keep], imu.status[keep],
+                          imu.counter[keep], imu.rate_hz)
+    return Decoded(gps, imu, skipped, session.sidecar, Path(directory))

@@ -1,0 +1,93 @@
+"""Time alignment against the simulator's true sampling times: the stamp model's
+jitter, latencies known to the configuration, IMU clock drift, dropped frames
+and a realtime clock step."""
+
+import numpy as np
+import pytest
+
+from gpsins import measurements, sim, timing
+from gpsins.sim import messages
+from gpsins.sim.scenario import parse
+from gpsins.sim.session import realtime, write_session
+
+START = {"gps_week": 1590, "gps_tow_s": 419400.0, "lat_deg": 59.37, "lon_deg": 17.95, "height_m": 30.0,
+         "heading_deg": 160.0}
+SEGMENTS = [{"label": "stand", "duration_s": 10, "speed_mps": 0},
+            {"label": "drive", "duration_s": 50, "speed_mps": 10, "turn_deg": 90}]
+GPS_LAT, IMU_LAT = 0.004, 0.002
+
+
+def session(tmp_path, name, **timing_opts):
+    sc = parse({"name": name, "start": START, "segment": SEGMENTS,
+                "timing": {"gps_latency_s": GPS_LAT, "imu_latency_s": IMU_LAT, **timing_opts}})
+    s = sim.simulate(sc, seed=5)
+    d = tmp_path / name
+    write_session(s, d)
+    return s, measurements.decode_session(d)
+
+
+def true_imu_tow(s, dec):
+    """The true GPS time of every IMU record (by counter, disambiguated with the known clock)."""
+    sc = s.scenario
+    approx_t = dec.imu.stamps - IMU_LAT - (realtime(s, 0.0) - 0.0)
+    if sc.timing.clock_step_at_s is not None:
+        approx_t = approx_t - np.where(approx_t >= sc.timing.clock_step_at_s, sc.timing.clock_step_s, 0.0)
+    k_approx = np.round(approx_t * s.imu_rate_hz).astype(int) - 1
+    k = k_approx + ((dec.imu.counter.astype(int) - 1 - k_approx) % 256 + 128) % 256 - 128
+    return sc.start.gps_tow_s + s.imu_t[k]
+
+
+def errors(s, dec, method):
+    al = timing.align(dec.gps.tow, dec.gps.stamps, dec.gps.week, dec.imu.stamps, dec.imu.counter, s.imu_rate_hz,
+                      method=method, gps_latency_s=GPS_LAT + messages.MEASUREMENT_DELAY_S, imu_latency_s=IMU_LAT)
+    return al, al.imu_t - true_imu_tow(s, dec)
+
+
+CASES = {
+    "jitter": {"jitter_mean_s": 0.002},
+    "drift_and_drops": {"jitter_mean_s": 0.0005, "imu_clock_ppm": 40.0, "imu_drop_probability": 0.01},
+    "clock_step": {"jitter_mean_s": 0.0005, "imu_clock_ppm": -25.0, "clock_step_at_s": 27.3, "clock_step_s": 0.75},
+    "step_back": {"jitter_mean_s": 0.001, "imu_drop_probability": 0.005, "clock_step_at_s": 41.0,
+                  "clock_step_s": -1.5},
+}
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_robust_alignment_is_better_than_a_millisecond(tmp_path, case):
+    s, dec = session(tmp_path, case, **CASES[case])
+    al, err = errors(s, dec, "robust")
+    rms = float(np.sqrt(np.mean(err ** 2)))
+    _, err_report = errors(s, dec, "report")
+    print(f"{case}: robust RMS {1e3 * rms:.3f} ms, max {1e3 * np.abs(err).max():.3f} ms; report method RMS "
+          f"{1e3 * np.sqrt(np.mean(err_report ** 2)):.1f} ms, max {1e3 * np.abs(err_report).max():.1f} ms; "
+          f"{al.summary()['imu_frames_missing']} frames missing, clock {al.imu_clock_ppm:+.1f} ppm, "
+          f"steps {al.steps_s}")
+    assert rms < 1e-3
+    ppm = CASES[case].get("imu_clock_ppm", 0.0)
+    assert abs(al.imu_clock_ppm - ppm) < 2.0
+    if "clock_step_s" in CASES[case]:
+        assert len(al.steps_s) == 1 and abs(al.steps_s[0] - CASES[case]["clock_step_s"]) < 2e-3
+    dropped = dec.sidecar["counts"]["imu"].get("frames_dropped_by_simulation", 0)
+    assert al.summary()["imu_frames_missing"] == dropped
+
+
+def test_report_method_error_grows_with_every_dropped_frame(tmp_path):
+    s, dec = session(tmp_path, "drops", imu_drop_probability=0.02)
+    al, err = errors(s, dec, "report")
+    assert al.method == "report"
+    dropped_before = np.cumsum(np.concatenate([[0], np.diff(true_imu_tow(s, dec)) > 1.5 / 64]))
+    # Each drop moves every later sample 1/64 s early, on top of the start error.
+    resid = err + dropped_before / 64.0
+    assert np.ptp(resid) < 0.01
+    assert np.abs(err[-1]) > 0.1
+
+
+def test_lower_envelope_is_the_linear_programme_optimum():
+    from scipy.optimize import linprog
+    rng = np.random.default_rng(1)
+    x = np.sort(rng.uniform(0, 100, 400))
+    y = 3.0 + 0.01 * x + rng.exponential(0.002, 400)
+    a, b = timing.lower_envelope(x, y)
+    lp = linprog([-len(x), -x.sum()], A_ub=np.column_stack([np.ones_like(x), x]), b_ub=y, bounds=[(None, None)] * 2)
+    assert np.all(y - (a + b * x) >= -1e-12)
+    assert np.isclose(a, lp.x[0], atol=1e-9) and np.isclose(b, lp.x[1], atol=1e-11)
