@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
 from . import __version__
 
@@ -36,6 +37,50 @@ def _cmd_emulate(args: argparse.Namespace) -> int:
     from .sim import cli as sim_cli
 
     return sim_cli.run_emulate(args)
+
+
+def _overrides(pairs: list[str]) -> dict:
+    """--set key=value (value parsed as TOML: numbers, booleans, lists, strings)."""
+    import tomllib
+
+    out = {}
+    for item in pairs or []:
+        key, sep, value = item.partition("=")
+        if not sep:
+            raise SystemExit(f"gpsins: --set expects key=value, got '{item}'")
+        try:
+            out[key.strip()] = tomllib.loads(f"v = {value}")["v"]
+        except tomllib.TOMLDecodeError:
+            out[key.strip()] = value
+    return out
+
+
+def _cmd_replay(args: argparse.Namespace) -> int:
+    from . import replay
+
+    modes = ["loose", "tight"] if args.mode == "both" else [args.mode]
+    for mode in modes:
+        res = replay.replay(args.session, Path(args.out) / mode if len(modes) > 1 else args.out, mode=mode,
+                            config=args.config, overrides=_overrides(args.set), timing_method=args.timing,
+                            gps_latency_s=args.gps_latency, imu_latency_s=args.imu_latency, truth=not args.no_truth)
+        c = res.summary["counters"]
+        print(f"{mode}: {res.summary['imu_samples']} IMU samples, {c['fixes_accepted']} fixes used, "
+              f"{c['updates_rejected']} updates rejected; results in {res.out}")
+        if res.summary["skipped"]:
+            print("  skipped: " + "; ".join(f"{k}: {v}" for k, v in res.summary["skipped"].items()))
+        e = res.summary["errors"]
+        if e:
+            print(f"  vs truth: horizontal RMS {e['horizontal_rms_m']:.2f} m, vertical RMS {e['vertical_rms_m']:.2f} m")
+    return 0
+
+
+def _cmd_report(args: argparse.Namespace) -> int:
+    from . import report
+
+    page = report.make_report(args.results, args.out or Path(args.results[0]) / "report")
+    print(report.comparison_table(args.results))
+    print(f"report: {page}")
+    return 0
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -71,6 +116,23 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--dir", default="dev", help="directory for the device links gps and imu (default: dev)")
     p.add_argument("--speed", type=float, default=1.0, help="time scale (2 = twice real time)")
     p.set_defaults(func=_cmd_emulate)
+
+    p = sub.add_parser("replay", help="replay a logger session through the filter")
+    p.add_argument("session", help="session directory")
+    p.add_argument("--out", required=True, help="results directory")
+    p.add_argument("--mode", choices=("loose",), default="loose", help="filter: loosely coupled (GPS fixes)")
+    p.add_argument("--config", help="filter configuration: TOML file or preset name (default, report2005)")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override one configuration key")
+    p.add_argument("--timing", choices=("robust", "report"), default="robust", help="IMU time alignment method")
+    p.add_argument("--gps-latency", type=float, default=0.0205, help="GPS epoch to ID 23 stamp, s (default 0.0205)")
+    p.add_argument("--imu-latency", type=float, default=0.0005, help="IMU sample to stamp, s (default 0.0005)")
+    p.add_argument("--no-truth", action="store_true", help="ignore a truth file next to the session")
+    p.set_defaults(func=_cmd_replay)
+
+    p = sub.add_parser("report", help="figures and a summary page from replay results")
+    p.add_argument("results", nargs="+", help="one results directory per filter run")
+    p.add_argument("--out", help="report directory (default: RESULTS/report)")
+    p.set_defaults(func=_cmd_report)
 
     p = sub.add_parser("log", help="run the logger daemon (same as gpsins-logger)", add_help=False)
     p.add_argument("logger_args", nargs=argparse.REMAINDER)

@@ -1,0 +1,179 @@
+"""Replay a logger session through the filter.
+
+session directory -> decoded measurements -> time alignment -> filter -> results directory:
+
+- ``results.npz``: the solution (see ``RESULT_ARRAYS``), the receiver's fixes,
+  every update, and, when the session has a truth file, the errors;
+- ``solution.pos``: RTKLIB-style positions (GPST, latitude, longitude, height,
+  standard deviations), for RTKLIB's plot tools and comparisons;
+- ``config.toml``: the exact filter configuration used;
+- ``run.json``: counters, what was skipped and why, the alignment's summary,
+  timings and summary statistics.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from . import evaluate, filter as flt, measurements, timing
+
+DEFAULT_GPS_LATENCY_S = 0.0205  # receiver's epoch-to-first-byte delay (assumed 20 ms) + the logger's
+DEFAULT_IMU_LATENCY_S = 0.0005
+GPS_EPOCH = dt.datetime(1980, 1, 6)
+
+RESULT_ARRAYS = {
+    "t": "GPS time, s since the start of `week`", "week": "GPS week of t = 0",
+    "r_ecef": "position, m", "v_ecef": "velocity, m/s", "q_eb": "attitude body->ECEF (w, x, y, z)",
+    "llh": "latitude, longitude (rad), height (m)", "ypr_deg": "yaw, pitch, roll relative to NED, deg",
+    "gyro_bias": "rad/s", "accel_bias": "m/s^2", "sigma": "error-state standard deviations",
+    "sigma_ned_m": "position sigma north, east, down", "sigma_ypr_deg": "attitude sigma about N, E, D axes",
+    "standstill": "standstill detected", "heading_known": "heading initialised",
+    "fixes": "receiver fixes [t, r xyz, v xyz, hdop, vdop, mode]", "fix_sats": "satellites used per fix",
+    "upd_*": "updates: t, kind, id, dof, nis, gate, accepted, innovation (3), innovation_sigma (3)",
+    "err_ned_m": "position error (estimate - truth) NED", "err_ypr_deg": "attitude error",
+    "err_v_ned_mps": "velocity error NED", "nees9": "NEES of the 9 navigation states",
+    "seg_labels": "truth segment labels", "seg_t": "truth segments' start and end times",
+}
+
+
+@dataclass
+class ReplayResult:
+    out: Path
+    mode: str
+    summary: dict
+
+
+def _nav_sigmas(sol: flt.Solution) -> tuple[np.ndarray, np.ndarray]:
+    llh = sol.llh()
+    c_en = evaluate.c_en(llh[:, 0], llh[:, 1])
+    p = sol.covariance
+    pos = np.swapaxes(c_en, -1, -2) @ p[:, 6:9, 6:9] @ c_en
+    # Body-side attitude error dtheta -> NED axes: C_nb dtheta.
+    c_eb = _rot(sol.q_eb)
+    c_nb = np.swapaxes(c_en, -1, -2) @ c_eb
+    att = c_nb @ p[:, 0:3, 0:3] @ np.swapaxes(c_nb, -1, -2)
+    return (np.sqrt(np.diagonal(pos, axis1=1, axis2=2)), np.degrees(np.sqrt(np.diagonal(att, axis1=1, axis2=2))))
+
+
+def _rot(q: np.ndarray) -> np.ndarray:
+    w, x, y, z = q.T
+    return np.stack([np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+                     np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+                     np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1)], -2)
+
+
+def gpst_text(week: int, t: np.ndarray) -> list[str]:
+    base = GPS_EPOCH + dt.timedelta(weeks=int(week))
+    return [(base + dt.timedelta(seconds=float(x))).strftime("%Y/%m/%d %H:%M:%S.%f")[:-3] for x in t]
+
+
+def write_pos(path: Path, week: int, sol: flt.Solution, sigma_ned: np.ndarray, sats: np.ndarray, every: int = 1,
+              note: str = "") -> None:
+    """RTKLIB-style .pos (lat/lon/height, GPST epochs); Q = 5 (single) for an INS solution."""
+    llh = sol.llh()
+    idx = np.arange(0, len(sol.t), every)
+    lines = ["% program   : gpsins replay", f"% {note}" if note else "%",
+             "% (lat/lon/height=WGS84/ellipsoidal,Q=1:fix,2:float,3:sbas,4:dgps,5:single,6:ppp,ns=# of satellites)",
+             "%  GPST                   latitude(deg) longitude(deg)  height(m)   Q  ns   sdn(m)   sde(m)   sdu(m)"
+             "  sdne(m)  sdeu(m)  sdun(m) age(s)  ratio"]
+    times = gpst_text(week, sol.t[idx])
+    for k, ts in zip(idx, times):
+        lat, lon = np.degrees(llh[k, :2])
+        sn, se, sd = sigma_ned[k]
+        lines.append(f"{ts} {lat:14.9f} {lon:14.9f} {llh[k, 2]:10.4f} {5:3d} {int(sats[k]):3d} {sn:8.4f} {se:8.4f} "
+                     f"{sd:8.4f} {0.0:8.4f} {0.0:8.4f} {0.0:8.4f} {0.0:6.2f} {0.0:6.1f}")
+    path.write_text("\n".join(lines) + "\n", encoding="ascii")
+
+
+def load_session_truth(directory: Path, t_offset: float) -> tuple[evaluate.Truth, dict] | None:
+    """The simulated truth next to a session (session dir or its parent), on the replay's time base."""
+    for p in (directory / "truth.npz", directory.parent / "truth.npz"):
+        if p.exists():
+            z = np.load(p)
+            tow = z["tow_s"] + (int(z["gps_week"]) * 604800.0) - t_offset
+            extra = {"seg_labels": z["segment_labels"], "seg_t": z["segment_t"] + float(z["t0_tow_s"]) +
+                     int(z["gps_week"]) * 604800.0 - t_offset}
+            return evaluate.Truth(tow, z["r_ecef"], z["v_ecef"], z["q_eb"]), extra
+    return None
+
+
+def replay(session: str | Path, out: str | Path, *, mode: str = "loose", config=None, overrides: dict | None = None,
+           timing_method: str = "robust", gps_latency_s: float = DEFAULT_GPS_LATENCY_S,
+           imu_latency_s: float = DEFAULT_IMU_LATENCY_S, truth: bool = True) -> ReplayResult:
+    session, out = Path(session), Path(out)
+    clock = {"start": time.perf_counter()}
+    dec = measurements.decode_session(session)
+    clock["decode_s"] = time.perf_counter() - clock.pop("start")
+    t1 = time.perf_counter()
+    al = timing.align(dec.gps.tow, dec.gps.stamps, dec.gps.week, dec.imu.stamps, dec.imu.counter, dec.imu.rate_hz,
+                      method=timing_method, gps_latency_s=gps_latency_s, imu_latency_s=imu_latency_s)
+    clock["align_s"] = time.perf_counter() - t1
+    imu = np.column_stack([al.imu_t, dec.imu.dtheta_rad, dec.imu.dv_mps])
+    cfg = flt.load_config(config, {**(overrides or {}), "mode": mode})
+    t2 = time.perf_counter()
+    sol = flt.run(imu, dec.gps.fixes, cfg, mode=mode, covariance=True)
+    clock["filter_s"] = time.perf_counter() - t2
+    if len(sol.t) == 0:
+        raise measurements.logs.LogError(f"{session}: the filter never initialised (no usable fix after levelling)")
+
+    sigma_ned, sigma_ypr = _nav_sigmas(sol)
+    fix_t = dec.gps.fixes[:, 0]
+    k = np.clip(np.searchsorted(fix_t, sol.t, side="right") - 1, 0, max(len(fix_t) - 1, 0))
+    sats = dec.gps.fix_sats[k] if len(fix_t) else np.zeros(len(sol.t), int)
+    arrays = dict(t=sol.t, week=np.int64(dec.gps.week), r_ecef=sol.r_ecef, v_ecef=sol.v_ecef, q_eb=sol.q_eb,
+                  llh=sol.llh(), ypr_deg=np.degrees(sol.ypr()), gyro_bias=sol.gyro_bias, accel_bias=sol.accel_bias,
+                  sigma=sol.sigma, sigma_ned_m=sigma_ned, sigma_ypr_deg=sigma_ypr, standstill=sol.standstill,
+                  heading_known=sol.heading_known, fixes=dec.gps.fixes, fix_sats=dec.gps.fix_sats)
+    arrays.update({f"upd_{k}": v for k, v in sol.updates.items()})
+    stats = {}
+    found = load_session_truth(session, dec.gps.week * measurements.SECONDS_PER_WEEK) if truth else None
+    if found:
+        tr, extra = found
+        inside = (sol.t >= tr.t[0]) & (sol.t <= tr.t[-1])
+        err = evaluate.nav_errors(_subset(sol, inside), tr)
+        ref = tr.at(sol.t[inside])
+        llh_ref = flt._core.ecef_to_geodetic(ref.r_ecef)
+        c_en = evaluate.c_en(llh_ref[:, 0], llh_ref[:, 1])
+        dv_ned = np.einsum("nji,nj->ni", c_en, sol.v_ecef[inside] - ref.v_ecef)
+        e9 = err.e9
+        nees = evaluate.nees(e9, sol.covariance[inside][:, :9, :9])
+        full = lambda a: _fill(inside, a)  # noqa: E731
+        arrays.update(err_ned_m=full(err.r_ned), err_ypr_deg=full(err.ypr_deg), err_v_ned_mps=full(dv_ned),
+                      nees9=full(nees), **extra)
+        hk = sol.heading_known[inside]
+        h = np.hypot(err.r_ned[hk, 0], err.r_ned[hk, 1])
+        stats = {"horizontal_rms_m": float(np.sqrt(np.mean(h ** 2))), "horizontal_max_m": float(h.max()),
+                 "vertical_rms_m": float(np.sqrt(np.mean(err.r_ned[hk, 2] ** 2))),
+                 "vertical_max_m": float(np.abs(err.r_ned[hk, 2]).max()),
+                 "nees9_mean": float(nees[hk].mean()),
+                 "inside_3_sigma": float(np.mean(np.abs(e9[hk]) <= 3 * sol.sigma[inside][hk, :9]))}
+    out.mkdir(parents=True, exist_ok=True)
+    np.savez_compressed(out / "results.npz", **arrays)
+    write_pos(out / "solution.pos", dec.gps.week, sol, sigma_ned, sats, note=f"mode {mode}, session {session.name}")
+    (out / "config.toml").write_text(flt.to_toml(cfg), encoding="utf-8")
+    clock["total_s"] = sum(v for v in clock.values())
+    summary = {"session": str(session), "mode": mode, "alignment": al.summary(), "counters": sol.counters,
+               "skipped": dict(dec.skipped), "fixes_after_end": sol.extra["fixes_after_end"],
+               "wall_time_s": clock, "imu_samples": int(len(imu)), "errors": stats,
+               "update_kinds": {flt.UPDATE_KINDS[int(k)]: int(np.sum(sol.updates["kind"] == k))
+                                for k in np.unique(sol.updates["kind"])}}
+    (out / "run.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
+    return ReplayResult(out, mode, summary)
+
+
+def _fill(mask: np.ndarray, a: np.ndarray) -> np.ndarray:
+    full = np.full((len(mask),) + a.shape[1:], np.nan)
+    full[mask] = a
+    return full
+
+
+def _subset(sol: flt.Solution, m: np.ndarray) -> flt.Solution:
+    return flt.Solution(sol.mode, sol.n_states, sol.t[m], sol.r_ecef[m], sol.v_ecef[m], sol.q_eb[m], sol.gyro_bias[m],
+                        sol.accel_bias[m], sol.sigma[m], sol.standstill[m], sol.heading_known[m], sol.updates,
+                        sol.counters)
