@@ -83,6 +83,18 @@ def _cmd_report(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_allan(args: argparse.Namespace) -> int:
+    from .imu import cli as imu_cli
+
+    return imu_cli.run_allan(args)
+
+
+def _cmd_calibrate(args: argparse.Namespace) -> int:
+    from .imu import cli as imu_cli
+
+    return imu_cli.run_calibrate(args)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="gpsins", description=__doc__)
     parser.add_argument("--version", action="version", version=f"gpsins {__version__}")
@@ -133,6 +145,23 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("results", nargs="+", help="one results directory per filter run")
     p.add_argument("--out", help="report directory (default: RESULTS/report)")
     p.set_defaults(func=_cmd_report)
+
+    p = sub.add_parser("allan", help="Allan deviation, PSD and noise terms of IMU data")
+    p.add_argument("source", help="session directory, or a CSV/NPY of rate samples (columns: axes)")
+    p.add_argument("--rate", type=float, help="sample rate of a CSV/NPY file, Hz")
+    p.add_argument("--taus", default="10", help="points per decade, or octave | decade | all (default 10)")
+    p.add_argument("--json", help="write tau, deviations, bounds and fitted terms here")
+    p.add_argument("--out", help="directory for plots and the filter parameter files (imu_noise.toml, imu.yaml)")
+    p.set_defaults(func=_cmd_allan)
+
+    p = sub.add_parser("calibrate", help="deterministic calibration: accelerometer up-down, gyro rate table")
+    p.add_argument("kind", choices=("accel-updown", "gyro-rate-table"))
+    p.add_argument("table", help="CSV: up-down rows 'z_up,z_down' per axis; rate table rows 'table_rate,output'")
+    p.add_argument("--lat-deg", type=float, default=59.35, help="latitude of the test, deg (default 59.35)")
+    p.add_argument("--height-m", type=float, default=30.0)
+    p.add_argument("--axis-up", action="store_true", help="the gyro axis points up (Earth rate along it)")
+    p.add_argument("--drift-bias", type=float, help="gyro bias from a drift test, rad/s (else fitted)")
+    p.set_defaults(func=_cmd_calibrate)
 
     p = sub.add_parser("log", help="run the logger daemon (same as gpsins-logger)", add_help=False)
     p.add_argument("logger_args", nargs=argparse.REMAINDER)

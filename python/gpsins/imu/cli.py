@@ -1,0 +1,161 @@
+"""`gpsins allan` and `gpsins calibrate`."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from . import allan, calibration, noise_fit, psd
+
+AXES = ("gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z")
+
+
+def load_rates(source: str, rate_hz: float | None) -> tuple[np.ndarray, float, tuple[str, ...]]:
+    """(n, k) rate samples: a session's IMU (gyro rad/s then accel m/s^2) or a CSV/NPY file."""
+    p = Path(source)
+    if p.is_dir():
+        from .. import logs
+
+        imu = logs.read_session(p).imu()
+        dt = 1.0 / imu.rate_hz
+        return np.hstack([imu.dtheta_rad, imu.dv_mps]) / dt, float(imu.rate_hz), AXES
+    if rate_hz is None:
+        raise SystemExit(f"gpsins allan: {source}: give the sample rate with --rate HZ")
+    if p.suffix == ".npy":
+        data = np.load(p)
+    else:
+        try:
+            data = np.loadtxt(p, delimiter="," if p.suffix == ".csv" else None, comments="#", ndmin=2)
+        except ValueError as e:
+            raise SystemExit(f"gpsins allan: {source}: {e}") from None
+    data = data.reshape(len(data), -1)
+    names = AXES if data.shape[1] == 6 else tuple(f"col{k}" for k in range(data.shape[1]))
+    return data, float(rate_hz), names
+
+
+def run_allan(args) -> int:
+    from rich.progress import Progress
+
+    data, rate, names = load_rates(args.source, args.rate)
+    taus = args.taus if args.taus in ("octave", "all", "decade") else int(args.taus)
+    out = Path(args.out) if args.out else None
+    results, fits = {}, {}
+    with Progress(transient=True) as bar:
+        task = bar.add_task("Allan deviation", total=data.shape[1])
+        for k, name in enumerate(names):
+            r = allan.oadev(data[:, k], rate, taus=taus)
+            f = noise_fit.fit(r.tau, r.adev, r.edf)
+            results[name], fits[name] = r, f
+            bar.advance(task)
+    print(f"{len(data)} samples at {rate:g} Hz ({len(data) / rate / 3600:.2f} h)")
+    print(f"{'axis':8s} {'N (SI)':>11s} {'B (SI)':>11s} {'K (SI)':>11s} {'Q (SI)':>11s}  report units")
+    for name in names:
+        f = fits[name]
+        kind = "gyro" if name.startswith("gyro") else "accel"
+        tu = noise_fit.table_units(kind, f)
+        print(f"{name:8s} " + " ".join(f"{f.value.get(t, 0):11.3e}" for t in ("N", "B", "K", "Q")) + "  " +
+              ", ".join(f"{k} {v:.4g}" for k, v in tu.items()))
+    if args.json:
+        doc = {"rate_hz": rate, "samples": len(data), "axes": {}}
+        for name in names:
+            r, f = results[name], fits[name]
+            doc["axes"][name] = {"tau_s": r.tau.tolist(), "adev": r.adev.tolist(), "lo": r.lo.tolist(),
+                                 "hi": r.hi.tolist(), "edf": r.edf.tolist(), "alpha": r.alpha.tolist(),
+                                 "confidence": r.confidence, "fit": f.value, "fit_sigma": f.sigma,
+                                 "slope_readouts": f.slope_readouts}
+        Path(args.json).write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
+    if out:
+        out.mkdir(parents=True, exist_ok=True)
+        _plots(out, names, results, fits, data, rate)
+        if tuple(names) == AXES:
+            _filter_files(out, fits, rate)
+        print(f"figures and parameter files in {out}")
+    return 0
+
+
+def _plots(out: Path, names, results, fits, data, rate) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    for group in ("gyro", "accel", "col"):
+        cols = [n for n in names if n.startswith(group)]
+        if not cols:
+            continue
+        fig, axs = plt.subplots(1, 2, figsize=(12, 5))
+        for n in cols:
+            r, f = results[n], fits[n]
+            axs[0].loglog(r.tau, r.adev, "o", ms=3, label=n)
+            axs[0].fill_between(r.tau, r.lo, r.hi, alpha=0.2)
+            axs[0].loglog(r.tau, f.model_adev, "-", lw=1)
+            for term in f.terms:
+                single = noise_fit.fit_term_curve(r.tau, f, term)
+                if single is not None:
+                    axs[0].loglog(r.tau, single, ":", lw=0.7, color="grey")
+            fr, p = psd.psd(data[:, names.index(n)], rate)
+            fc, pc = psd.log_average(fr, p)
+            axs[1].loglog(fc, pc, label=n)
+        axs[0].set_xlabel("tau (s)")
+        axs[0].set_ylabel("Allan deviation (SI)")
+        axs[0].set_title(f"{group}: data, {100 * results[cols[0]].confidence:.0f} % band, fit (solid), terms (dotted)")
+        axs[0].legend(fontsize=8)
+        axs[1].set_xlabel("frequency (Hz)")
+        axs[1].set_ylabel("one-sided PSD (SI^2/Hz)")
+        axs[1].set_title("PSD, log-averaged")
+        fig.tight_layout()
+        fig.savefig(out / f"allan_{group}.png", dpi=110)
+        plt.close(fig)
+
+
+def _vec(fits, prefix, term):
+    return [float(fits[f"{prefix}_{a}"].value.get(term, 0.0)) for a in "xyz"]
+
+
+def _filter_files(out: Path, fits, rate) -> None:
+    g_n, a_n = _vec(fits, "gyro", "N"), _vec(fits, "accel", "N")
+    g_b, a_b = _vec(fits, "gyro", "B"), _vec(fits, "accel", "B")
+    g_k, a_k = _vec(fits, "gyro", "K"), _vec(fits, "accel", "K")
+    (out / "imu_noise.toml").write_text(f"""# From `gpsins allan`: Allan coefficients, continuous-time (the filter squares N into V = N^2).
+# N white noise (gyro rad/sqrt(s) = rad/s/sqrt(Hz); accel m/s/sqrt(s)), B bias instability (rad/s, m/s^2),
+# K rate random walk (rad/s/sqrt(s), m/s^2/sqrt(s)). Use as the [imu_noise] table of a filter configuration.
+[imu_noise]
+gyro_arw_rad_per_sqrt_s = {g_n}
+gyro_bias_instability_rad_per_s = {g_b}
+gyro_rrw_rad_per_s_sqrt_s = {g_k}
+accel_vrw_mps_per_sqrt_s = {a_n}
+accel_bias_instability_mps2 = {a_b}
+accel_rrw_mps2_per_sqrt_s = {a_k}
+bias_tau_s = 100.0
+""", encoding="utf-8")
+    rms = lambda v: math.sqrt(sum(x * x for x in v) / 3)  # noqa: E731
+    (out / "imu.yaml").write_text(f"""# Kalibr IMU noise model (continuous time; one value for all axes: the RMS over x, y, z)
+accelerometer_noise_density: {rms(a_n):.6e}   # m/s^2/sqrt(Hz)
+accelerometer_random_walk: {rms(a_k):.6e}     # m/s^3/sqrt(Hz)
+gyroscope_noise_density: {rms(g_n):.6e}       # rad/s/sqrt(Hz)
+gyroscope_random_walk: {rms(g_k):.6e}         # rad/s^2/sqrt(Hz)
+rostopic: /imu0
+update_rate: {rate:g}
+""", encoding="utf-8")
+
+
+def run_calibrate(args) -> int:
+    lat = math.radians(args.lat_deg)
+    if args.kind == "accel-updown":
+        g = calibration.local_gravity_mps2(lat, args.height_m)
+        rows = np.loadtxt(args.table, delimiter=",", comments="#", ndmin=2)
+        print(f"local gravity {g:.5f} m/s^2 (WGS-84 normal gravity at {args.lat_deg:g} deg, {args.height_m:g} m)")
+        print("axis  bias (m/s^2)  scale factor")
+        for k, (z1, z2) in enumerate(rows[:, :2]):
+            c = calibration.accel_up_down(z1, z2, g)
+            print(f"{'xyz'[k] if len(rows) <= 3 else k:4}  {c.bias:12.5f}  {c.scale_factor:12.6f}")
+    else:
+        rows = np.loadtxt(args.table, delimiter=",", comments="#", ndmin=2)
+        w_ex = calibration.earth_rate_component(lat, args.axis_up)
+        c = calibration.gyro_rate_table(rows[:, 0], rows[:, 1], w_ex, args.drift_bias)
+        print(f"gyro: bias {c.bias:.6f} rad/s, scale factor {c.scale_factor:.6f}, residual RMS {c.residual_rms:.2e} "
+              f"rad/s over {len(rows)} rates (Earth rate along the axis {w_ex:.3e} rad/s)")
+    return 0
