@@ -12,19 +12,20 @@ import pytest
 from gpsins import cli
 from gpsins.imu import allan, calibration, noise_fit, psd
 
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "allan"
-if not DATA.exists():  # the reference data sit next to the checkout
-    DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "allan"
+
+@pytest.fixture
+def allan_data(shared_data) -> Path:
+    return shared_data / "allan"
 
 
-def stable32(name):
-    return np.loadtxt(DATA / name, comments="#")
+def stable32(d, name):
+    return np.loadtxt(d / name, comments="#")
 
 
-@pytest.mark.skipif(not DATA.exists(), reason="shared reference data not present")
-def test_phase_dat_matches_stable32():
+def test_phase_dat_matches_stable32(allan_data):
+    DATA = allan_data
     x = np.loadtxt(DATA / "PHASE.DAT", comments="#")
-    ref = stable32("PHASE_oadev_octave_stable32.txt")
+    ref = stable32(DATA, "PHASE_oadev_octave_stable32.txt")
     r = allan.oadev(x, 1.0, taus="octave", data_type="phase")
     k = len(ref)
     assert np.allclose(r.tau[:k], ref[:, 1])
@@ -34,10 +35,9 @@ def test_phase_dat_matches_stable32():
     assert np.max(np.abs(r.lo[:k] / ref[:, 4] - 1)) < 0.005 and np.max(np.abs(r.hi[:k] / ref[:, 6] - 1)) < 0.005
 
 
-@pytest.mark.skipif(not DATA.exists(), reason="shared reference data not present")
-def test_ocxo_frequency_data_matches_stable32():
-    y = np.loadtxt(DATA / "ocxo_frequency.txt", comments="#") / 1e7
-    ref = stable32("ocxo_oadev_octave_stable32.txt")
+def test_ocxo_frequency_data_matches_stable32(allan_data):
+    y = np.loadtxt(allan_data / "ocxo_frequency.txt", comments="#") / 1e7
+    ref = stable32(allan_data, "ocxo_oadev_octave_stable32.txt")
     r = allan.oadev(y, 1.0, taus="octave")
     k = len(ref)
     assert np.max(np.abs(r.adev[:k] / ref[:, 5] - 1)) < 2e-3
