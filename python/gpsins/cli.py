@@ -95,6 +95,12 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     return imu_cli.run_calibrate(args)
 
 
+def _cmd_spp(args: argparse.Namespace) -> int:
+    from . import spp
+
+    return spp.main(args)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="gpsins", description=__doc__)
     parser.add_argument("--version", action="version", version=f"gpsins {__version__}")
@@ -162,6 +168,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--axis-up", action="store_true", help="the gyro axis points up (Earth rate along it)")
     p.add_argument("--drift-bias", type=float, help="gyro bias from a drift test, rad/s (else fitted)")
     p.set_defaults(func=_cmd_calibrate)
+
+    p = sub.add_parser("spp", help="single-point positioning from pseudoranges (session, raw capture or RINEX)")
+    p.add_argument("session", nargs="?", help="session directory")
+    p.add_argument("--raw", help="a raw Superstar II byte stream or .raw capture")
+    p.add_argument("--rinex", help="RINEX 2 observation file (with --nav)")
+    p.add_argument("--nav", help="RINEX 2 navigation file (ephemerides, Klobuchar)")
+    p.add_argument("--out", help="write an RTKLIB-style .pos file")
+    p.add_argument("--ecef", action="store_true", help=".pos in ECEF instead of latitude, longitude, height")
+    p.add_argument("--mask-deg", type=float, default=15.0, help="elevation mask (default 15)")
+    p.add_argument("--no-iono", action="store_true")
+    p.add_argument("--no-trop", action="store_true")
+    p.set_defaults(func=_cmd_spp)
 
     p = sub.add_parser("log", help="run the logger daemon (same as gpsins-logger)", add_help=False)
     p.add_argument("logger_args", nargs=argparse.REMAINDER)
