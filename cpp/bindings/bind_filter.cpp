@@ -4,11 +4,13 @@
 #include <pybind11/eigen.h>
 #include <pybind11/numpy.h>
 #include <pybind11/pybind11.h>
+#include <pybind11/stl.h>
 
 #include <string>
 #include <variant>
 #include <vector>
 
+#include "gpsins/gnss/ephemeris.hpp"
 #include "gpsins/ins_filter.hpp"
 
 namespace py = pybind11;
@@ -30,6 +32,7 @@ AnyFilter make_filter(const InsConfig& cfg, bool tight) {
 
 constexpr int kImuCols = 7;   // t, dtheta xyz, dv xyz
 constexpr int kFixCols = 10;  // t, r xyz, v xyz, hdop, vdop, mode
+constexpr int kPrCols = 5;    // t, prn, pseudorange, C/N0, lock count
 
 FixInput fix_of(const double* p) {
   FixInput f;
@@ -71,6 +74,11 @@ py::dict counters_dict(const Counters& c) {
   d["updates_rejected"] = c.updates_rejected;
   d["updates_guarded"] = c.updates_guarded;
   d["standstill_samples"] = c.standstill_samples;
+  d["pseudorange_epochs"] = c.pseudorange_epochs;
+  d["pseudoranges_used"] = c.pseudoranges_used;
+  d["pseudoranges_rejected"] = c.pseudoranges_rejected;
+  d["pseudoranges_no_ephemeris"] = c.pseudoranges_no_ephemeris;
+  d["pseudoranges_masked"] = c.pseudoranges_masked;
   d["diverged"] = c.diverged;
   return d;
 }
@@ -128,8 +136,24 @@ Array from_rows(const std::vector<double>& v, py::ssize_t cols) {
   return a;
 }
 
+// Rows [start, end) of a pseudorange table with the same time, as one epoch.
+PseudorangeEpoch pr_epoch(const double* p, py::ssize_t start, py::ssize_t end) {
+  PseudorangeEpoch ep;
+  ep.t_s = p[start * kPrCols];
+  for (py::ssize_t r = start; r < end && ep.n < PseudorangeEpoch::kMaxSats; ++r) {
+    const double* row = p + r * kPrCols;
+    const auto k = static_cast<std::size_t>(ep.n++);
+    ep.prn[k] = static_cast<int>(row[1]);
+    ep.pr_m[k] = row[2];
+    ep.cn0_dbhz[k] = row[3];
+    ep.lock_count[k] = static_cast<int>(row[4]);
+  }
+  return ep;
+}
+
 template <int NB, int NC>
-py::dict run_batch(InsFilter<NB, NC>& f, const Array& imu, const Array& fixes, int output_every, bool with_cov) {
+py::dict run_batch(InsFilter<NB, NC>& f, const Array& imu, const Array& fixes, const Array& prs, int output_every,
+                   bool with_cov) {
   using Row = StateRow<NB, NC>;
   const py::ssize_t n = imu.shape(0), m = fixes.shape(0);
   std::vector<double> rows;
@@ -142,7 +166,9 @@ py::dict run_batch(InsFilter<NB, NC>& f, const Array& imu, const Array& fixes, i
   f.set_update_log(&log);
   const double* pi = imu.data();
   const double* pf = fixes.data();
-  py::ssize_t j = 0, bad_row = -1;
+  const double* pp = prs.data();
+  const py::ssize_t np_rows = prs.shape(0);
+  py::ssize_t j = 0, q = 0, bad_row = -1;
   const char* bad_what = nullptr;
   double bad_t = 0.0;
   InputStatus bad = InputStatus::Ok;
@@ -159,6 +185,17 @@ py::dict run_batch(InsFilter<NB, NC>& f, const Array& imu, const Array& fixes, i
           break;
         }
         ++j;
+      }
+      if (bad != InputStatus::Ok) break;
+      while (q < np_rows && pp[q * kPrCols] <= r[0]) {
+        py::ssize_t e = q + 1;
+        while (e < np_rows && pp[e * kPrCols] == pp[q * kPrCols]) ++e;
+        const InputStatus s = f.push_pseudoranges(pr_epoch(pp, q, e));
+        if (s != InputStatus::Ok) {
+          bad = s; bad_row = q; bad_what = "pseudoranges"; bad_t = pp[q * kPrCols];
+          break;
+        }
+        q = e;
       }
       if (bad != InputStatus::Ok) break;
       const InputStatus s = f.push_imu(r[0], Vec3(r[1], r[2], r[3]), Vec3(r[4], r[5], r[6]));
@@ -227,7 +264,8 @@ py::dict run_batch(InsFilter<NB, NC>& f, const Array& imu, const Array& fixes, i
 
 class PyFilter {
  public:
-  PyFilter(const InsConfig& cfg, const std::string& mode) : f_(make_filter(cfg, parse_mode(mode))) {}
+  PyFilter(const InsConfig& cfg, const std::string& mode)
+      : f_(make_filter(cfg, parse_mode(mode))), tight_(parse_mode(mode)) {}
 
   static bool parse_mode(const std::string& mode) {
     if (mode == "loose") return false;
@@ -252,10 +290,43 @@ class PyFilter {
     if (s != InputStatus::Ok) input_error("fix", fix_count_, t, s);
     ++fix_count_;
   }
-  py::dict run(py::handle imu, py::handle fixes, int output_every, bool with_cov) {
+  py::dict run(py::handle imu, py::handle fixes, py::handle prs, int output_every, bool with_cov) {
     if (output_every < 1) throw py::value_error("output_every must be >= 1");
     const Array a = table(imu, kImuCols, "imu"), b = table(fixes, kFixCols, "fixes");
-    return std::visit([&](auto& f) { return run_batch(f, a, b, output_every, with_cov); }, f_);
+    const Array c = table(prs.is_none() ? py::handle(Array(std::vector<py::ssize_t>{0, kPrCols})) : prs, kPrCols,
+                          "pseudoranges");
+    if (c.shape(0) > 0 && !tight_)
+      throw py::value_error("pseudoranges given to a loosely coupled filter (mode = 'tight' uses them)");
+    return std::visit([&](auto& f) { return run_batch(f, a, b, c, output_every, with_cov); }, f_);
+  }
+  void push_pseudoranges(double t, const std::vector<int>& prn, const std::vector<double>& pr,
+                         const std::vector<double>& cn0, const std::vector<int>& lock) {
+    if (!tight_) throw py::value_error("pseudoranges need mode = 'tight'");
+    if (prn.size() != pr.size() || cn0.size() != pr.size() || lock.size() != pr.size())
+      throw py::value_error("push_pseudoranges: prn, pr, cn0 and lock must have equal lengths");
+    PseudorangeEpoch ep;
+    ep.t_s = t;
+    for (std::size_t i = 0; i < pr.size() && ep.n < PseudorangeEpoch::kMaxSats; ++i) {
+      const auto k = static_cast<std::size_t>(ep.n++);
+      ep.prn[k] = prn[i];
+      ep.pr_m[k] = pr[i];
+      ep.cn0_dbhz[k] = cn0[i];
+      ep.lock_count[k] = lock[i];
+    }
+    const InputStatus s = std::visit([&](auto& f) { return f.push_pseudoranges(ep); }, f_);
+    if (s != InputStatus::Ok) input_error("pseudorange epoch", pr_count_, t, s);
+    ++pr_count_;
+  }
+  bool add_ephemeris(const gnss::Ephemeris& e) { return std::visit([&](auto& f) { return f.add_ephemeris(e); }, f_); }
+  void set_klobuchar(const std::vector<double>& alpha, const std::vector<double>& beta) {
+    if (alpha.size() != 4 || beta.size() != 4) throw py::value_error("set_klobuchar: 4 alpha and 4 beta values");
+    gnss::Klobuchar k;
+    for (std::size_t i = 0; i < 4; ++i) {
+      k.alpha[i] = alpha[i];
+      k.beta[i] = beta[i];
+    }
+    k.valid = true;
+    std::visit([&](auto& f) { f.set_klobuchar(k); }, f_);
   }
 
   template <class G>
@@ -263,7 +334,8 @@ class PyFilter {
 
  private:
   AnyFilter f_;
-  py::ssize_t imu_count_ = 0, fix_count_ = 0;
+  bool tight_ = false;
+  py::ssize_t imu_count_ = 0, fix_count_ = 0, pr_count_ = 0;
 };
 
 }  // namespace
@@ -315,6 +387,14 @@ void bind_filter(py::module_& m) {
   GPSINS_FIELD(fix_sigma_ecef_m);
   GPSINS_FIELD(use_fix_velocity);
   GPSINS_FIELD(fix_velocity_sigma_mps);
+  GPSINS_FIELD(pseudorange_sigma_m);
+  GPSINS_FIELD(pseudorange_elevation_mask_rad);
+  GPSINS_FIELD(pseudorange_min_cn0_dbhz);
+  GPSINS_FIELD(pseudorange_settle_s);
+  GPSINS_FIELD(pseudorange_decimation);
+  GPSINS_FIELD(pseudorange_ionosphere);
+  GPSINS_FIELD(pseudorange_troposphere);
+  GPSINS_FIELD(gps_time_offset_s);
   GPSINS_FIELD(zero_velocity_updates);
   GPSINS_FIELD(standstill_window_s);
   GPSINS_FIELD(standstill_accel_std_mps2);
@@ -332,8 +412,14 @@ void bind_filter(py::module_& m) {
       .def("push_imu", &PyFilter::push_imu, py::arg("t"), py::arg("dtheta"), py::arg("dv"))
       .def("push_fix", &PyFilter::push_fix, py::arg("t"), py::arg("r_ecef"), py::arg("v_ecef"), py::arg("hdop"),
            py::arg("vdop"), py::arg("mode") = 2)
-      .def("run", &PyFilter::run, py::arg("imu"), py::arg("fixes"), py::arg("output_every") = 1, py::arg("covariance") = false,
-           "Batch: imu (n, 7) [t, dtheta xyz, dv xyz], fixes (m, 10) [t, r xyz, v xyz, hdop, vdop, mode].")
+      .def("run", &PyFilter::run, py::arg("imu"), py::arg("fixes"), py::arg("pseudoranges") = py::none(),
+           py::arg("output_every") = 1, py::arg("covariance") = false,
+           "Batch: imu (n, 7) [t, dtheta xyz, dv xyz], fixes (m, 10) [t, r xyz, v xyz, hdop, vdop, mode], "
+           "pseudoranges (k, 5) [t, prn, pr, cn0, lock] (tight), rows of one epoch sharing t.")
+      .def("push_pseudoranges", &PyFilter::push_pseudoranges, py::arg("t"), py::arg("prn"), py::arg("pr"),
+           py::arg("cn0"), py::arg("lock"))
+      .def("add_ephemeris", &PyFilter::add_ephemeris, py::arg("eph"))
+      .def("set_klobuchar", &PyFilter::set_klobuchar, py::arg("alpha"), py::arg("beta"))
       .def_property_readonly("initialised", [](const PyFilter& p) { return p.with([](const auto& f) { return f.initialised(); }); })
       .def_property_readonly("standstill", [](const PyFilter& p) { return p.with([](const auto& f) { return f.standstill(); }); })
       .def_property_readonly("n_states", [](const PyFilter& p) { return p.with([](const auto& f) { return static_cast<int>(f.N); }); })

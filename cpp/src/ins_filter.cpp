@@ -5,6 +5,8 @@
 
 #include "gpsins/aiding/measurement.hpp"
 #include "gpsins/aiding/position_fix.hpp"
+#include "gpsins/aiding/pseudorange.hpp"
+#include "gpsins/gnss/spp.hpp"
 #include "gpsins/aiding/velocity.hpp"
 #include "gpsins/aiding/zero_rate.hpp"
 #include "gpsins/aiding/zero_velocity.hpp"
@@ -161,23 +163,37 @@ InputStatus InsFilter<NB, NC>::push_imu(double t_s, const Vec3& dtheta_rad, cons
 template <int NB, int NC>
 void InsFilter<NB, NC>::propagate_to(const Increment& inc) {
   Increment rest = inc;
-  while (pending_count_ > 0 && pending_[0].t_s <= t_last_ + rest.dt_s) {
-    const FixInput fix = pending_[0];
-    std::copy(pending_.begin() + 1, pending_.begin() + pending_count_, pending_.begin());
-    --pending_count_;
-    const double frac = std::clamp((fix.t_s - t_last_) / rest.dt_s, 0.0, 1.0);
+  for (;;) {
+    // The earliest held measurement inside this increment, fixes first on a tie.
+    const double t_end = t_last_ + rest.dt_s;
+    const bool fix_due = pending_count_ > 0 && pending_[0].t_s <= t_end;
+    const bool pr_due = pending_pr_count_ > 0 && pending_pr_[0].t_s <= t_end;
+    if (!fix_due && !pr_due) break;
+    const bool take_fix = fix_due && (!pr_due || pending_[0].t_s <= pending_pr_[0].t_s);
+    const double t_meas = take_fix ? pending_[0].t_s : pending_pr_[0].t_s;
+    const double frac = std::clamp((t_meas - t_last_) / rest.dt_s, 0.0, 1.0);
     Increment first, second;
     split_increment(rest, frac, first, second);
     if (initialised_) core_.propagate(first);
     t_last_ += first.dt_s;
-    if (initialised_) {
-      process_fix(fix);
-    } else if (level_time_ + first.dt_s >= cfg_.level_time_s - 0.5 * dt_nominal_) {
-      level_f_sum_ += first.dv_mps;
-      level_time_ += first.dt_s;
-      initialise(fix);
+    if (take_fix) {
+      const FixInput fix = pending_[0];
+      std::copy(pending_.begin() + 1, pending_.begin() + pending_count_, pending_.begin());
+      --pending_count_;
+      if (initialised_) {
+        process_fix(fix);
+      } else if (level_time_ + first.dt_s >= cfg_.level_time_s - 0.5 * dt_nominal_) {
+        level_f_sum_ += first.dv_mps;
+        level_time_ += first.dt_s;
+        initialise(fix);
+      } else {
+        ++counters_.fixes_before_alignment;
+      }
     } else {
-      ++counters_.fixes_before_alignment;
+      const PseudorangeEpoch ep = pending_pr_[0];
+      std::copy(pending_pr_.begin() + 1, pending_pr_.begin() + pending_pr_count_, pending_pr_.begin());
+      --pending_pr_count_;
+      if (initialised_) process_pseudoranges(ep);
     }
     rest = second;
   }
@@ -189,6 +205,123 @@ void InsFilter<NB, NC>::propagate_to(const Increment& inc) {
   if (!std::isfinite(pos_var) || pos_var > 3.0 * cfg_.max_position_sigma_m * cfg_.max_position_sigma_m ||
       !core_.nav.r_ecef_m.allFinite())
     counters_.diverged = true;
+}
+
+template <int NB, int NC>
+InputStatus InsFilter<NB, NC>::push_pseudoranges(const PseudorangeEpoch& ep) {
+  if constexpr (NC == 0) {
+    return InputStatus::BadValue;
+  } else {
+    if (!std::isfinite(ep.t_s)) return InputStatus::NonFinite;
+    if (ep.n < 0 || ep.n > PseudorangeEpoch::kMaxSats) return InputStatus::BadValue;
+    for (int i = 0; i < ep.n; ++i)
+      if (!std::isfinite(ep.pr_m[static_cast<std::size_t>(i)])) return InputStatus::NonFinite;
+    if (ep.t_s <= last_pr_t_) return InputStatus::TimeNotIncreasing;
+    last_pr_t_ = ep.t_s;
+    ++counters_.pseudorange_epochs;
+    track_locks(ep);
+    if (counters_.pseudorange_epochs % std::max(1, cfg_.pseudorange_decimation) != 0) return InputStatus::Ok;
+    if (have_time_ && ep.t_s <= t_last_) {
+      if (initialised_) process_pseudoranges(ep);
+      return InputStatus::Ok;
+    }
+    if (pending_pr_count_ == kPendingPr) {
+      const PseudorangeEpoch oldest = pending_pr_[0];
+      std::copy(pending_pr_.begin() + 1, pending_pr_.end(), pending_pr_.begin());
+      --pending_pr_count_;
+      if (initialised_) process_pseudoranges(oldest);
+    }
+    pending_pr_[static_cast<std::size_t>(pending_pr_count_++)] = ep;
+    return InputStatus::Ok;
+  }
+}
+
+// The receiver's lock counter grows while a satellite stays locked (saturating);
+// a drop, or a satellite missing from an epoch, means the lock was lost.
+template <int NB, int NC>
+void InsFilter<NB, NC>::track_locks(const PseudorangeEpoch& ep) {
+  std::array<bool, 33> seen{};
+  for (int i = 0; i < ep.n; ++i) {
+    const int prn = ep.prn[static_cast<std::size_t>(i)];
+    if (prn < 1 || prn > 32) continue;
+    const auto p = static_cast<std::size_t>(prn);
+    const int lock = ep.lock_count[static_cast<std::size_t>(i)];
+    if (!tracked_[p] || lock < last_lock_[p]) locked_since_[p] = ep.t_s;
+    last_lock_[p] = lock;
+    seen[p] = true;
+  }
+  tracked_ = seen;
+}
+
+template <int NB, int NC>
+void InsFilter<NB, NC>::process_pseudoranges(const PseudorangeEpoch& ep) {
+  if constexpr (NC == 2) {
+    // A satellite settles for a while after (re)acquisition (see track_locks).
+    std::array<bool, PseudorangeEpoch::kMaxSats> settled{};
+    for (int i = 0; i < ep.n; ++i) {
+      const int prn = ep.prn[static_cast<std::size_t>(i)];
+      settled[static_cast<std::size_t>(i)] =
+          prn >= 1 && prn <= 32 && ep.t_s - locked_since_[static_cast<std::size_t>(prn)] >= cfg_.pseudorange_settle_s;
+    }
+
+    const double t_abs = ep.t_s + cfg_.gps_time_offset_s;
+    const double tow = std::fmod(t_abs, gnss::kSecondsPerWeek);
+    const Mat3 c = core_.nav.q_eb.toRotationMatrix();
+    const Vec3 r_a = core_.nav.r_ecef_m + c * cfg_.lever_arm_body_m;
+    const Geodetic llh = ecef_to_geodetic(r_a);
+    struct Use {
+      Vec3 sat;
+      double pr_corr, sagnac, var;
+      int prn;
+    };
+    std::array<Use, PseudorangeEpoch::kMaxSats> use{};
+    int n = 0;
+    for (int i = 0; i < ep.n; ++i) {
+      const auto k = static_cast<std::size_t>(i);
+      gnss::SatState st;
+      const gnss::Ephemeris* eph = nullptr;
+      if (!gnss::sat_at_transmission(store_, ep.prn[k], t_abs, ep.pr_m[k], st, &eph)) {
+        ++counters_.pseudoranges_no_ephemeris;
+        continue;
+      }
+      const gnss::AzEl ae = gnss::az_el(llh, r_a, st.r_ecef_m);
+      if (ae.el_rad < cfg_.pseudorange_elevation_mask_rad || ep.cn0_dbhz[k] < cfg_.pseudorange_min_cn0_dbhz ||
+          !settled[k]) {
+        ++counters_.pseudoranges_masked;
+        continue;
+      }
+      const double iono = cfg_.pseudorange_ionosphere ? gnss::klobuchar_m(iono_, llh, ae, tow) : 0.0;
+      const double trop = cfg_.pseudorange_troposphere ? gnss::saastamoinen_m(llh, ae.el_rad) : 0.0;
+      const double var = cfg_.pseudorange_sigma_m > 0.0
+                             ? cfg_.pseudorange_sigma_m * cfg_.pseudorange_sigma_m
+                             : gnss::pseudorange_variance_m2(ae.el_rad, gnss::ura_m(eph->ura_index), iono);
+      // Everything but geometry and the receiver clock moved to the measurement side.
+      const double corr = ep.pr_m[k] + gnss::kSpeedOfLight * (st.clock_s - eph->tgd_s) - iono - trop;
+      use[static_cast<std::size_t>(n++)] = Use{st.r_ecef_m, corr, gnss::sagnac_m(st.r_ecef_m, r_a), var, ep.prn[k]};
+    }
+    if (n == 0) return;
+    if (!clock_set_) {  // the receiver clock from this epoch's residuals (median)
+      std::array<double, PseudorangeEpoch::kMaxSats> res{};
+      for (int i = 0; i < n; ++i) {
+        const auto& u = use[static_cast<std::size_t>(i)];
+        res[static_cast<std::size_t>(i)] = u.pr_corr - ((u.sat - r_a).norm() + u.sagnac);
+      }
+      std::nth_element(res.begin(), res.begin() + n / 2, res.begin() + n);
+      core_.clock(0) = res[static_cast<std::size_t>(n / 2)];
+      clock_set_ = true;
+    }
+    for (int i = 0; i < n; ++i) {
+      const auto& u = use[static_cast<std::size_t>(i)];
+      const auto m = pseudorange(core_, cfg_.lever_arm_body_m, u.sat, u.pr_corr, u.sagnac, u.var);
+      const auto r = core_.update(m.y, m.H, m.R, gate(1));
+      record(kPseudorange, r, 1);
+      if (log_) log_->back().id = u.prn;
+      last_update_.id = u.prn;
+      ++(r.accepted ? counters_.pseudoranges_used : counters_.pseudoranges_rejected);
+    }
+  } else {
+    (void)ep;
+  }
 }
 
 template <int NB, int NC>
@@ -304,6 +437,8 @@ void InsFilter<NB, NC>::process_fix(const FixInput& fix) {
   }
   prev_fix_ = fix;
   have_prev_fix_ = true;
+
+  if constexpr (NC == 2) return;  // tight: the receiver's fixes only start the filter and give the heading
 
   Mat3 r_cov;
   if ((cfg_.fix_sigma_ecef_m.array() > 0.0).all()) {

@@ -44,7 +44,8 @@ GM_PEAK_PER_SIGMA = 0.617  # ADEV peak of a Gauss-Markov process / its stationar
 FLAT_PER_B = 0.664  # ADEV floor of bias instability B
 
 _DEGREE_KEYS = {"attitude_sigma_deg": "attitude_sigma_rad", "initial_yaw_deg": "initial_yaw_rad",
-                "heading_sigma_deg": "heading_sigma_rad"}
+                "heading_sigma_deg": "heading_sigma_rad",
+                "pseudorange_elevation_mask_deg": "pseudorange_elevation_mask_rad"}
 _EXTRA_KEYS = {"preset", "mode", "imu_noise", "gyro_bias_residual_rad_per_s", "accel_bias_residual_mps2"}
 _NOISE_KEYS = {"gyro_arw_rad_per_sqrt_s", "gyro_bias_instability_rad_per_s", "gyro_rrw_rad_per_s_sqrt_s",
                "accel_vrw_mps_per_sqrt_s", "accel_bias_instability_mps2", "accel_rrw_mps2_per_sqrt_s", "bias_tau_s"}
@@ -199,6 +200,8 @@ def core_config(cfg: dict) -> _core.InsConfig:
                 if not isinstance(value, bool):
                     raise ConfigError(f"{key}: expected true or false, got {value!r}")
                 setattr(c, key, value)
+            elif isinstance(current, int):
+                setattr(c, key, int(value))
             else:
                 setattr(c, key, float(value))
         except (TypeError, ValueError) as e:
@@ -275,19 +278,30 @@ class Solution:
 
 
 def run(imu: np.ndarray, fixes: np.ndarray, config=None, *, mode: str | None = None, output_every: int = 1,
-        covariance: bool = False) -> Solution:
+        covariance: bool = False, pseudoranges: np.ndarray | None = None, ephemerides=(), klobuchar=None,
+        gps_time_offset_s: float | None = None) -> Solution:
     """Run the filter over whole arrays in C++.
 
     imu: (n, 7) [t, dtheta xyz (rad), dv xyz (m/s)] at the IMU's sampling instants.
     fixes: (m, 10) [t, r_ecef xyz, v_ecef xyz (NaN if none), hdop, vdop, mode (2 = 3D, 3 = 2D)].
     config: a configuration table, preset name or TOML path (see load_config).
+    Tight mode also takes pseudoranges (k, 5) [t, prn, pseudorange m, C/N0 dB-Hz, lock count]
+    (one epoch's rows share t), the ephemerides (``_core.gnss.Ephemeris``), the Klobuchar
+    (alpha, beta) and the offset from the time base to GPS seconds since the GPS epoch.
     """
     cfg = config if isinstance(config, dict) and "preset" in config else load_config(config)
     mode = mode or cfg.get("mode", "loose")
     core = core_config(cfg)
+    if gps_time_offset_s is not None:
+        core.gps_time_offset_s = float(gps_time_offset_s)
     f = _core.InsFilter(core, mode)
+    for e in ephemerides:
+        f.add_ephemeris(e)
+    if klobuchar is not None and len(klobuchar[0]) == 4:
+        f.set_klobuchar(list(klobuchar[0]), list(klobuchar[1]))
+    prs = None if pseudoranges is None else np.ascontiguousarray(pseudoranges, dtype=float).reshape(-1, 5)
     out = f.run(np.ascontiguousarray(imu, dtype=float), np.ascontiguousarray(fixes, dtype=float).reshape(-1, 10),
-                output_every, covariance)
+                prs, output_every, covariance)
     return Solution.from_batch(out, mode, core.scale_factor_states)
 
 

@@ -44,7 +44,7 @@ struct InsConfig {
   Vec3 accel_bias_sigma_mps2 = Vec3::Constant(0.05);
 
   // Receiver clock (tight coupling), random walks on bias and drift.
-  double clock_bias_sigma_m = 1e5;
+  double clock_bias_sigma_m = 100.0;  // after the bias is set from the first epoch
   double clock_drift_sigma_mps = 100.0;
   double clock_bias_noise_m_per_sqrt_s = 0.1;
   double clock_drift_noise_mps_per_sqrt_s = 0.1;
@@ -61,6 +61,21 @@ struct InsConfig {
   Vec3 fix_sigma_ecef_m = Vec3::Zero();
   bool use_fix_velocity = false;
   double fix_velocity_sigma_mps = 0.1;
+
+  // Pseudoranges (tight coupling). Variance from the elevation model when the
+  // sigma is <= 0 (RTKLIB's, as in single-point positioning).
+  double pseudorange_sigma_m = 0.0;
+  double pseudorange_elevation_mask_rad = 0.2617993877991494;  // 15 deg
+  double pseudorange_min_cn0_dbhz = 30.0;
+  double pseudorange_settle_s = 1.0;  // skip a satellite this long after (re)acquisition
+  // Use every n-th measurement epoch. Pseudorange errors (multipath, ionosphere and
+  // troposphere residuals) stay correlated for tens of seconds; updating with all
+  // of the receiver's 10 Hz epochs as if they were independent makes the filter
+  // several times too confident. 1 Hz keeps it consistent (and is the report's rate).
+  int pseudorange_decimation = 10;
+  bool pseudorange_ionosphere = true;
+  bool pseudorange_troposphere = true;
+  double gps_time_offset_s = 0.0;  // filter time + this = GPS seconds since the GPS epoch
 
   // Standstill: detected from the IMU window while the speed estimate is low.
   bool zero_velocity_updates = true;

@@ -12,6 +12,8 @@
 #include <vector>
 
 #include "gpsins/eskf.hpp"
+#include "gpsins/gnss/ephemeris.hpp"
+#include "gpsins/gnss/models.hpp"
 #include "gpsins/ins_config.hpp"
 
 namespace gpsins {
@@ -34,6 +36,18 @@ struct FixInput {
   double hdop = 1.0;
   double vdop = 1.0;
   int mode = 2;
+};
+
+// One measurement epoch of the receiver: pseudoranges at receiver time t_s (the
+// filter's time base). n <= kMaxSats.
+struct PseudorangeEpoch {
+  static constexpr int kMaxSats = 16;
+  double t_s = 0.0;
+  int n = 0;
+  std::array<int, kMaxSats> prn{};
+  std::array<double, kMaxSats> pr_m{};
+  std::array<double, kMaxSats> cn0_dbhz{};
+  std::array<int, kMaxSats> lock_count{};
 };
 
 enum UpdateKind : int {
@@ -72,6 +86,11 @@ struct Counters {
   std::int64_t updates_rejected = 0;
   std::int64_t updates_guarded = 0;
   std::int64_t standstill_samples = 0;
+  std::int64_t pseudorange_epochs = 0;
+  std::int64_t pseudoranges_used = 0;
+  std::int64_t pseudoranges_rejected = 0;
+  std::int64_t pseudoranges_no_ephemeris = 0;
+  std::int64_t pseudoranges_masked = 0;  // elevation, C/N0 or settling after (re)acquisition
   bool diverged = false;
 };
 
@@ -85,6 +104,10 @@ class InsFilter {
 
   InputStatus push_imu(double t_s, const Vec3& dtheta_rad, const Vec3& dv_mps);
   InputStatus push_fix(const FixInput& fix);
+  // Tight coupling only (NC == 2); held until the IMU reaches their time.
+  InputStatus push_pseudoranges(const PseudorangeEpoch& epoch);
+  bool add_ephemeris(const gnss::Ephemeris& e) { return store_.add(e); }
+  void set_klobuchar(const gnss::Klobuchar& k) { iono_ = k; }
 
   bool initialised() const { return initialised_; }
   bool heading_known() const { return heading_known_; }
@@ -103,6 +126,8 @@ class InsFilter {
   Increment calibrated(double dt, const Vec3& dtheta, const Vec3& dv) const;
   void propagate_to(const Increment& inc);
   void process_fix(const FixInput& fix);
+  void process_pseudoranges(const PseudorangeEpoch& epoch);
+  void track_locks(const PseudorangeEpoch& epoch);
   void initialise(const FixInput& fix);
   void decouple_yaw();
   void set_heading(const FixInput& fix, const Vec3& v_ecef, double course_rad);
@@ -138,6 +163,16 @@ class InsFilter {
 
   std::array<FixInput, kPending> pending_{};
   int pending_count_ = 0;
+  static constexpr int kPendingPr = 4;
+  std::array<PseudorangeEpoch, kPendingPr> pending_pr_{};
+  int pending_pr_count_ = 0;
+  double last_pr_t_ = -1e300;
+  gnss::EphemerisStore store_;
+  gnss::Klobuchar iono_;
+  std::array<int, 33> last_lock_{};
+  std::array<double, 33> locked_since_{};
+  std::array<bool, 33> tracked_{};
+  bool clock_set_ = false;
   bool have_fix_time_ = false;
   double last_fix_t_ = 0.0;
   bool have_prev_fix_ = false;

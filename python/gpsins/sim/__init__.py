@@ -90,3 +90,12 @@ def imu_noise_truth(model) -> dict:
     return {"imu_noise": noise,
             "gyro_bias_residual_rad_per_s": float(get("gyro_bias_residual_rad_per_s")) if on else 0.0,
             "accel_bias_residual_mps2": float(get("accel_bias_residual_mps2")) if on else 0.0}
+
+
+def pseudorange_table(s: Simulation) -> np.ndarray:
+    """(k, 5) [t, prn, pseudorange, C/N0, lock count] per tracked satellite, t the receiver's
+    time of the epoch on the run's time line (tow_rx - start tow)."""
+    g = s.gnss
+    k, j = np.nonzero(g.tracked)
+    t = g.tow_rx[k] - s.scenario.start.gps_tow_s
+    return np.column_stack([t, j + 1, g.pseudorange_m[k, j], g.cn0_dbhz[k, j], g.lock_count[k, j]])
