@@ -2,6 +2,7 @@
 
     python benchmarks/bench_filter.py speed [REPEATS]   # IMU epochs/s through the batch API
     python benchmarks/bench_filter.py nees [SEEDS]      # NEES over full default drives
+    python benchmarks/bench_filter.py tight [REPEATS]   # tight: 10 Hz pseudorange updates
 
 Speed: the default drive's 18 k IMU epochs (15 states, covariance propagated
 every epoch, 1 Hz fixes, standstill updates), run REPEATS times; also a
@@ -85,6 +86,32 @@ def nees(seeds: int) -> None:
           f"{100 * np.mean((avg >= lo) & (avg <= hi)):.1f} %")
 
 
+def tight(repeats: int) -> None:
+    """The default drive's pseudoranges at the receiver's full 10 Hz (decimation 1) and
+    at the default 1 Hz, through the batch API (17 states)."""
+    from gpsins.sim import ephemeris as sim_eph
+
+    s = sim.simulate(sim.load("default"), 0)
+    ephs = [_core.gnss.decode_subframes(sim_eph.encode_subframes(e), e.prn, 1590) for e in s.gnss.ephemerides.values()]
+    prs = sim.pseudorange_table(s)
+    imu, fixes = sim.imu_table(s), sim.fix_table(s)
+    offset = s.scenario.start.gps_week * 604800.0 + s.scenario.start.gps_tow_s
+    for dec in (1, 10):
+        cfg = flt.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), "mode": "tight",
+                                     "pseudorange_decimation": dec})
+        kw = dict(pseudoranges=prs, ephemerides=ephs, klobuchar=(s.gnss.ion_alpha, s.gnss.ion_beta),
+                  gps_time_offset_s=offset)
+        flt.run(imu, fixes, cfg, **kw)
+        t0 = time.perf_counter()
+        for _ in range(repeats):
+            sol = flt.run(imu, fixes, cfg, **kw)
+        el = time.perf_counter() - t0
+        c = sol.counters
+        print(f"tight, pseudorange epochs at {10 // dec} Hz: {len(imu) * repeats / el:,.0f} IMU epochs/s "
+              f"({c['pseudoranges_used'] / max(1, c['pseudorange_epochs'] // dec):.1f} satellites per update epoch, "
+              f"{c['pseudoranges_used']} scalar updates per run)")
+
+
 if __name__ == "__main__":
     what = sys.argv[1] if len(sys.argv) > 1 else "speed"
     arg = int(sys.argv[2]) if len(sys.argv) > 2 else None
@@ -92,5 +119,7 @@ if __name__ == "__main__":
         speed(arg or 20)
     elif what == "nees":
         nees(arg or 20)
+    elif what == "tight":
+        tight(arg or 20)
     else:
         sys.exit(__doc__)

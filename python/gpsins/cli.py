@@ -62,7 +62,8 @@ def _cmd_replay(args: argparse.Namespace) -> int:
     for mode in modes:
         res = replay.replay(args.session, Path(args.out) / mode if len(modes) > 1 else args.out, mode=mode,
                             config=args.config, overrides=_overrides(args.set), timing_method=args.timing,
-                            gps_latency_s=args.gps_latency, imu_latency_s=args.imu_latency, truth=not args.no_truth)
+                            gps_latency_s=args.gps_latency, imu_latency_s=args.imu_latency, truth=not args.no_truth,
+                            nav=args.nav)
         c = res.summary["counters"]
         print(f"{mode}: {res.summary['imu_samples']} IMU samples, {c['fixes_accepted']} fixes used, "
               f"{c['updates_rejected']} updates rejected; results in {res.out}")
@@ -138,7 +139,9 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("replay", help="replay a logger session through the filter")
     p.add_argument("session", help="session directory")
     p.add_argument("--out", required=True, help="results directory")
-    p.add_argument("--mode", choices=("loose",), default="loose", help="filter: loosely coupled (GPS fixes)")
+    p.add_argument("--mode", choices=("loose", "tight", "both"), default="loose",
+                   help="loosely coupled (receiver fixes), tightly coupled (pseudoranges) or both")
+    p.add_argument("--nav", help="RINEX 2 navigation file: ephemerides and Klobuchar when the log lacks them")
     p.add_argument("--config", help="filter configuration: TOML file or preset name (default, report2005)")
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override one configuration key")
     p.add_argument("--timing", choices=("robust", "report"), default="robust", help="IMU time alignment method")

@@ -17,7 +17,7 @@ from . import dump, logs, sim
 from .emulate import Emulators
 from .sim.messages import MEASUREMENT_DELAY_S, SimSource
 
-MODES = ("loose",)  # the tightly coupled filter joins with the GNSS models
+MODES = ("loose", "tight")
 
 
 def _logger_config(path: Path, devdir: Path, root: Path) -> Path:

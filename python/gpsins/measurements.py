@@ -39,6 +39,25 @@ class GpsMeasurements:
     iono: ss2.IonoUtc | None
     leap_s: int | None
 
+    def pseudorange_table(self) -> np.ndarray:
+        """(k, 5) [t, prn, pseudorange m, C/N0 dB-Hz, lock count]: GPS satellites of every block."""
+        rows = [(t, o.prn, b.pseudorange_m(o), o.cn0_dbhz, o.lock_count)
+                for t, b in zip(self.tow, self.blocks) for o in b.observations if not o.sbas]
+        return np.array(rows, dtype=float).reshape(-1, 5)
+
+    def decoded_ephemerides(self, skipped: Counter | None = None) -> list:
+        """The ID 22 subframes decoded (IS-GPS-200) by the core; inconsistent sets are counted and left out."""
+        from . import _core
+
+        out = []
+        for _, w in self.ephemerides:
+            try:
+                out.append(_core.gnss.decode_subframes(w.subframes, w.prn, self.week))
+            except ValueError:
+                if skipped is not None:
+                    skipped["gps: ephemerides with inconsistent IODE/IODC"] += 1
+        return out
+
 
 @dataclass
 class Decoded:

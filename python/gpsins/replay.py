@@ -105,7 +105,8 @@ def load_session_truth(directory: Path, t_offset: float) -> tuple[evaluate.Truth
 
 def replay(session: str | Path, out: str | Path, *, mode: str = "loose", config=None, overrides: dict | None = None,
            timing_method: str = "robust", gps_latency_s: float = DEFAULT_GPS_LATENCY_S,
-           imu_latency_s: float = DEFAULT_IMU_LATENCY_S, truth: bool = True) -> ReplayResult:
+           imu_latency_s: float = DEFAULT_IMU_LATENCY_S, truth: bool = True,
+           nav: str | Path | None = None) -> ReplayResult:
     session, out = Path(session), Path(out)
     clock = {"start": time.perf_counter()}
     dec = measurements.decode_session(session)
@@ -116,8 +117,23 @@ def replay(session: str | Path, out: str | Path, *, mode: str = "loose", config=
     clock["align_s"] = time.perf_counter() - t1
     imu = np.column_stack([al.imu_t, dec.imu.dtheta_rad, dec.imu.dv_mps])
     cfg = flt.load_config(config, {**(overrides or {}), "mode": mode})
+    tight = {}
+    if mode == "tight":
+        klob = None
+        if dec.gps.iono is not None:
+            klob = (dec.gps.iono.alpha, dec.gps.iono.beta)
+        elif nav is not None:
+            from . import rinex
+            n = rinex.read_nav(nav)
+            klob = (n.alpha, n.beta) if n.alpha else None
+        ephs = dec.gps.decoded_ephemerides(dec.skipped)
+        if nav is not None:
+            from . import rinex
+            ephs += rinex.read_nav(nav).ephemerides
+        tight = dict(pseudoranges=dec.gps.pseudorange_table(), ephemerides=ephs, klobuchar=klob,
+                     gps_time_offset_s=dec.gps.week * measurements.SECONDS_PER_WEEK)
     t2 = time.perf_counter()
-    sol = flt.run(imu, dec.gps.fixes, cfg, mode=mode, covariance=True)
+    sol = flt.run(imu, dec.gps.fixes, cfg, mode=mode, covariance=True, **tight)
     clock["filter_s"] = time.perf_counter() - t2
     if len(sol.t) == 0:
         raise measurements.logs.LogError(f"{session}: the filter never initialised (no usable fix after levelling)")

@@ -269,8 +269,11 @@ class Eskf {
     if (gate > 0.0 && !(res.nis <= gate)) return res;
     const Eigen::Matrix<double, N, M> K = llt.solve(pht.transpose()).transpose();
     const VecN dx = K * y;
-    const MatN ikh = MatN::Identity() - K * H;
-    const MatN p_new = ikh * P * ikh.transpose() + K * R * K.transpose();
+    // Joseph form (I - K H) P (I - K H)^T + K R K^T, multiplied out with A = P H^T and
+    // S = H P H^T + R into P - K A^T - A K^T + K S K^T: the same expression, symmetric
+    // term by term, in O(N^2 M) instead of two dense N x N products.
+    const Eigen::Matrix<double, N, N> ka = K * pht.transpose();
+    const MatN p_new = P - ka - ka.transpose() + K * S * K.transpose();
     if (!p_new.allFinite() || (p_new.diagonal().array() <= 0.0).any() || !dx.allFinite()) {
       res.guarded = true;
       return res;

@@ -47,7 +47,7 @@ struct InsConfig {
   double clock_bias_sigma_m = 100.0;  // after the bias is set from the first epoch
   double clock_drift_sigma_mps = 100.0;
   double clock_bias_noise_m_per_sqrt_s = 0.1;
-  double clock_drift_noise_mps_per_sqrt_s = 0.1;
+  double clock_drift_noise_mps_per_sqrt_s = 0.01;  // a TCXO; larger for a poorer oscillator
 
   // Initialisation.
   double level_time_s = 1.0;  // accelerometer mean for roll and pitch

@@ -1,0 +1,145 @@
+"""The tightly coupled filter against the simulator's truth: better than the loosely
+coupled one on the report's drive, consistent where satellites are few, and still
+navigating with two or three satellites."""
+
+import numpy as np
+import pytest
+
+from gpsins import _core, evaluate, filter as flt, sim
+from gpsins.sim import ephemeris as sim_eph
+from gpsins.sim.scenario import parse
+
+START = {"gps_week": 1590, "gps_tow_s": 419400.0, "lat_deg": 59.37, "lon_deg": 17.95, "height_m": 30.0,
+         "heading_deg": 160.0}
+# 60 s with three satellites (PRN 16, 18, 21), of which 20 s with two (16, 21).
+FEW = {"name": "few", "start": START, "gnss": {"elevation_mask_deg": 12.0},
+       "segment": [{"label": "stand", "duration_s": 15, "speed_mps": 0},
+                   {"label": "go", "duration_s": 10, "speed_mps": 12},
+                   {"label": "run", "duration_s": 85, "turn_deg": 40}],
+       "obstruction": [{"t0_s": 35, "t1_s": 95, "azimuth_deg": [160, 140], "below_elevation_deg": 60},
+                       {"t0_s": 60, "t1_s": 80, "azimuth_deg": [140, 160], "below_elevation_deg": 30}]}
+
+
+def both(s, **over):
+    noise = sim.imu_noise_truth(s.scenario.imu)
+    ephs = [_core.gnss.decode_subframes(sim_eph.encode_subframes(e), e.prn, s.scenario.start.gps_week)
+            for e in s.gnss.ephemerides.values()]
+    offset = s.scenario.start.gps_week * 604800.0 + s.scenario.start.gps_tow_s
+    out = {}
+    for mode in ("loose", "tight"):
+        cfg = flt.load_config(None, {**noise, "mode": mode, **over})
+        extra = dict(pseudoranges=sim.pseudorange_table(s), ephemerides=ephs,
+                     klobuchar=(s.gnss.ion_alpha, s.gnss.ion_beta), gps_time_offset_s=offset) if mode == "tight" else {}
+        out[mode] = flt.run(sim.imu_table(s), sim.fix_table(s), cfg, covariance=True, **extra)
+    return out
+
+
+def truth_of(s):
+    return evaluate.Truth(s.truth.t, s.truth.r_ecef, s.truth.v_ecef, s.truth.q_eb)
+
+
+@pytest.fixture(scope="module")
+def default_runs():
+    s = sim.simulate(sim.load("default"), seed=0)
+    return s, both(s)
+
+
+def test_tight_beats_loose_and_stays_consistent_where_satellites_are_few(default_runs):
+    s, sols = default_runs
+    tr = truth_of(s)
+    rows = {}
+    for mode, sol in sols.items():
+        e = evaluate.nav_errors(sol, tr)
+        hk = sol.heading_known
+        h = np.hypot(e.r_ned[hk, 0], e.r_ned[hk, 1])
+        rows[mode] = (np.sqrt(np.mean(h ** 2)), h.max(), e, sol)
+    print(f"default drive: loose H RMS {rows['loose'][0]:.2f} m (max {rows['loose'][1]:.1f}), "
+          f"tight {rows['tight'][0]:.2f} m (max {rows['tight'][1]:.1f})")
+    assert rows["tight"][0] <= rows["loose"][0]
+    # Segments with fewer than 4 satellites tracked at some time: tight inside its 3 sigma.
+    g = s.gnss
+    n_tracked = g.tracked.sum(1)
+    _, _, e, sol = rows["tight"]
+    sigma = evaluate.ned_sigma(sol)
+    checked = 0
+    for label, (t0, t1) in [(x[0], (x[1], x[2])) for x in s.scenario.segment_times()]:
+        k = (g.t >= t0) & (g.t < t1)
+        if not k.any() or n_tracked[k].min() >= 4:
+            continue
+        m = (sol.t >= t0) & (sol.t < t1) & sol.heading_known
+        inside = np.abs(e.r_ned[m]) <= 3 * sigma[m]
+        print(f"  {label}: {n_tracked[k].min()}-{n_tracked[k].max()} satellites, tight inside 3 sigma "
+              f"{100 * inside.mean():.1f} %")
+        assert inside.mean() >= 0.99, label
+        checked += 1
+    assert checked >= 3
+
+
+@pytest.mark.parametrize("clock", ["steered", "unsteered"])
+def test_two_or_three_satellites_tight_keeps_navigating(clock):
+    s = sim.simulate(parse({**FEW, "gnss": {**FEW["gnss"], "clock": clock}}), seed=1)
+    g = s.gnss
+    span = (g.t >= 36) & (g.t < 94)
+    assert g.tracked[span].sum(1).max() <= 3 and g.tracked[span].sum(1).min() == 2
+    sols = both(s)
+    tr = truth_of(s)
+    end = {}
+    for mode, sol in sols.items():
+        e = evaluate.nav_errors(sol, tr)
+        k = np.searchsorted(sol.t, 94.0)
+        end[mode] = (np.hypot(*e.r_ned[k, :2]), evaluate.ned_sigma(sol)[k])
+    print(f"{clock} clock, after 60 s with 2-3 satellites: loose horizontal error {end['loose'][0]:.1f} m, "
+          f"tight {end['tight'][0]:.1f} m")
+    assert end["tight"][0] < end["loose"][0]
+    assert end["tight"][0] <= 3 * np.hypot(*end["tight"][1][:2])
+    assert sols["tight"].counters["pseudoranges_used"] > 0
+
+
+def test_tight_nees_is_consistent_over_five_seeds():
+    from test_filter import DRIVE, START as S2  # the loose filter's NEES scenario
+
+    sc = parse({"name": "drive", "start": S2, "segment": DRIVE})
+    runs = []
+    for seed in range(5):
+        s = sim.simulate(sc, seed=seed)
+        sol = both(s)["tight"]
+        err = evaluate.nav_errors(sol, truth_of(s))
+        t0 = sol.t[np.argmax(sol.heading_known)]
+        sel = (sol.t >= t0) & (sol.t < t0 + 60.0)
+        runs.append(evaluate.nees(err.e9[sel], sol.covariance[sel][:, :9, :9]))
+    n = min(len(r) for r in runs)
+    avg = np.mean([r[:n] for r in runs], axis=0)
+    lo, hi = evaluate.nees_band(9, 5)
+    print(f"tight: time-averaged NEES over 5 seeds x 60 s {avg.mean():.2f}, band {lo:.2f}..{hi:.2f}")
+    assert lo <= avg.mean() <= hi
+
+
+def test_streaming_tight_equals_batch():
+    s = sim.simulate(parse({**FEW, "segment": FEW["segment"][:2], "obstruction": []}), seed=2)
+    sols = both(s)
+    noise = sim.imu_noise_truth(s.scenario.imu)
+    cfg = flt.load_config(None, {**noise, "mode": "tight"})
+    core = flt.core_config(cfg)
+    core.gps_time_offset_s = s.scenario.start.gps_week * 604800.0 + s.scenario.start.gps_tow_s
+    f = _core.InsFilter(core, "tight")
+    for e in s.gnss.ephemerides.values():
+        f.add_ephemeris(_core.gnss.decode_subframes(sim_eph.encode_subframes(e), e.prn, 1590))
+    f.set_klobuchar(list(s.gnss.ion_alpha), list(s.gnss.ion_beta))
+    imu, fixes, prs = sim.imu_table(s), sim.fix_table(s), sim.pseudorange_table(s)
+    epochs = np.unique(prs[:, 0])
+    j = q = 0
+    for row in imu:
+        while j < len(fixes) and fixes[j, 0] <= row[0]:
+            x = fixes[j]
+            f.push_fix(x[0], x[1:4], x[4:7], x[7], x[8], int(x[9]))
+            j += 1
+        while q < len(epochs) and epochs[q] <= row[0]:
+            p = prs[prs[:, 0] == epochs[q]]
+            f.push_pseudoranges(epochs[q], p[:, 1].astype(int).tolist(), p[:, 2].tolist(), p[:, 3].tolist(),
+                                p[:, 4].astype(int).tolist())
+            q += 1
+        f.push_imu(row[0], row[1:4], row[4:7])
+    assert np.array_equal(f.r_ecef, sols["tight"].r_ecef[-1])
+    assert np.array_equal(f.clock, sols["tight"].clock[-1])
+    with pytest.raises(ValueError, match="pseudoranges given to a loosely coupled filter"):
+        _core.InsFilter(core, "loose").run(imu[:10], fixes[:0], prs[:5])
