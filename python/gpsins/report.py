@@ -16,7 +16,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from scipy.stats import chi2  # noqa: E402
 
-from . import evaluate  # noqa: E402
+from . import _core, evaluate  # noqa: E402
 
 KIND_FIX = (1, 2)
 
@@ -40,17 +40,12 @@ def load(path: str | Path) -> Result:
     return Result(run.get("mode", path.name), path, {k: z[k] for k in z.files}, run)
 
 
-def _local_en(r: Result, origin: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    llh = r.a["llh"]
+def _local_ned(r: Result, origin: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The solution and the receiver's fixes in NED about `origin` (lat, lon, height)."""
     c = evaluate.c_en(np.array([origin[0]]), np.array([origin[1]]))[0]
-    from . import _core
     o = _core.geodetic_to_ecef(origin)
-    ne = (r.a["r_ecef"] - o) @ c
     f = r.a["fixes"]
-    ok = f[:, 9] > 0
-    fne = (f[ok, 1:4] - o) @ c
-    del llh
-    return ne, fne
+    return (r.a["r_ecef"] - o) @ c, (f[f[:, 9] > 0, 1:4] - o) @ c
 
 
 def segment_table(r: Result) -> list[dict]:
@@ -93,11 +88,11 @@ def figures(results: list[Result], out: Path) -> list[str]:
     origin = base.a["llh"][0]
     fig, ax = plt.subplots(figsize=(7, 7))
     for r, c in zip(results, colors):
-        ne, fne = _local_en(r, origin)
+        ne, fne = _local_ned(r, origin)
         ax.plot(ne[:, 1], ne[:, 0], color=c, lw=1.2, label=f"{r.name} filter")
     ax.plot(fne[:, 1], fne[:, 0], "o", mfc="none", color="tab:green", ms=4, label="receiver fixes")
     if base.has_truth:
-        true_ne = ne - np.column_stack([base.a["err_ned_m"][:, 0], base.a["err_ned_m"][:, 1], base.a["err_ned_m"][:, 2]])
+        true_ne = _local_ned(base, origin)[0] - base.a["err_ned_m"]
         ax.plot(true_ne[:, 1], true_ne[:, 0], "k--", lw=0.8, label="truth")
         if "seg_t" in base.a:
             for label, (s0, _) in zip(base.a["seg_labels"], base.a["seg_t"]):
