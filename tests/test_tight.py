@@ -96,22 +96,11 @@ def test_two_or_three_satellites_tight_keeps_navigating(clock):
 
 
 def test_tight_nees_is_consistent_over_five_seeds():
-    from test_filter import DRIVE, START as S2  # the loose filter's NEES scenario
+    from test_filter import nees_over_seeds  # the loose filter's NEES run, on the same drive
 
-    sc = parse({"name": "drive", "start": S2, "segment": DRIVE})
-    runs = []
-    for seed in range(5):
-        s = sim.simulate(sc, seed=seed)
-        sol = both(s)["tight"]
-        err = evaluate.nav_errors(sol, truth_of(s))
-        t0 = sol.t[np.argmax(sol.heading_known)]
-        sel = (sol.t >= t0) & (sol.t < t0 + 60.0)
-        runs.append(evaluate.nees(err.e9[sel], sol.covariance[sel][:, :9, :9]))
-    n = min(len(r) for r in runs)
-    avg = np.mean([r[:n] for r in runs], axis=0)
-    lo, hi = evaluate.nees_band(9, 5)
-    print(f"tight: time-averaged NEES over 5 seeds x 60 s {avg.mean():.2f}, band {lo:.2f}..{hi:.2f}")
-    assert lo <= avg.mean() <= hi
+    avg, lo, hi = nees_over_seeds(lambda s: both(s)["tight"])
+    print(f"tight: time-averaged NEES over 5 seeds x 60 s {avg:.2f}, band {lo:.2f}..{hi:.2f}")
+    assert lo <= avg <= hi
 
 
 def test_streaming_tight_equals_batch():

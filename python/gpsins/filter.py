@@ -36,8 +36,6 @@ import numpy as np
 from . import _core
 
 PRESETS = ("default", "report2005")
-IMU_COLUMNS = ("t", "dtheta_x", "dtheta_y", "dtheta_z", "dv_x", "dv_y", "dv_z")
-FIX_COLUMNS = ("t", "x", "y", "z", "vx", "vy", "vz", "hdop", "vdop", "mode")
 UPDATE_KINDS = {1: "fix_3d", 2: "fix_2d", 3: "fix_velocity", 4: "zero_velocity", 5: "zero_rate", 6: "pseudorange"}
 
 GM_PEAK_PER_SIGMA = 0.617  # ADEV peak of a Gauss-Markov process / its stationary sigma

@@ -25,9 +25,9 @@ from scipy.stats import chi2
 
 from .. import _core
 
-# Power-law noise exponent alpha of the rate (frequency) PSD: +2 white phase (quantisation),
-# 0 white rate (ARW), -1 flicker rate (bias instability), -2 random-walk rate (RRW).
-ALPHA_NAMES = {2: "white phase", 1: "flicker phase", 0: "white rate", -1: "flicker rate", -2: "random-walk rate"}
+# Noise types are the power-law exponent alpha of the rate (frequency) PSD: +2 white phase
+# (quantisation), +1 flicker phase, 0 white rate (ARW), -1 flicker rate (bias instability),
+# -2 random-walk rate (RRW).
 
 
 def cluster_sizes(n_phase: int, spec: str | int = 10) -> np.ndarray:
