@@ -314,9 +314,7 @@ void InsFilter<NB, NC>::process_pseudoranges(const PseudorangeEpoch& ep) {
       const auto& u = use[static_cast<std::size_t>(i)];
       const auto m = pseudorange(core_, cfg_.lever_arm_body_m, u.sat, u.pr_corr, u.sagnac, u.var);
       const auto r = core_.update(m.y, m.H, m.R, gate(1));
-      record(kPseudorange, r, 1);
-      if (log_) log_->back().id = u.prn;
-      last_update_.id = u.prn;
+      record(kPseudorange, r, 1, u.prn);
       ++(r.accepted ? counters_.pseudoranges_used : counters_.pseudoranges_rejected);
     }
   } else {
@@ -399,10 +397,11 @@ void InsFilter<NB, NC>::set_heading(const FixInput& fix, const Vec3& v_ecef, dou
 
 template <int NB, int NC>
 template <int M>
-void InsFilter<NB, NC>::record(int kind, const UpdateResult<M>& r, int dof) {
+void InsFilter<NB, NC>::record(int kind, const UpdateResult<M>& r, int dof, int id) {
   UpdateRecord u;
   u.t_s = core_.nav.t_s;
   u.kind = kind;
+  u.id = id;
   u.dof = dof;
   u.nis = r.nis;
   u.gate = gate(dof);

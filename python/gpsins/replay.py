@@ -13,7 +13,6 @@ session directory -> decoded measurements -> time alignment -> filter -> results
 
 from __future__ import annotations
 
-import datetime as dt
 import json
 import time
 from dataclasses import dataclass
@@ -21,11 +20,10 @@ from pathlib import Path
 
 import numpy as np
 
-from . import evaluate, filter as flt, measurements, timing
+from . import evaluate, filter as flt, measurements, rinex, timing
 
 DEFAULT_GPS_LATENCY_S = 0.0205  # receiver's epoch-to-first-byte delay (assumed 20 ms) + the logger's
 DEFAULT_IMU_LATENCY_S = 0.0005
-GPS_EPOCH = dt.datetime(1980, 1, 6)
 
 RESULT_ARRAYS = {
     "t": "GPS time, s since the start of `week`", "week": "GPS week of t = 0",
@@ -55,22 +53,10 @@ def _nav_sigmas(sol: flt.Solution) -> tuple[np.ndarray, np.ndarray]:
     p = sol.covariance
     pos = np.swapaxes(c_en, -1, -2) @ p[:, 6:9, 6:9] @ c_en
     # Body-side attitude error dtheta -> NED axes: C_nb dtheta.
-    c_eb = _rot(sol.q_eb)
+    c_eb = flt._core.dcm_from_quat(sol.q_eb)
     c_nb = np.swapaxes(c_en, -1, -2) @ c_eb
     att = c_nb @ p[:, 0:3, 0:3] @ np.swapaxes(c_nb, -1, -2)
     return (np.sqrt(np.diagonal(pos, axis1=1, axis2=2)), np.degrees(np.sqrt(np.diagonal(att, axis1=1, axis2=2))))
-
-
-def _rot(q: np.ndarray) -> np.ndarray:
-    w, x, y, z = q.T
-    return np.stack([np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-                     np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-                     np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1)], -2)
-
-
-def gpst_text(week: int, t: np.ndarray) -> list[str]:
-    base = GPS_EPOCH + dt.timedelta(weeks=int(week))
-    return [(base + dt.timedelta(seconds=float(x))).strftime("%Y/%m/%d %H:%M:%S.%f")[:-3] for x in t]
 
 
 def write_pos(path: Path, week: int, sol: flt.Solution, sigma_ned: np.ndarray, sats: np.ndarray, every: int = 1,
@@ -82,7 +68,7 @@ def write_pos(path: Path, week: int, sol: flt.Solution, sigma_ned: np.ndarray, s
              "% (lat/lon/height=WGS84/ellipsoidal,Q=1:fix,2:float,3:sbas,4:dgps,5:single,6:ppp,ns=# of satellites)",
              "%  GPST                   latitude(deg) longitude(deg)  height(m)   Q  ns   sdn(m)   sde(m)   sdu(m)"
              "  sdne(m)  sdeu(m)  sdun(m) age(s)  ratio"]
-    times = gpst_text(week, sol.t[idx])
+    times = rinex.gpst_text(week * measurements.SECONDS_PER_WEEK + sol.t[idx])
     for k, ts in zip(idx, times):
         lat, lon = np.degrees(llh[k, :2])
         sn, se, sd = sigma_ned[k]
@@ -123,12 +109,10 @@ def replay(session: str | Path, out: str | Path, *, mode: str = "loose", config=
         if dec.gps.iono is not None:
             klob = (dec.gps.iono.alpha, dec.gps.iono.beta)
         elif nav is not None:
-            from . import rinex
             n = rinex.read_nav(nav)
             klob = (n.alpha, n.beta) if n.alpha else None
         ephs = dec.gps.decoded_ephemerides(dec.skipped)
         if nav is not None:
-            from . import rinex
             ephs += rinex.read_nav(nav).ephemerides
         tight = dict(pseudoranges=dec.gps.pseudorange_table(), ephemerides=ephs, klobuchar=klob,
                      gps_time_offset_s=dec.gps.week * measurements.SECONDS_PER_WEEK)

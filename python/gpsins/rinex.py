@@ -22,6 +22,12 @@ class RinexError(ValueError):
     pass
 
 
+def gpst_text(t_abs) -> list[str]:
+    """RTKLIB's GPST epoch text, 'YYYY/MM/DD hh:mm:ss.sss', for seconds since the GPS epoch."""
+    return [(GPS_EPOCH + dt.timedelta(seconds=float(x))).strftime("%Y/%m/%d %H:%M:%S.%f")[:-3]
+            for x in np.atleast_1d(t_abs)]
+
+
 def gps_seconds(y: int, mo: int, d: int, h: int, mi: int, s: float) -> float:
     year = y + (2000 if y < 80 else 1900) if y < 100 else y
     t = dt.datetime(year, mo, d, h, mi) - GPS_EPOCH

@@ -67,7 +67,7 @@ def from_superstar2_frames(frames: list[bytes], source: str, nav_path: str | Pat
                 u = ss2.NavUser.decode(payload)  # UTC date and time: the week with the leap seconds
                 if u.year > 1980:
                     utc = dt.datetime(u.year, u.month, u.day, u.hour, u.minute) + dt.timedelta(seconds=u.second)
-                    week = int(((utc - dt.datetime(1980, 1, 6)).total_seconds() + leap) // SECONDS_PER_WEEK)
+                    week = int(((utc - rinex.GPS_EPOCH).total_seconds() + leap) // SECONDS_PER_WEEK)
             elif msg_id == ss2.ID_NAV_ECEF:
                 week = ss2.NavEcef.decode(payload).week or week
             elif msg_id == ss2.ID_RECEIVER_STATUS:
@@ -168,10 +168,9 @@ def write_pos(path: str | Path, run: SppRun, source: str, llh: bool = True) -> N
              "% (lat/lon/height=WGS84/ellipsoidal,Q=1:fix,2:float,3:sbas,4:dgps,5:single,6:ppp,ns=# of satellites)"]
     lines.append("%  GPST                  latitude(deg) longitude(deg)  height(m)   Q  ns" if llh else
                  "%  GPST                      x-ecef(m)      y-ecef(m)      z-ecef(m)   Q  ns")
-    epoch = dt.datetime(1980, 1, 6)
     pos = _core.ecef_to_geodetic(run.r_ecef[run.ok]) if run.ok.any() else np.zeros((0, 3))
-    for j, k in enumerate(np.flatnonzero(run.ok)):
-        ts = (epoch + dt.timedelta(seconds=float(run.t_abs[k]))).strftime("%Y/%m/%d %H:%M:%S.%f")[:-3]
+    ok = np.flatnonzero(run.ok)
+    for j, (k, ts) in enumerate(zip(ok, rinex.gpst_text(run.t_abs[ok]) if len(ok) else [])):
         if llh:
             lat, lon = np.degrees(pos[j, :2])
             lines.append(f"{ts} {lat:14.9f} {lon:14.9f} {pos[j, 2]:10.4f} {5:3d} {run.n_used[k]:3d}")

@@ -133,7 +133,7 @@ class InsFilter {
   void set_heading(const FixInput& fix, const Vec3& v_ecef, double course_rad);
   void detect_standstill(const Increment& inc);
   template <int M>
-  void record(int kind, const UpdateResult<M>& r, int dof);
+  void record(int kind, const UpdateResult<M>& r, int dof, int id = 0);
   double gate(int dof) const { return gates_[static_cast<std::size_t>(dof)]; }
 
   InsConfig cfg_;
