@@ -6,7 +6,8 @@ import re
 import numpy as np
 import pytest
 
-from gpsins import _core, cli, rinex, spp
+from gpsins import _core, cli, spp
+from gpsins.readers import rinex
 from gpsins.sim import ephemeris as sim_eph
 
 g = _core.gnss

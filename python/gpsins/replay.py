@@ -20,7 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from . import evaluate, filter as flt, measurements, rinex, timing
+from . import evaluate, filter as flt, measurements, timing
+from .readers import rinex
 
 DEFAULT_GPS_LATENCY_S = 0.0205  # receiver's epoch-to-first-byte delay (assumed 20 ms) + the logger's
 DEFAULT_IMU_LATENCY_S = 0.0005

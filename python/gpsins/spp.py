@@ -16,7 +16,8 @@ from pathlib import Path
 import numpy as np
 from gpsins_logger import superstar2 as ss2
 
-from . import _core, evaluate, rinex
+from . import _core, evaluate
+from .readers import rinex
 
 SECONDS_PER_WEEK = 604800.0
 

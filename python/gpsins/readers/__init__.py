@@ -1,0 +1,13 @@
+"""Readers of outside formats, one module per format, all giving the containers of ``common``.
+
+- ``imu_csv``: IMU CSV with declared columns, units and time scale (rates or increments)
+- ``kfgins``: KF-GINS IMU and GNSS text files
+- ``rtklib_pos``: RTKLIB ``.pos`` solutions (Q, standard deviations, velocities)
+- ``rinex``: RINEX 2 and 3 observation and GPS navigation files
+- ``ubx``: u-blox UBX (RXM-RAWX, RXM-SFRBX GPS LNAV, NAV-PVT)
+
+Damaged input raises ``ReaderError`` naming the file, the offset or line and the field;
+binary streams skip damaged frames and count them instead.
+"""
+
+from .common import Fixes, Navigation, Pseudoranges, ReaderError  # noqa: F401

@@ -1,0 +1,172 @@
+"""What every reader shares: the error type, GPS time helpers and the decoded containers.
+
+Times are GPS seconds since the GPS epoch (1980-01-06 00:00 GPST), "t_abs", as the C++
+core takes them. Positions are ECEF metres; sigmas are 1-sigma standard deviations.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+GPS_EPOCH = dt.datetime(1980, 1, 6)
+UNIX_TO_GPS_S = (GPS_EPOCH - dt.datetime(1970, 1, 1)).total_seconds()  # 315964800: both without leap seconds
+SECONDS_PER_WEEK = 604800.0
+
+# UTC dates from which GPST - UTC steps up by one second (IERS bulletins).
+_LEAP_DATES = [dt.datetime(*d) for d in (
+    (1981, 7, 1), (1982, 7, 1), (1983, 7, 1), (1985, 7, 1), (1988, 1, 1), (1990, 1, 1), (1991, 1, 1), (1992, 7, 1),
+    (1993, 7, 1), (1994, 7, 1), (1996, 1, 1), (1997, 7, 1), (1999, 1, 1), (2006, 1, 1), (2009, 1, 1), (2012, 7, 1),
+    (2015, 7, 1), (2017, 1, 1))]
+
+
+class ReaderError(ValueError):
+    """Input that cannot be read: names the file, the byte offset or line, and the field."""
+
+    def __init__(self, path, message: str, *, offset: int | None = None, line: int | None = None,
+                 field: str | None = None):
+        self.path, self.offset, self.line, self.field = str(path), offset, line, field
+        where = self.path
+        if line is not None:
+            where += f":{line}"
+        if offset is not None:
+            where += f" (offset {offset})"
+        super().__init__(f"{where}: {field + ': ' if field else ''}{message}")
+
+
+def gps_seconds(y: int, mo: int, d: int, h: int, mi: int, s: float) -> float:
+    """Seconds since the GPS epoch of a GPST calendar date (two-digit years as RINEX 2 has them)."""
+    year = y + (2000 if y < 80 else 1900) if y < 100 else y
+    t = dt.datetime(year, mo, d, h, mi) - GPS_EPOCH
+    return t.days * 86400.0 + t.seconds + s
+
+
+def gpst_text(t_abs) -> list[str]:
+    """RTKLIB's GPST epoch text, 'YYYY/MM/DD hh:mm:ss.sss', for seconds since the GPS epoch."""
+    return [(GPS_EPOCH + dt.timedelta(seconds=float(x))).strftime("%Y/%m/%d %H:%M:%S.%f")[:-3]
+            for x in np.atleast_1d(t_abs)]
+
+
+def leap_seconds(utc: dt.datetime) -> int:
+    """GPST - UTC at a UTC instant (from 1980 on)."""
+    return sum(utc >= d for d in _LEAP_DATES)
+
+
+def utc_to_gps_seconds(utc: dt.datetime, leap_s: int | None = None) -> float:
+    t = utc - GPS_EPOCH
+    return t.days * 86400.0 + t.seconds + t.microseconds * 1e-6 + (leap_seconds(utc) if leap_s is None else leap_s)
+
+
+def week_and_tow(t_abs: float) -> tuple[int, float]:
+    week = int(t_abs // SECONDS_PER_WEEK)
+    return week, t_abs - week * SECONDS_PER_WEEK
+
+
+@dataclass
+class Fixes:
+    """Position (and velocity) solutions with their own standard deviations, in time order.
+
+    q follows RTKLIB: 1 fix, 2 float, 3 SBAS, 4 DGPS, 5 single, 6 PPP (0: unknown).
+    sigma_ned_m / sigma_v_ned_mps are as the source states them (they may be zero: the
+    user of the fixes applies floors); NaN where the source has none.
+    """
+
+    t_abs: np.ndarray  # (n,)
+    r_ecef: np.ndarray  # (n, 3)
+    sigma_ned_m: np.ndarray  # (n, 3) north, east, down
+    q: np.ndarray  # (n,) int
+    ns: np.ndarray  # (n,) satellites, 0 when unknown
+    v_ned_mps: np.ndarray | None = None  # (n, 3), NaN rows where absent
+    sigma_v_ned_mps: np.ndarray | None = None  # (n, 3)
+    source: str = ""
+
+    def __len__(self) -> int:
+        return len(self.t_abs)
+
+    def select(self, keep: np.ndarray) -> "Fixes":
+        pick = (lambda a: None if a is None else a[keep])
+        return Fixes(self.t_abs[keep], self.r_ecef[keep], self.sigma_ned_m[keep], self.q[keep], self.ns[keep],
+                     pick(self.v_ned_mps), pick(self.sigma_v_ned_mps), self.source)
+
+    def llh(self) -> np.ndarray:
+        from .. import _core
+        return _core.ecef_to_geodetic(self.r_ecef) if len(self) else np.zeros((0, 3))
+
+    def v_ecef(self) -> np.ndarray:
+        """Velocity in ECEF (NaN where the source has none)."""
+        if self.v_ned_mps is None:
+            return np.full((len(self), 3), np.nan)
+        from ..evaluate import c_en
+        llh = self.llh()
+        return np.einsum("nij,nj->ni", c_en(llh[:, 0], llh[:, 1]), self.v_ned_mps)
+
+
+@dataclass
+class Pseudoranges:
+    """GPS L1 C/A observations: one row per satellite and epoch, an epoch's rows together, epochs in time order."""
+
+    t_abs: np.ndarray  # (k,) receiver time of the epoch, GPS s since the GPS epoch
+    prn: np.ndarray  # (k,) int
+    pr_m: np.ndarray
+    doppler_hz: np.ndarray  # NaN where absent
+    cn0_dbhz: np.ndarray  # NaN where absent
+    lock_s: np.ndarray  # time in continuous lock, NaN where unknown
+    source: str = ""
+
+    def __len__(self) -> int:
+        return len(self.t_abs)
+
+    def epoch_starts(self) -> np.ndarray:
+        """Row index where each epoch begins (plus the end)."""
+        if not len(self.t_abs):
+            return np.zeros(1, int)
+        cut = np.flatnonzero(np.diff(self.t_abs) != 0) + 1
+        return np.concatenate([[0], cut, [len(self.t_abs)]])
+
+    def epochs(self):
+        """(t_abs, prns, pseudoranges) per epoch, for ``spp`` and the like."""
+        b = self.epoch_starts()
+        return [(float(self.t_abs[i]), self.prn[i:j].tolist(), self.pr_m[i:j].tolist()) for i, j in zip(b[:-1], b[1:])]
+
+    def table(self, t0: float = 0.0) -> np.ndarray:
+        """The tight filter's (k, 5) [t - t0, prn, pseudorange m, C/N0 dB-Hz, lock count]; the lock count is the
+        lock time in ms (0 where unknown: tracking taken as continuous while the satellite is present)."""
+        lock = np.where(np.isfinite(self.lock_s), np.round(self.lock_s * 1e3), 0.0)
+        cn0 = np.where(np.isfinite(self.cn0_dbhz), self.cn0_dbhz, 0.0)
+        return np.column_stack([self.t_abs - t0, self.prn, self.pr_m, cn0, lock]).reshape(-1, 5)
+
+    @classmethod
+    def empty(cls, source: str = "") -> "Pseudoranges":
+        z = np.zeros(0)
+        return cls(z, np.zeros(0, int), z, z, z, z, source)
+
+
+@dataclass
+class Navigation:
+    """Broadcast navigation data: GPS ephemerides (``_core.gnss.Ephemeris``) and Klobuchar coefficients."""
+
+    ephemerides: list
+    alpha: list[float] = field(default_factory=list)
+    beta: list[float] = field(default_factory=list)
+    leap_s: int | None = None
+
+    def store(self):
+        from .. import _core
+        s = _core.gnss.EphemerisStore()
+        for e in self.ephemerides:
+            s.add(e)
+        return s
+
+    def prns(self) -> list[int]:
+        return sorted({e.prn for e in self.ephemerides})
+
+
+def read_text_lines(path: str | Path) -> list[str]:
+    path = Path(path)
+    try:
+        return path.read_text(encoding="ascii", errors="replace").splitlines()
+    except OSError as e:
+        raise ReaderError(path, e.strerror or str(e)) from None
