@@ -1,0 +1,274 @@
+"""Data sets that are not logger sessions: a TOML file that says where another recording's
+files are and how to read them, loaded into plain decoded arrays (``load(path) -> Dataset``).
+
+The keys of the data-set format (``dataset.md`` of the project's specifications) are the
+interface::
+
+    name = "walk_0827"
+    [imu]      file, format = "csv" | "kf-gins", columns, time, week, accel_unit, gyro_unit,
+               time_offset_s, imu_to_body
+    [gnss]     file, format = "rtklib-pos" | "kf-gins" | "rinex" | "ubx", nav, antenna_m
+    [vehicle]  kind = "none" | "car"
+    [filter]   the same keys as a --config file; presets allowed
+
+Extensions (all optional):
+
+- ``[imu] imu_to_body_ypr_deg = [yaw, pitch, roll]``: the IMU axes as the body axes rotated
+  by yaw, pitch, roll (instead of the matrix ``imu_to_body``; v_body = Rz Ry Rx v_imu).
+- ``[imu] delimiter``, ``skip_rows``: the table's separator and header lines (guessed when absent).
+- ``[imu] time = "gps_abs"`` (GPS seconds since 1980-01-06) and ``"utc_unix"`` (Unix time in
+  UTC: leap seconds added).
+- ``[gnss] week``: the GPS week of a kf-gins GNSS file (default: ``[imu] week``).
+- ``[gnss] nav`` may be a list of RINEX navigation files; with ``format = "ubx"`` they add to
+  the ephemerides decoded from the stream's SFRBX.
+- ``[scoring] reference = "FILE.pos"``, ``reference_q = [1]`` (the Q values that count),
+  ``outages = "FIRST:LENGTH:PERIOD[:END]"``: defaults for ``--reference`` and ``--outages``.
+
+File names are relative to the data-set file. Every time is GPS seconds since the GPS epoch
+(``t_abs``); the IMU's are shifted by ``time_offset_s``; its increments are in body axes
+(``imu_to_body`` applied).
+"""
+
+from __future__ import annotations
+
+import tomllib
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from . import outages as outages_mod
+from .readers import imu_csv, kfgins, rinex, rtklib_pos, ubx
+from .readers.common import Fixes, Navigation, Pseudoranges, ReaderError
+from .readers.imu_csv import ImuData
+
+IMU_FORMATS = ("csv", "kf-gins")
+GNSS_FORMATS = ("rtklib-pos", "kf-gins", "rinex", "ubx")
+VEHICLE_KINDS = ("none", "car")
+_KNOWN = {
+    "": {"name", "imu", "gnss", "vehicle", "filter", "scoring", "description"},
+    "imu": {"file", "format", "columns", "time", "week", "accel_unit", "gyro_unit", "time_offset_s", "imu_to_body",
+            "imu_to_body_ypr_deg", "delimiter", "skip_rows"},
+    "gnss": {"file", "format", "nav", "antenna_m", "week"},
+    "vehicle": {"kind"},
+    "scoring": {"reference", "reference_q", "outages"},
+}
+
+
+class DatasetError(ReaderError):
+    pass
+
+
+@dataclass
+class Dataset:
+    name: str
+    path: Path
+    imu: ImuData  # increments in body axes, times with the offset applied
+    imu_to_body: np.ndarray  # (3, 3) v_body = M v_imu
+    imu_time_offset_s: float
+    antenna_m: np.ndarray  # (3,) antenna phase centre relative to the IMU, body axes
+    gnss_format: str
+    fixes: Fixes | None = None  # rtklib-pos, kf-gins, ubx (NAV-PVT)
+    pseudoranges: Pseudoranges | None = None  # rinex, ubx: GPS L1 C/A
+    navigation: Navigation | None = None  # rinex, ubx: ephemerides and Klobuchar
+    vehicle_kind: str = "none"
+    filter_table: dict = field(default_factory=dict)  # the raw [filter] table
+    reference: Fixes | None = None  # [scoring] reference, only the epochs whose Q counts
+    outages: outages_mod.OutageSpec | None = None  # [scoring] outages
+    skipped: Counter = field(default_factory=Counter)  # what the readers left out, and why
+    notes: list[str] = field(default_factory=list)  # one line per damaged input
+
+    def gnss_span(self) -> tuple[float, float]:
+        """First and last GNSS epoch (fixes or pseudoranges): the origin of the outage schedule."""
+        t = self.fixes.t_abs if self.fixes is not None and len(self.fixes) else \
+            self.pseudoranges.t_abs if self.pseudoranges is not None and len(self.pseudoranges) else None
+        if t is None:
+            raise DatasetError(self.path, "no GNSS epochs")
+        return float(t[0]), float(t[-1])
+
+    def outage_schedule(self, spec: str | outages_mod.OutageSpec | None = None) -> np.ndarray:
+        """(k, 2) [start, end) GPS times of the outages (``spec`` or the data set's own; none: empty)."""
+        spec = spec if spec is not None else self.outages
+        if spec is None:
+            return np.zeros((0, 2))
+        return outages_mod.schedule(spec, *self.gnss_span())
+
+    def filter_config(self, overrides: dict | None = None) -> dict:
+        """The [filter] table completed from its preset, as ``gpsins.filter`` checks it."""
+        from . import filter as flt
+        return flt.load_config(dict(self.filter_table) or None, overrides)
+
+
+def _table(doc: dict, name: str, path: Path) -> dict:
+    t = doc.get(name, {})
+    if not isinstance(t, dict):
+        raise DatasetError(path, f"[{name}] must be a table", field=name)
+    unknown = sorted(set(t) - _KNOWN[name])
+    if unknown:
+        raise DatasetError(path, f"unknown key(s) {', '.join(unknown)}", field=f"[{name}]")
+    return t
+
+
+def _matrix(value, path, key) -> np.ndarray:
+    try:
+        m = np.array(value, float)
+    except (TypeError, ValueError):
+        m = np.zeros(0)
+    if m.shape != (3, 3):
+        raise DatasetError(path, "must be a 3x3 matrix (rows)", field=key)
+    if not np.allclose(m @ m.T, np.eye(3), atol=1e-6) or np.linalg.det(m) < 0:
+        raise DatasetError(path, "is not a rotation (orthonormal, determinant +1)", field=key)
+    return m
+
+
+def ypr_to_matrix(yaw_deg: float, pitch_deg: float, roll_deg: float) -> np.ndarray:
+    """Rz(yaw) Ry(pitch) Rx(roll): from axes rotated by yaw, pitch, roll back to the original axes."""
+    y, p, r = np.radians([yaw_deg, pitch_deg, roll_deg])
+    rz = np.array([[np.cos(y), -np.sin(y), 0], [np.sin(y), np.cos(y), 0], [0, 0, 1]])
+    ry = np.array([[np.cos(p), 0, np.sin(p)], [0, 1, 0], [-np.sin(p), 0, np.cos(p)]])
+    rx = np.array([[1, 0, 0], [0, np.cos(r), -np.sin(r)], [0, np.sin(r), np.cos(r)]])
+    return rz @ ry @ rx
+
+
+def _vector(value, path, key) -> np.ndarray:
+    try:
+        v = np.array(value, float)
+    except (TypeError, ValueError):
+        v = np.zeros(0)
+    if v.shape != (3,) or not np.isfinite(v).all():
+        raise DatasetError(path, "must be three numbers", field=key)
+    return v
+
+
+def _file(base: Path, value, path, key) -> Path:
+    if not isinstance(value, str) or not value:
+        raise DatasetError(path, "needs a file name", field=key)
+    f = (base / value)
+    if not f.is_file():
+        raise DatasetError(path, f"{value}: no such file (relative to the data-set file)", field=key)
+    return f
+
+
+def _read_imu(t: dict, base: Path, path: Path) -> ImuData:
+    fmt = t.get("format", "csv")
+    f = _file(base, t.get("file"), path, "[imu] file")
+    week = t.get("week")
+    if fmt == "csv":
+        if "columns" not in t:
+            raise DatasetError(path, "a csv IMU needs `columns`", field="[imu] columns")
+        return imu_csv.read(f, t["columns"], t.get("time", "gpst_unix"), t.get("accel_unit", "m/s^2"),
+                            t.get("gyro_unit", "rad/s"), week, t.get("delimiter"), t.get("skip_rows"))
+    if fmt == "kf-gins":
+        if week is None:
+            raise DatasetError(path, "a kf-gins IMU file has seconds of week: give `week = N`", field="[imu] week")
+        return kfgins.read_imu(f, int(week))
+    raise DatasetError(path, f"unknown format {fmt!r} ({', '.join(IMU_FORMATS)})", field="[imu] format")
+
+
+def _nav_files(t: dict, base: Path, path: Path) -> list[Path]:
+    nav = t.get("nav", [])
+    return [_file(base, n, path, "[gnss] nav") for n in ([nav] if isinstance(nav, str) else nav)]
+
+
+def _merge_nav(navs: list[Navigation]) -> Navigation:
+    out = Navigation([])
+    for n in navs:
+        out.ephemerides += n.ephemerides
+        if n.alpha and not out.alpha:
+            out.alpha, out.beta = n.alpha, n.beta
+        out.leap_s = out.leap_s if out.leap_s is not None else n.leap_s
+    return out
+
+
+def load(path: str | Path) -> Dataset:
+    """Read a data-set TOML and every file it names."""
+    path = Path(path)
+    try:
+        doc = tomllib.loads(path.read_text(encoding="utf-8"))
+    except OSError as e:
+        raise DatasetError(path, e.strerror or str(e)) from None
+    except tomllib.TOMLDecodeError as e:
+        raise DatasetError(path, str(e)) from None
+    unknown = sorted(set(doc) - _KNOWN[""])
+    if unknown:
+        raise DatasetError(path, f"unknown key(s) {', '.join(unknown)}")
+    base = path.parent
+    ti, tg, tv, ts = (_table(doc, k, path) for k in ("imu", "gnss", "vehicle", "scoring"))
+    if not ti:
+        raise DatasetError(path, "no [imu] table", field="[imu]")
+    if not tg:
+        raise DatasetError(path, "no [gnss] table", field="[gnss]")
+
+    if "imu_to_body" in ti and "imu_to_body_ypr_deg" in ti:
+        raise DatasetError(path, "give imu_to_body or imu_to_body_ypr_deg, not both", field="[imu]")
+    if "imu_to_body_ypr_deg" in ti:
+        m = ypr_to_matrix(*_vector(ti["imu_to_body_ypr_deg"], path, "[imu] imu_to_body_ypr_deg"))
+    else:
+        m = _matrix(ti.get("imu_to_body", np.eye(3).tolist()), path, "[imu] imu_to_body")
+    offset = float(ti.get("time_offset_s", 0.0))
+    raw = _read_imu(ti, base, path)
+    imu = ImuData(raw.t_abs + offset, raw.dtheta_rad @ m.T, raw.dv_mps @ m.T, raw.source, raw.skipped)
+    skipped = Counter(raw.skipped)
+
+    fmt = tg.get("format")
+    if fmt not in GNSS_FORMATS:
+        raise DatasetError(path, f"unknown format {fmt!r} ({', '.join(GNSS_FORMATS)})", field="[gnss] format")
+    gfile = _file(base, tg.get("file"), path, "[gnss] file")
+    ds = Dataset(str(doc.get("name", path.stem)), path, imu, m, offset,
+                 _vector(tg.get("antenna_m", [0.0, 0.0, 0.0]), path, "[gnss] antenna_m"), fmt)
+    ds.skipped = skipped
+    navs = [rinex.read_nav(n) for n in _nav_files(tg, base, path)]
+    if fmt == "rtklib-pos":
+        ds.fixes = rtklib_pos.read(gfile)
+    elif fmt == "kf-gins":
+        week = tg.get("week", ti.get("week"))
+        if week is None:
+            raise DatasetError(path, "a kf-gins GNSS file has seconds of week: give `week = N`",
+                               field="[gnss] week")
+        ds.fixes = kfgins.read_gnss(gfile, int(week))
+    elif fmt == "rinex":
+        if not navs:
+            raise DatasetError(path, "a RINEX observation file needs `nav = \"FILE\"`", field="[gnss] nav")
+        ds.pseudoranges = rinex.read_obs(gfile).gps_l1()
+        ds.navigation = _merge_nav(navs)
+    else:
+        u = ubx.read(gfile)
+        ds.fixes, ds.pseudoranges = u.fixes, u.pseudoranges
+        ds.navigation = _merge_nav([u.navigation] + navs)
+        for k, v in u.subframes.items():
+            if "dropped" in k or "inconsistent" in k:
+                skipped[f"ubx: GPS {k}"] = v
+        ds.notes.append(f"{gfile.name}: {len(u.navigation.ephemerides)} GPS ephemerides from SFRBX "
+                        f"(PRN {', '.join(map(str, u.navigation.prns())) or 'none'})")
+        if u.damage:
+            skipped["ubx: damaged stretches"] = len(u.damage)
+            ds.notes.append(u.damage_summary())
+        dropped = len(u.pvt) - len(u.fixes)
+        if dropped:
+            skipped["ubx: NAV-PVT without a valid fix"] = dropped
+
+    kind = tv.get("kind", "none")
+    if kind not in VEHICLE_KINDS:
+        raise DatasetError(path, f"unknown kind {kind!r} ({', '.join(VEHICLE_KINDS)})", field="[vehicle] kind")
+    ds.vehicle_kind = kind
+    ft = doc.get("filter", {})
+    if not isinstance(ft, dict):
+        raise DatasetError(path, "[filter] must be a table", field="[filter]")
+    ds.filter_table = ft
+
+    if "reference" in ts:
+        ds.reference = load_reference(_file(base, ts["reference"], path, "[scoring] reference"),
+                                      ts.get("reference_q", [1]))
+    if "outages" in ts:
+        try:
+            ds.outages = outages_mod.parse(ts["outages"])
+        except outages_mod.OutageError as e:
+            raise DatasetError(path, str(e), field="[scoring] outages") from None
+    return ds
+
+
+def load_reference(path: str | Path, q=(1,)) -> Fixes:
+    """A reference trajectory from an RTKLIB .pos: only the epochs whose Q is in ``q`` (default: fixed)."""
+    f = rtklib_pos.read(path)
+    return f.select(np.isin(f.q, list(q)))

@@ -1,0 +1,163 @@
+"""Simulated GNSS outages and their scoring against a reference trajectory (pure functions).
+
+Schedule (``--outages FIRST:LENGTH:PERIOD[:END]``, seconds): outage k covers
+[t0 + FIRST + k PERIOD, t0 + FIRST + k PERIOD + LENGTH), t0 being the first GNSS
+epoch's time, for every k whose start is earlier than END seconds before the last
+GNSS epoch (END defaults to 0).
+
+Scoring, the field's way (KF-GINS paper): at every reference epoch the solution is
+interpolated to the reference time and the error is taken in the local north-east-down
+frame of the reference point; per outage the maximum horizontal and vertical error
+("drift"), then the mean, the worst and the RMS of those per-outage maxima; outside
+the outages the RMS of the horizontal and vertical errors.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import _core
+from .evaluate import c_en
+
+
+class OutageError(ValueError):
+    pass
+
+
+@dataclass(frozen=True)
+class OutageSpec:
+    first_s: float
+    length_s: float
+    period_s: float
+    end_s: float = 0.0
+
+    def text(self) -> str:
+        return ":".join(f"{x:g}" for x in (self.first_s, self.length_s, self.period_s, self.end_s))
+
+
+def parse(text: str) -> OutageSpec:
+    """``FIRST:LENGTH:PERIOD[:END]`` in seconds."""
+    parts = str(text).split(":")
+    if len(parts) not in (3, 4):
+        raise OutageError(f"--outages {text!r}: expected FIRST:LENGTH:PERIOD[:END] (seconds)")
+    try:
+        values = [float(x) for x in parts]
+    except ValueError:
+        raise OutageError(f"--outages {text!r}: not numbers") from None
+    spec = OutageSpec(*values)
+    if not all(np.isfinite(values)):
+        raise OutageError(f"--outages {text!r}: not finite")
+    if spec.length_s <= 0:
+        raise OutageError(f"--outages {text!r}: LENGTH must be positive")
+    if spec.period_s < spec.length_s:
+        raise OutageError(f"--outages {text!r}: PERIOD must be at least LENGTH (outages would overlap)")
+    return spec
+
+
+def schedule(spec: OutageSpec | str, t_first: float, t_last: float) -> np.ndarray:
+    """(k, 2) [start, end) of every outage, for GNSS epochs from t_first to t_last."""
+    if not isinstance(spec, OutageSpec):
+        spec = parse(spec)
+    limit = t_last - spec.end_s
+    starts = []
+    k = 0
+    while True:
+        s = t_first + spec.first_s + k * spec.period_s
+        if not s < limit:
+            break
+        starts.append(s)
+        k += 1
+    starts = np.array(starts, float)
+    return np.column_stack([starts, starts + spec.length_s]).reshape(-1, 2)
+
+
+def inside(t: np.ndarray, outages: np.ndarray) -> np.ndarray:
+    """Which times fall in an outage (start included, end excluded)."""
+    t = np.asarray(t, float)
+    if not len(outages):
+        return np.zeros(t.shape, bool)
+    k = np.searchsorted(outages[:, 0], t, side="right") - 1
+    ok = k >= 0
+    out = np.zeros(t.shape, bool)
+    out[ok] = t[ok] < outages[k[ok], 1]
+    return out
+
+
+def outage_index(t: np.ndarray, outages: np.ndarray) -> np.ndarray:
+    """Index of the outage each time falls in, -1 outside."""
+    t = np.asarray(t, float)
+    if not len(outages):
+        return np.full(t.shape, -1)
+    k = np.searchsorted(outages[:, 0], t, side="right") - 1
+    k = np.where(k >= 0, k, -1)
+    hit = (k >= 0) & (t < outages[np.maximum(k, 0), 1])
+    return np.where(hit, k, -1)
+
+
+def errors_ned(t_sol: np.ndarray, r_sol: np.ndarray, t_ref: np.ndarray, r_ref: np.ndarray):
+    """Solution minus reference in NED at the reference epochs inside the solution's span.
+
+    Returns (mask of the reference epochs used, (m, 3) errors)."""
+    t_sol = np.asarray(t_sol, float)
+    use = (t_ref >= t_sol[0]) & (t_ref <= t_sol[-1]) if len(t_sol) else np.zeros(len(t_ref), bool)
+    tr = t_ref[use]
+    est = np.column_stack([np.interp(tr, t_sol, r_sol[:, j]) for j in range(3)])
+    llh = _core.ecef_to_geodetic(r_ref[use]) if use.any() else np.zeros((0, 3))
+    c = c_en(llh[:, 0], llh[:, 1])
+    return use, np.einsum("nji,nj->ni", c, est - r_ref[use])
+
+
+@dataclass
+class Score:
+    outages: np.ndarray  # (k, 2) the schedule
+    max_h_m: np.ndarray  # (k,) per-outage maximum horizontal error (NaN: no reference epoch inside)
+    max_v_m: np.ndarray  # (k,) per-outage maximum vertical error
+    n_ref: np.ndarray  # (k,) reference epochs inside each outage
+    outside_rms_h_m: float
+    outside_rms_v_m: float
+    n_outside: int
+    # Drift vs time in outage (for the report's figure): one row per reference epoch inside an outage.
+    drift_t_s: np.ndarray  # time since the outage began
+    drift_h_m: np.ndarray
+    drift_v_m: np.ndarray
+    drift_outage: np.ndarray  # outage index
+
+    def _stat(self, x: np.ndarray) -> dict:
+        x = x[np.isfinite(x)]
+        if not len(x):
+            return {"mean": float("nan"), "worst": float("nan"), "rms": float("nan")}
+        return {"mean": float(np.mean(x)), "worst": float(np.max(x)), "rms": float(np.sqrt(np.mean(x ** 2)))}
+
+    def summary(self) -> dict:
+        """Plain numbers for run.json."""
+        return {"n_outages": int(len(self.outages)), "n_scored": int(np.isfinite(self.max_h_m).sum()),
+                "horizontal_m": self._stat(self.max_h_m), "vertical_m": self._stat(self.max_v_m),
+                "per_outage": [{"start": float(a), "end": float(b), "max_h_m": float(h), "max_v_m": float(v),
+                                "n_ref": int(n)}
+                               for (a, b), h, v, n in zip(self.outages, self.max_h_m, self.max_v_m, self.n_ref)],
+                "outside": {"rms_h_m": self.outside_rms_h_m, "rms_v_m": self.outside_rms_v_m,
+                            "n": self.n_outside}}
+
+
+def score(t_sol: np.ndarray, r_sol: np.ndarray, t_ref: np.ndarray, r_ref: np.ndarray, outages: np.ndarray) -> Score:
+    """Score a solution (times, ECEF positions of the point the reference measures) against a reference."""
+    outages = np.asarray(outages, float).reshape(-1, 2)
+    use, e = errors_ned(t_sol, r_sol, np.asarray(t_ref, float), np.asarray(r_ref, float))
+    tr = np.asarray(t_ref, float)[use]
+    h = np.hypot(e[:, 0], e[:, 1])
+    v = np.abs(e[:, 2])
+    k = outage_index(tr, outages)
+    n = len(outages)
+    max_h, max_v, n_ref = np.full(n, np.nan), np.full(n, np.nan), np.zeros(n, int)
+    for j in range(n):
+        m = k == j
+        n_ref[j] = int(m.sum())
+        if n_ref[j]:
+            max_h[j], max_v[j] = h[m].max(), v[m].max()
+    out = k < 0
+    rms = (lambda x: float(np.sqrt(np.mean(x ** 2))) if len(x) else float("nan"))
+    ins = k >= 0
+    return Score(outages, max_h, max_v, n_ref, rms(h[out]), rms(v[out]), int(out.sum()),
+                 tr[ins] - outages[k[ins], 0] if ins.any() else np.zeros(0), h[ins], v[ins], k[ins])

@@ -1,0 +1,149 @@
+"""IMU text tables (CSV or whitespace) with declared columns, units and time scale.
+
+Rates (g, m/s^2, rad/s, deg/s) become increments over each sampling interval by the
+trapezoid rule, so n rate samples give n - 1 increments ending at samples 1..n-1;
+increments (m/s, rad, deg) are taken as they are, each ending at its own time stamp.
+Samples whose time does not increase are dropped and counted; a value that is not a
+number is an error naming the file, line and column.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import re
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .common import SECONDS_PER_WEEK, UNIX_TO_GPS_S, ReaderError, leap_seconds
+
+G0 = 9.80665  # standard gravity: what "g" means in IMU data sheets
+ACCEL_UNITS = {"g": (G0, True), "m/s^2": (1.0, True), "m/s2": (1.0, True), "m/s": (1.0, False)}
+GYRO_UNITS = {"rad/s": (1.0, True), "deg/s": (np.pi / 180.0, True), "rad": (1.0, False), "deg": (np.pi / 180.0, False)}
+TIME_SCALES = ("gpst_unix", "gps_sow", "gps_abs", "utc_unix")
+AXES = ("ax", "ay", "az", "gx", "gy", "gz")
+
+
+@dataclass
+class ImuData:
+    """Increments in the IMU's own axes, each over the interval ending at t_abs."""
+
+    t_abs: np.ndarray  # (n,) GPS seconds since the GPS epoch
+    dtheta_rad: np.ndarray  # (n, 3)
+    dv_mps: np.ndarray  # (n, 3)
+    source: str = ""
+    skipped: Counter = field(default_factory=Counter)
+
+    def __len__(self) -> int:
+        return len(self.t_abs)
+
+    def rate_hz(self) -> float:
+        return float(1.0 / np.median(np.diff(self.t_abs))) if len(self) > 1 else float("nan")
+
+    def array(self, t0: float = 0.0) -> np.ndarray:
+        """The filter's (n, 7) [t - t0, dtheta xyz, dv xyz]."""
+        return np.column_stack([self.t_abs - t0, self.dtheta_rad, self.dv_mps])
+
+
+def to_gps_seconds(t: np.ndarray, scale: str, week: int | None = None, path="<imu>") -> np.ndarray:
+    """Time column to GPS seconds since the GPS epoch."""
+    if scale == "gpst_unix":  # GPS time counted like Unix time, without leap seconds
+        return t - UNIX_TO_GPS_S
+    if scale == "gps_abs":
+        return t.copy()
+    if scale == "utc_unix":
+        leap = leap_seconds(dt.datetime(1970, 1, 1) + dt.timedelta(seconds=float(t[0]))) if len(t) else 0
+        return t - UNIX_TO_GPS_S + leap
+    if scale == "gps_sow":
+        if week is None:
+            raise ReaderError(path, "time = \"gps_sow\" needs `week = N`", field="week")
+        rollover = np.concatenate([[0], np.cumsum(np.diff(t) < -SECONDS_PER_WEEK / 2)])
+        return (week + rollover) * SECONDS_PER_WEEK + t
+    raise ReaderError(path, f"unknown time scale {scale!r} (one of {', '.join(TIME_SCALES)})", field="time")
+
+
+def _locate_bad_value(path: Path, text: list[str], usecols, names, delimiter, skip: int) -> ReaderError:
+    for i, line in enumerate(text[skip:], start=skip + 1):
+        if not line.strip() or line.lstrip().startswith("#"):
+            continue
+        parts = line.split(delimiter) if delimiter else line.split()
+        for c, name in zip(usecols, names):
+            try:
+                float(parts[c])
+            except (ValueError, IndexError):
+                got = repr(parts[c].strip()) if c < len(parts) else "nothing"
+                return ReaderError(path, f"{got} is not a number", line=i, field=f"column {c + 1} ({name})")
+    return ReaderError(path, "unreadable table")
+
+
+def read(path: str | Path, columns, time: str = "gpst_unix", accel_unit: str = "m/s^2", gyro_unit: str = "rad/s",
+         week: int | None = None, delimiter: str | None = None, skip_rows: int | None = None) -> ImuData:
+    """Read an IMU table. ``columns``: the leading columns' names in order (t, ax, ay, az, gx, gy, gz;
+    "-" skips one; later columns are ignored). ``delimiter``: None guesses (comma if the first data line has one,
+    else whitespace). ``skip_rows``: header lines to skip (None: every leading line that is not numeric)."""
+    path = Path(path)
+    columns = list(columns)
+    missing = [c for c in ("t", *AXES) if c not in columns]
+    if missing:
+        raise ReaderError(path, f"columns lack {', '.join(missing)}", field="columns")
+    unknown = [c for c in columns if c not in ("t", "-", *AXES)]
+    if unknown:
+        raise ReaderError(path, f"unknown column names {unknown}", field="columns")
+    if accel_unit not in ACCEL_UNITS:
+        raise ReaderError(path, f"unknown accel_unit {accel_unit!r} ({', '.join(ACCEL_UNITS)})", field="accel_unit")
+    if gyro_unit not in GYRO_UNITS:
+        raise ReaderError(path, f"unknown gyro_unit {gyro_unit!r} ({', '.join(GYRO_UNITS)})", field="gyro_unit")
+    try:
+        text = path.read_text(encoding="utf-8", errors="replace").splitlines()
+    except OSError as e:
+        raise ReaderError(path, e.strerror or str(e)) from None
+    if skip_rows is None:
+        skip_rows = 0
+        number = re.compile(r"^\s*[-+]?(\d|\.\d)")
+        while skip_rows < len(text) and not number.match(text[skip_rows]):
+            skip_rows += 1
+    if skip_rows >= len(text):
+        raise ReaderError(path, "no data rows")
+    if delimiter is None:
+        delimiter = "," if "," in text[skip_rows] else None
+    names = [c for c in columns if c != "-"]
+    usecols = [k for k, c in enumerate(columns) if c != "-"]
+    try:
+        a = np.loadtxt(text[skip_rows:], delimiter=delimiter, usecols=usecols, ndmin=2, comments="#")
+    except ValueError:
+        raise _locate_bad_value(path, text, usecols, names, delimiter, skip_rows) from None
+    col = {n: a[:, k] for k, n in enumerate(names)}
+    t = to_gps_seconds(col["t"], time, week, path)
+    acc = np.column_stack([col["ax"], col["ay"], col["az"]]) * ACCEL_UNITS[accel_unit][0]
+    gyr = np.column_stack([col["gx"], col["gy"], col["gz"]]) * GYRO_UNITS[gyro_unit][0]
+    skipped = Counter()
+    # Keep samples whose time increases over the last kept one (a stamp that goes back is a glitch).
+    keep = np.ones(len(t), bool)
+    if len(t) > 1:
+        run_max = np.maximum.accumulate(t)
+        keep[1:] = t[1:] > run_max[:-1]
+    if (~keep).any():
+        skipped["IMU samples whose time does not increase"] = int((~keep).sum())
+    t, acc, gyr = t[keep], acc[keep], gyr[keep]
+    bad = ~np.isfinite(np.column_stack([t, acc, gyr])).all(1)
+    if bad.any():
+        skipped["IMU samples with NaN"] = int(bad.sum())
+        t, acc, gyr = t[~bad], acc[~bad], gyr[~bad]
+    dv = _increments(t, acc, ACCEL_UNITS[accel_unit][1])
+    dth = _increments(t, gyr, GYRO_UNITS[gyro_unit][1])
+    if ACCEL_UNITS[accel_unit][1] or GYRO_UNITS[gyro_unit][1]:
+        t = t[1:]
+        if not ACCEL_UNITS[accel_unit][1]:
+            dv = dv[1:]
+        if not GYRO_UNITS[gyro_unit][1]:
+            dth = dth[1:]
+    return ImuData(t, dth, dv, path.name, skipped)
+
+
+def _increments(t: np.ndarray, x: np.ndarray, rates: bool) -> np.ndarray:
+    if not rates:
+        return x
+    dt = np.diff(t)[:, None]
+    return 0.5 * (x[1:] + x[:-1]) * dt
