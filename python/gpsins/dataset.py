@@ -19,6 +19,8 @@ Extensions (all optional):
 - ``[imu] time = "gps_abs"`` (GPS seconds since 1980-01-06) and ``"utc_unix"`` (Unix time in
   UTC: leap seconds added).
 - ``[gnss] week``: the GPS week of a kf-gins GNSS file (default: ``[imu] week``).
+- ``[gnss] geoid_height_m``, ``[scoring] reference_geoid_height_m``: for .pos (and kf-gins)
+  heights above the geoid, the geoid's height above the ellipsoid (added to them).
 - ``[gnss] nav`` may be a list of RINEX navigation files; with ``format = "ubx"`` they add to
   the ephemerides decoded from the stream's SFRBX.
 - ``[scoring] reference = "FILE.pos"``, ``reference_q = [1]`` (the Q values that count),
@@ -50,9 +52,9 @@ _KNOWN = {
     "": {"name", "imu", "gnss", "vehicle", "filter", "scoring", "description"},
     "imu": {"file", "format", "columns", "time", "week", "accel_unit", "gyro_unit", "time_offset_s", "imu_to_body",
             "imu_to_body_ypr_deg", "delimiter", "skip_rows"},
-    "gnss": {"file", "format", "nav", "antenna_m", "week"},
+    "gnss": {"file", "format", "nav", "antenna_m", "week", "geoid_height_m"},
     "vehicle": {"kind"},
-    "scoring": {"reference", "reference_q", "outages"},
+    "scoring": {"reference", "reference_q", "reference_geoid_height_m", "outages"},
 }
 
 
@@ -220,13 +222,13 @@ def load(path: str | Path) -> Dataset:
     ds.skipped = skipped
     navs = [rinex.read_nav(n) for n in _nav_files(tg, base, path)]
     if fmt == "rtklib-pos":
-        ds.fixes = rtklib_pos.read(gfile)
+        ds.fixes = rtklib_pos.read(gfile, tg.get("geoid_height_m"))
     elif fmt == "kf-gins":
         week = tg.get("week", ti.get("week"))
         if week is None:
             raise DatasetError(path, "a kf-gins GNSS file has seconds of week: give `week = N`",
                                field="[gnss] week")
-        ds.fixes = kfgins.read_gnss(gfile, int(week))
+        ds.fixes = kfgins.read_gnss(gfile, int(week), float(tg.get("geoid_height_m", 0.0)))
     elif fmt == "rinex":
         if not navs:
             raise DatasetError(path, "a RINEX observation file needs `nav = \"FILE\"`", field="[gnss] nav")
@@ -259,7 +261,7 @@ def load(path: str | Path) -> Dataset:
 
     if "reference" in ts:
         ds.reference = load_reference(_file(base, ts["reference"], path, "[scoring] reference"),
-                                      ts.get("reference_q", [1]))
+                                      ts.get("reference_q", [1]), ts.get("reference_geoid_height_m"))
     if "outages" in ts:
         try:
             ds.outages = outages_mod.parse(ts["outages"])
@@ -268,7 +270,7 @@ def load(path: str | Path) -> Dataset:
     return ds
 
 
-def load_reference(path: str | Path, q=(1,)) -> Fixes:
+def load_reference(path: str | Path, q=(1,), geoid_height_m: float | None = None) -> Fixes:
     """A reference trajectory from an RTKLIB .pos: only the epochs whose Q is in ``q`` (default: fixed)."""
-    f = rtklib_pos.read(path)
+    f = rtklib_pos.read(path, geoid_height_m)
     return f.select(np.isin(f.q, list(q)))

@@ -52,11 +52,12 @@ def read_imu(path: str | Path, week: int) -> ImuData:
     return ImuData(t, a[:, 1:4], a[:, 4:7], path.name)
 
 
-def read_gnss(path: str | Path, week: int) -> Fixes:
+def read_gnss(path: str | Path, week: int, geoid_height_m: float = 0.0) -> Fixes:
+    """``geoid_height_m`` is added to the heights (for heights above the geoid)."""
     path = Path(path)
     a = _table(path, 7)
     t = to_gps_seconds(a[:, 0], "gps_sow", week, path)
-    llh = np.column_stack([np.radians(a[:, 1]), np.radians(a[:, 2]), a[:, 3]])
+    llh = np.column_stack([np.radians(a[:, 1]), np.radians(a[:, 2]), a[:, 3] + geoid_height_m])
     r = _core.geodetic_to_ecef(llh)
     v = sv = None
     if a.shape[1] >= 13:

@@ -7,6 +7,12 @@ ENU baselines are told apart by it; times are calendar GPST ``YYYY/MM/DD hh:mm:s
 ``week seconds`` or UTC (converted to GPST with the leap seconds). Signed covariance
 terms (sdne, sdeu, sdun as RTKLIB writes them: sign(c) sqrt|c|) are read but only the
 standard deviations are kept.
+
+Heights: RTKLIB writes ellipsoidal heights unless told to write geodetic (above the geoid)
+ones, and then says "height=WGS84/geodetic" in its header; files converted elsewhere may
+not say (the walk's heights are above the geoid). ``geoid_height_m`` (N, added: h = H + N)
+turns such heights into the ellipsoidal heights every position here is in; a file whose
+header says geodetic without it is an error rather than a 20-30 m height bias.
 """
 
 from __future__ import annotations
@@ -41,7 +47,9 @@ def _time_parser(header: list[str], path):
     return parse
 
 
-def read(path: str | Path) -> Fixes:
+def read(path: str | Path, geoid_height_m: float | None = None) -> Fixes:
+    """Fixes from a .pos; ``geoid_height_m``: the geoid's height above the ellipsoid, added to heights above the
+    geoid (None: the heights are taken as ellipsoidal, as RTKLIB writes them by default)."""
     path = Path(path)
     lines = read_text_lines(path)
     header = None
@@ -50,6 +58,9 @@ def read(path: str | Path) -> Fixes:
     for i, line in enumerate(lines):
         if line.startswith("%"):
             text = line[1:].strip()
+            if "height=wgs84/geodetic" in text.lower().replace(" ", "") and geoid_height_m is None:
+                raise ReaderError(path, "heights are above the geoid (header says geodetic): give the geoid height",
+                                  line=i + 1, field="height")
             if re.match(r"^(GPST|UTC|JST)\b", text):
                 header = text.split()
             continue
@@ -118,7 +129,7 @@ def read(path: str | Path) -> Fixes:
             if isv[j] is not None and isv[j] < len(values):
                 sdv[k, j] = values[isv[j]]
     if kind == "llh":
-        llh = np.column_stack([np.radians(pos[:, 0]), np.radians(pos[:, 1]), pos[:, 2]])
+        llh = np.column_stack([np.radians(pos[:, 0]), np.radians(pos[:, 1]), pos[:, 2] + (geoid_height_m or 0.0)])
         r = _core.geodetic_to_ecef(llh) if n else np.zeros((0, 3))
         sd_ned = sd[:, [0, 1, 2]]  # up and down have the same sigma
         v_ned = vel * [1, 1, -1] if has_vel else None
