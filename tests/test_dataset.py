@@ -1,0 +1,230 @@
+"""Data-set TOML loading (the walk, synthetic sets with known mounting and time offset, errors)
+and the outage schedule and scoring against hand-computed values."""
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from gpsins import _core, dataset, outages
+from gpsins.dataset import DatasetError
+
+WALK = Path(__file__).parent / "data" / "walk_0827"
+
+
+# --- the walk ------------------------------------------------------------------------------------------------
+
+def test_walk_dataset_loads_with_mounting_reference_and_schedule():
+    ds = dataset.load(WALK / "walk_0827.toml")
+    assert ds.name == "walk_0827" and ds.gnss_format == "rtklib-pos" and ds.vehicle_kind == "none"
+    assert len(ds.imu) == 20454 and len(ds.fixes) == 536
+    assert len(ds.reference) == 349 and set(ds.reference.q) == {1}  # the README's fix epochs
+    # Roll 180, pitch 0, yaw -90 by hand: Rz(-90) = [[0, 1, 0], [-1, 0, 0], [0, 0, 1]], Rx(180) = diag(1, -1, -1).
+    np.testing.assert_allclose(ds.imu_to_body, [[0, -1, 0], [-1, 0, 0], [0, 0, -1]], atol=1e-15)
+    # Standing at the start: the body's specific force is up (-g along down), the IMU's z axis pointed up.
+    first = ds.imu.t_abs < ds.imu.t_abs[0] + 1.0
+    f = ds.imu.dv_mps[first].sum(0) / (ds.imu.t_abs[first][-1] - ds.imu.t_abs[0] + np.median(np.diff(ds.imu.t_abs)))
+    assert f[2] == pytest.approx(-9.9, abs=0.2) and np.hypot(f[0], f[1]) < 0.5
+    # Heights above the geoid made ellipsoidal (first epoch printed as 1601.435 m).
+    assert ds.reference.llh()[0, 2] == pytest.approx(1601.435 - 21.387, abs=1e-6)
+    assert ds.fixes.llh()[0, 2] == pytest.approx(1601.435 - 21.387, abs=1e-6)
+    t0, t1 = ds.gnss_span()
+    np.testing.assert_allclose(ds.outage_schedule() - t0, [[25, 40], [70, 85]])  # two 15 s outages (issue 16)
+    assert t1 - t0 == pytest.approx(133.75)
+    cfg = ds.filter_config()
+    assert cfg["imu_noise"]["gyro_arw_rad_per_sqrt_s"] == 6.63e-5 and cfg["gyro_bias_cal_rad_per_s"] == [0, 0, 0]
+
+
+def test_walk_ubx_dataset_has_pseudoranges_ephemerides_and_fixes():
+    ds = dataset.load(WALK / "walk_0827_ubx.toml")
+    assert len(ds.pseudoranges) == 3842 and len(ds.fixes) == 536
+    assert ds.navigation.prns() == [10, 23, 27, 32]
+    assert any("PRN 10, 23, 27, 32" in n for n in ds.notes)
+    assert not ds.skipped
+    assert ds.pseudoranges.table(ds.gnss_span()[0]).shape == (3842, 5)
+
+
+# --- synthetic sets: mounting, time offset, formats -----------------------------------------------------------
+
+def _write(tmp: Path, name: str, text: str) -> Path:
+    p = tmp / name
+    p.write_text(text)
+    return p
+
+
+def test_mounting_rotation_and_time_offset_on_known_increments(tmp_path):
+    rng = np.random.default_rng(3)
+    n = 50
+    t = 1_000_000.0 + 0.01 * np.arange(n)
+    dth, dv = rng.normal(0, 1e-3, (n, 3)), rng.normal(0, 1e-1, (n, 3))
+    _write(tmp_path, "imu.txt", "".join(f"{a:.3f} 0 " + " ".join(f"{x:.17g}" for x in (*b, *c)) + "\n"
+                                        for a, b, c in zip(t, dv, dth)))
+    _write(tmp_path, "gnss.txt", "1000.0 59.3 18.1 30.0 0.01 0.01 0.02\n1001.0 59.3 18.1 30.0 0 0 0\n")
+    _write(tmp_path, "set.toml", """
+name = "synthetic"
+[imu]
+file = "imu.txt"
+columns = ["t", "-", "ax", "ay", "az", "gx", "gy", "gz"]
+time = "gps_abs"
+accel_unit = "m/s"
+gyro_unit = "rad"
+time_offset_s = 0.25
+imu_to_body = [[0, 1, 0], [-1, 0, 0], [0, 0, 1]]
+[gnss]
+file = "gnss.txt"
+format = "kf-gins"
+week = 1653
+antenna_m = [0.5, -0.2, -1.0]
+[vehicle]
+kind = "car"
+""")
+    ds = dataset.load(tmp_path / "set.toml")
+    np.testing.assert_allclose(ds.imu.t_abs, t + 0.25)
+    # v_body = M v_imu, by hand: x_b = y_i, y_b = -x_i, z_b = z_i.
+    np.testing.assert_allclose(ds.imu.dv_mps, np.column_stack([dv[:, 1], -dv[:, 0], dv[:, 2]]), rtol=1e-15)
+    np.testing.assert_allclose(ds.imu.dtheta_rad, np.column_stack([dth[:, 1], -dth[:, 0], dth[:, 2]]), rtol=1e-15)
+    assert ds.imu_time_offset_s == 0.25 and ds.vehicle_kind == "car"
+    np.testing.assert_array_equal(ds.antenna_m, [0.5, -0.2, -1.0])
+    np.testing.assert_allclose(ds.fixes.t_abs, [1653 * 604800 + 1000.0, 1653 * 604800 + 1001.0])
+    assert np.all(ds.fixes.sigma_ned_m[1] == 0)  # kept as zero: the filter applies floors
+    assert ds.filter_config()["preset"] == "default"
+
+
+def test_rinex_dataset(shared_data, tmp_path):
+    rel = Path(os.path.relpath(shared_data, tmp_path))
+    _write(tmp_path, "imu.csv", "0,0,0,0,0,0,0\n0.01,0,0,0,0,0,0\n")
+    _write(tmp_path, "set.toml", f"""
+[imu]
+file = "imu.csv"
+columns = ["t", "ax", "ay", "az", "gx", "gy", "gz"]
+time = "gps_sow"
+week = 1316
+[gnss]
+file = "{(rel / '07590920.05o').as_posix()}"
+format = "rinex"
+nav = "{(rel / '07590920.05n').as_posix()}"
+[scoring]
+outages = "600:60:900"
+""")
+    ds = dataset.load(tmp_path / "set.toml")
+    assert len(ds.pseudoranges.epochs()) == 120 and len(ds.navigation.ephemerides) > 20
+    assert len(ds.navigation.alpha) == 4
+    t0 = ds.gnss_span()[0]
+    np.testing.assert_allclose(ds.outage_schedule() - t0, [[600, 660], [1500, 1560], [2400, 2460], [3300, 3360]])
+
+
+@pytest.mark.parametrize("edit, match", [
+    (lambda s: s + "\nspeed = 3\n", "unknown key"),
+    (lambda s: s.replace('file = "imu.csv"', 'file = "nope.csv"'), r"\[imu\] file: nope\.csv: no such file"),
+    (lambda s: s.replace("[imu]", "[imu]\nimu_to_body = [[1, 0, 0], [0, 1, 0], [0, 0, -1]]"), "not a rotation"),
+    (lambda s: s.replace('format = "kf-gins"', 'format = "nmea"'), r"\[gnss\] format: unknown format 'nmea'"),
+    (lambda s: s.replace("week = 1653\n", ""), r"\[gnss\] week"),
+    (lambda s: s + '\n[scoring]\noutages = "5:10"\n', r"\[scoring\] outages"),
+    (lambda s: s.replace('kind = "none"', 'kind = "boat"'), r"\[vehicle\] kind"),
+    (lambda s: s.replace("columns =", "colums ="), r"\[imu\]: unknown key\(s\) colums"),
+])
+def test_dataset_errors_name_the_field(tmp_path, edit, match):
+    _write(tmp_path, "imu.csv", "0,0,0,0,0,0,0\n0.01,0,0,0,0,0,0\n")
+    _write(tmp_path, "gnss.txt", "1000.0 59.3 18.1 30.0 0.01 0.01 0.02\n")
+    text = """name = "bad"
+[imu]
+file = "imu.csv"
+columns = ["t", "ax", "ay", "az", "gx", "gy", "gz"]
+time = "gps_abs"
+[gnss]
+file = "gnss.txt"
+format = "kf-gins"
+week = 1653
+[vehicle]
+kind = "none"
+"""
+    dataset.load(_write(tmp_path, "ok.toml", text))  # the unedited file is fine
+    with pytest.raises(DatasetError, match=match) as e:
+        dataset.load(_write(tmp_path, "bad.toml", edit(text)))
+    assert "bad.toml" in str(e.value)
+
+
+# --- outages: schedule ----------------------------------------------------------------------------------------
+
+def test_schedule_exactly_as_specified():
+    # t0 = 100, last epoch 300: starts 110, 160, 210, 260 (each earlier than 300 - 0).
+    np.testing.assert_array_equal(outages.schedule("10:5:50", 100.0, 300.0),
+                                  [[110, 115], [160, 165], [210, 215], [260, 265]])
+    # END = 40: a start must be earlier than 260; 260 itself is not.
+    np.testing.assert_array_equal(outages.schedule("10:5:50:40", 100.0, 300.0), [[110, 115], [160, 165], [210, 215]])
+    np.testing.assert_array_equal(outages.schedule("10:5:50:39.999", 100.0, 300.0)[-1], [260, 265])
+    # The walk (issue 16): 25:15:45:45 over 133.75 s of epochs gives two outages.
+    np.testing.assert_array_equal(outages.schedule("25:15:45:45", 0.0, 133.75), [[25, 40], [70, 85]])
+    assert outages.schedule("200:5:50", 100.0, 300.0).shape == (0, 2)
+    spec = outages.parse("25:15:45")
+    assert spec == outages.OutageSpec(25.0, 15.0, 45.0, 0.0) and spec.text() == "25:15:45:0"
+
+
+@pytest.mark.parametrize("text", ["1:2", "a:b:c", "0:10:5", "0:0:5", "1:2:3:4:5", "nan:1:2"])
+def test_bad_outage_specs(text):
+    with pytest.raises(outages.OutageError, match="--outages"):
+        outages.parse(text)
+
+
+def test_inside_is_start_inclusive_end_exclusive():
+    sched = np.array([[10.0, 15.0], [20.0, 25.0]])
+    t = np.array([9.999, 10.0, 14.999, 15.0, 19.0, 20.0, 24.9, 25.0, 30.0])
+    np.testing.assert_array_equal(outages.inside(t, sched), [0, 1, 1, 0, 0, 1, 1, 0, 0])
+    np.testing.assert_array_equal(outages.outage_index(t, sched), [-1, 0, 0, -1, -1, 1, 1, -1, -1])
+    assert not outages.inside(t, np.zeros((0, 2))).any()
+
+
+# --- outages: scoring -----------------------------------------------------------------------------------------
+
+def _error_ned(t: float) -> np.ndarray:
+    """The solution's error (NED, m) at time t, made up so that every figure can be computed by hand."""
+    if 5.0 <= t < 8.0:
+        s = t - 5.0
+        return np.array([3 * s, 4 * s, -s])  # horizontal 5 s, vertical s
+    if 12.0 <= t < 15.0:
+        s = t - 12.0
+        return np.array([0.0, 2 * s, 0.5 * s])  # horizontal 2 s, vertical s / 2
+    return np.array([0.3, 0.4, 0.1])  # horizontal 0.5, vertical 0.1
+
+
+def test_drift_scores_by_hand():
+    llh = np.array([np.radians(40.0), np.radians(-105.0), 1600.0])
+    t_ref = np.arange(0.0, 21.0)  # 1 Hz reference, standing still
+    r_ref = np.repeat(_core.geodetic_to_ecef(llh)[None, :], len(t_ref), 0)
+    t_sol = np.arange(0.0, 20.05, 0.1)
+    r_sol = _core.ned_to_ecef(np.array([_error_ned(x) for x in t_sol]), llh)
+    sched = np.array([[5.0, 8.0], [12.0, 15.0]])
+    s = outages.score(t_sol, r_sol, t_ref, r_ref, sched)
+    # Outage 1: epochs 5, 6, 7: horizontal 0, 5, 10, vertical 0, 1, 2. Outage 2: epochs 12, 13, 14: 0, 2, 4 and
+    # 0, 0.5, 1.
+    np.testing.assert_allclose(s.max_h_m, [10.0, 4.0], atol=1e-6)
+    np.testing.assert_allclose(s.max_v_m, [2.0, 1.0], atol=1e-6)
+    np.testing.assert_array_equal(s.n_ref, [3, 3])
+    d = s.summary()
+    assert d["horizontal_m"]["mean"] == pytest.approx(7.0, abs=1e-6)
+    assert d["horizontal_m"]["worst"] == pytest.approx(10.0, abs=1e-6)
+    assert d["horizontal_m"]["rms"] == pytest.approx(np.sqrt((100 + 16) / 2), abs=1e-6)
+    assert d["vertical_m"]["rms"] == pytest.approx(np.sqrt((4 + 1) / 2), abs=1e-6)
+    assert s.n_outside == 21 - 6
+    assert s.outside_rms_h_m == pytest.approx(0.5, abs=1e-6) and s.outside_rms_v_m == pytest.approx(0.1, abs=1e-6)
+    np.testing.assert_allclose(s.drift_t_s, [0, 1, 2, 0, 1, 2])
+    np.testing.assert_allclose(s.drift_h_m, [0, 5, 10, 0, 2, 4], atol=1e-6)
+    np.testing.assert_array_equal(s.drift_outage, [0, 0, 0, 1, 1, 1])
+    # An outage without a reference epoch counts as not scored, not as zero drift.
+    s2 = outages.score(t_sol, r_sol, t_ref, r_ref, np.array([[5.0, 8.0], [30.0, 35.0]]))
+    assert np.isnan(s2.max_h_m[1]) and s2.summary()["n_scored"] == 1
+    assert s2.summary()["horizontal_m"]["rms"] == pytest.approx(10.0, abs=1e-6)
+
+
+def test_scoring_interpolates_a_moving_solution():
+    # Moving north at 2 m/s; the solution at 100 Hz lags by 0.05 s (0.1 m behind) everywhere: the error at the
+    # 4 Hz reference epochs between solution samples is exactly -0.1 m north.
+    llh = np.array([np.radians(59.0), np.radians(18.0), 20.0])
+    t_ref = np.arange(0.0, 10.0, 0.25) + 0.003
+    t_sol = np.arange(0.0, 10.01, 0.01)
+    north = lambda t: np.column_stack([2.0 * t, 0 * t, 0 * t])  # noqa: E731
+    s = outages.score(t_sol, _core.ned_to_ecef(north(t_sol - 0.05), llh), t_ref,
+                      _core.ned_to_ecef(north(t_ref), llh), np.array([[4.0, 6.0]]))
+    assert s.outside_rms_h_m == pytest.approx(0.1, abs=1e-6)
+    assert s.max_h_m[0] == pytest.approx(0.1, abs=1e-6) and s.n_ref[0] == 8
