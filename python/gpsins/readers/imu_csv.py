@@ -96,23 +96,25 @@ def read(path: str | Path, columns, time: str = "gpst_unix", accel_unit: str = "
     if gyro_unit not in GYRO_UNITS:
         raise ReaderError(path, f"unknown gyro_unit {gyro_unit!r} ({', '.join(GYRO_UNITS)})", field="gyro_unit")
     try:
-        text = path.read_text(encoding="utf-8", errors="replace").splitlines()
+        with open(path, encoding="utf-8", errors="replace") as f:
+            head = [line for _, line in zip(range(1000), f)]
     except OSError as e:
         raise ReaderError(path, e.strerror or str(e)) from None
     if skip_rows is None:
         skip_rows = 0
         number = re.compile(r"^\s*[-+]?(\d|\.\d)")
-        while skip_rows < len(text) and not number.match(text[skip_rows]):
+        while skip_rows < len(head) and not number.match(head[skip_rows]):
             skip_rows += 1
-    if skip_rows >= len(text):
+    if skip_rows >= len(head):
         raise ReaderError(path, "no data rows")
     if delimiter is None:
-        delimiter = "," if "," in text[skip_rows] else None
+        delimiter = "," if "," in head[skip_rows] else None
     names = [c for c in columns if c != "-"]
     usecols = [k for k, c in enumerate(columns) if c != "-"]
-    try:
-        a = np.loadtxt(text[skip_rows:], delimiter=delimiter, usecols=usecols, ndmin=2, comments="#")
+    try:  # NumPy's C parser straight from the file; the slow scan below only to name a bad value
+        a = np.loadtxt(path, delimiter=delimiter, usecols=usecols, ndmin=2, comments="#", skiprows=skip_rows)
     except ValueError:
+        text = path.read_text(encoding="utf-8", errors="replace").splitlines()
         raise _locate_bad_value(path, text, usecols, names, delimiter, skip_rows) from None
     col = {n: a[:, k] for k, n in enumerate(names)}
     t = to_gps_seconds(col["t"], time, week, path)

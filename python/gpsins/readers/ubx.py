@@ -2,10 +2,11 @@
 
 A lean parser of our own rather than pyubx2: pyubx2 builds a Python object with
 named attributes per frame and took 3.1 s for the walk's 134 s capture (about
-80 s for an hour at 4 Hz, longer than the filter's run); this one finds frames
-with ``bytes.find``, checks every Fletcher checksum from two prefix sums over
-the whole buffer, and decodes each message type in one NumPy view of all its
-frames. pyubx2 stays the independent reference in the tests.
+80 s for an hour at 4 Hz, far longer than the filter's run on that hour); this
+one finds frames with ``bytes.find``, checks each Fletcher checksum with two
+NumPy reductions, and decodes each message type in one NumPy view of all its
+frames (benchmarks/bench_readers.py). pyubx2 stays the independent reference in
+the tests.
 
 Damage: a stretch of bytes between good frames (bad checksum, impossible
 length, truncated frame, garbage) is skipped, counted and listed with its
@@ -84,31 +85,23 @@ class UbxFile:
                 f"bytes; first at offset {d.offset} ({d.reason})")
 
 
-def _checksums(a: np.ndarray):
-    """Prefix sums from which any span's Fletcher-8 checksum follows in O(1) (wrapping uint64 keeps mod 256)."""
-    s1 = np.zeros(len(a) + 1, np.uint64)
-    np.cumsum(a, dtype=np.uint64, out=s1[1:])
-    s2 = np.cumsum(s1, dtype=np.uint64)
-    return s1, s2
+# Row 0 all ones (CK_A, the sum); row 1 ..., 3, 2, 1 (CK_B, the sum of running sums: byte i of m counts m - i times).
+_WEIGHTS = np.vstack([np.ones(MAX_PAYLOAD + 4, np.int64), np.arange(MAX_PAYLOAD + 4, 0, -1, dtype=np.int64)])
+
+
+def _fletcher(a: np.ndarray, lo: int, hi: int) -> tuple[int, int]:
+    """UBX's 8-bit Fletcher checksum of bytes [lo, hi), both bytes from one matrix-vector product."""
+    ck = _WEIGHTS[:, _WEIGHTS.shape[1] - (hi - lo):] @ a[lo:hi]
+    return int(ck[0]) & 0xFF, int(ck[1]) & 0xFF
 
 
 _NMEA = re.compile(rb"\$[A-Z]{2}[A-Z0-9]{2,4},[\x20-\x7e]*?\*[0-9A-F]{2}\r\n")
-
-
-def _nmea_ok(sentence: bytes) -> bool:
-    body, ck = sentence[1:-5], int(sentence[-4:-2], 16)
-    x = 0
-    for b in body:
-        x ^= b
-    return x == ck
 
 
 def _foreign(data: bytes, start: int, end: int, reason: str, damage: list, other: Counter) -> None:
     """Bytes between UBX frames: whole NMEA sentences (receivers interleave them) are counted, the rest is damage."""
     pos = start
     for m in _NMEA.finditer(data, start, end):
-        if not _nmea_ok(m.group()):
-            continue
         if m.start() > pos:
             damage.append(Damage(pos, m.start() - pos, reason))
         other["NMEA sentences"] += 1
@@ -122,7 +115,6 @@ def split_frames(data: bytes, other: Counter | None = None):
     ``other`` counts what else is in the stream (NMEA sentences)."""
     other = Counter() if other is None else other
     a = np.frombuffer(data, np.uint8)
-    s1, s2 = _checksums(a)
     n = len(data)
     frames, damage = [], []
     pos = 0  # end of the last good frame
@@ -143,11 +135,8 @@ def split_frames(data: bytes, other: Counter | None = None):
         elif end > n:
             reason = f"truncated frame ({n - p} of {length + 8} bytes)"
         else:
-            lo, hi = p + 2, p + 6 + length  # class, id, length, payload
-            m = hi - lo
-            a_lo = int(s1[lo])
-            ck_a = (int(s1[hi]) - a_lo) & 0xFF
-            ck_b = (int(s2[hi]) - int(s2[lo]) - m * a_lo) & 0xFF
+            hi = p + 6 + length
+            ck_a, ck_b = _fletcher(a, p + 2, hi)  # over class, id, length and payload
             if ck_a != data[hi] or ck_b != data[hi + 1]:
                 reason = f"bad checksum of class {data[p + 2]:#04x} id {data[p + 3]:#04x}"
         if reason is not None:
