@@ -299,10 +299,11 @@ def write_rinex3_nav(path: Path, nav: rinex.Navigation) -> None:
 
 
 def write_rinex3_obs(path: Path, obs: rinex.ObsFile) -> None:
-    """The GEONET epochs as RINEX 3, with a Galileo satellite added to every epoch (to be skipped)."""
+    """The GEONET epochs as RINEX 3, with a Doppler column (-1000.5 + PRN Hz) and a Galileo satellite added to every
+    epoch (to be skipped)."""
     v3 = {"C1": "C1C", "P1": "C1W", "L1": "L1C", "D1": "D1C", "S1": "S1C", "P2": "C2W", "L2": "L2W", "C2": "C2X",
           "S2": "S2W", "D2": "D2W"}
-    types = [v3.get(t, t) for t in obs.types]
+    types = [v3.get(t, t) for t in obs.types] + ["D1C"]
     x, y, z = obs.approx_xyz
     lines = [f"{'3.04':>9}{'':11}{'OBSERVATION DATA':<20}{'M: Mixed':<20}RINEX VERSION / TYPE",
              f"{x:14.4f}{y:14.4f}{z:14.4f}{'':18}APPROX POSITION XYZ"]
@@ -321,6 +322,7 @@ def write_rinex3_obs(path: Path, obs: rinex.ObsFile) -> None:
         sec = c.second + c.microsecond * 1e-6
         lines.append(f"> {c.year:4d} {c.month:02d} {c.day:02d} {c.hour:02d} {c.minute:02d}{sec:11.7f}  0{len(prns) + 1:3d}")
         for prn, v in zip(prns, values):
+            v = list(v) + [-1000.5 + prn]
             lines.append(f"G{prn:02d}" + "".join("".ljust(16) if np.isnan(a) else f"{a:14.3f}  " for a in v).rstrip())
         lines.append("E11  22000000.000")
     path.write_text("\n".join(lines) + "\n")
@@ -366,6 +368,8 @@ def test_rinex3_reads_the_same_values_as_rinex2(shared_data, tmp_path):
     np.testing.assert_array_equal(l3.t_abs, l2.t_abs)
     np.testing.assert_array_equal(l3.prn, l2.prn)
     np.testing.assert_allclose(l3.pr_m, l2.pr_m, atol=1e-3)
+    np.testing.assert_array_equal(l3.doppler_hz, -1000.5 + l3.prn)
+    assert np.isnan(l2.doppler_hz).all()  # the RINEX 2 file has no D1
     # The same SPP through spp.from_rinex (which asks for "C1": found as C1C).
     r2 = spp.solve(spp.from_rinex(shared_data / "07590920.05o", shared_data / "07590920.05n"), 15.0)
     r3 = spp.solve(spp.from_rinex(tmp_path / "o.rnx", tmp_path / "g.rnx"), 15.0)
