@@ -472,3 +472,18 @@ def test_walk_csv_first_increment_by_hand():
     np.testing.assert_allclose(d.dv_mps[0], [(a + b) / 2 * 9.80665 * dt for a, b in zip(first[0][1:4], first[1][1:4])],
                                rtol=1e-6)
     assert 140 < len(d) / (d.t_abs[-1] - d.t_abs[0]) < 160  # about 152 Hz
+
+
+def test_rtklib_pos_utc_times_and_dms_angles(tmp_path):
+    # The walk's first epoch written as RTKLIB does with "time = UTC" and "lat/lon format = ddd mm ss":
+    # 17:30:39.749 GPST is 17:30:21.749 UTC (18 leap seconds); 40.0966916 deg = 40 05 48.08976,
+    # -105.1471665 deg = -105 08 49.79940.
+    p = tmp_path / "u.pos"
+    p.write_text("%  UTC                   latitude(d'\")   longitude(d'\")  height(m)   Q  ns   sdn(m)   sde(m)   sdu(m)\n"
+                 "2025/08/28 17:30:21.749   40 05 48.08976 -105 08 49.79940  1580.0480   1  25   0.0099   0.0099   0.0100\n")
+    f = rtklib_pos.read(p)
+    ref = rtklib_pos.read(POS_FILE, GEOID_M)
+    assert f.t_abs[0] == pytest.approx(ref.t_abs[0], abs=1e-6)
+    np.testing.assert_allclose(np.degrees(f.llh()[0, :2]), np.degrees(ref.llh()[0, :2]), atol=1e-9)
+    assert f.llh()[0, 2] == pytest.approx(ref.llh()[0, 2], abs=1e-6)
+    np.testing.assert_allclose(f.sigma_ned_m[0], [0.0099, 0.0099, 0.01])
