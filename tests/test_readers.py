@@ -99,6 +99,9 @@ def test_gps_l1_pseudoranges_are_the_valid_l1_ca_rows(walk_ubx):
     np.testing.assert_array_equal(pr.pr_m, r["pr_m"][sel])
     assert np.all((pr.pr_m > 1.9e7) & (pr.pr_m < 2.6e7))
     assert len(pr.epochs()) == 536
+    assert np.all(pr.doppler_hz == r["doppler_hz"][sel]) and np.allclose(pr.lock_s, r["lock_ms"][sel] / 1000)
+    gal = walk_ubx.signal(ubx.GNSS_GALILEO, 0)  # E1 C
+    assert len(gal) == ((r["gnss"] == 2) & (r["sig"] == 0) & ((r["trk"] & 1) == 1)).sum() > 0
     tab = pr.table(WEEK * 604800.0)
     assert tab.shape == (3842, 5) and np.all(np.diff(tab[:, 0]) >= 0)
 

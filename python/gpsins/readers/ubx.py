@@ -77,6 +77,15 @@ class UbxFile:
     subframes: Counter = field(default_factory=Counter)  # GPS LNAV subframe statistics
     source: str = ""
 
+    def signal(self, gnss: int = GNSS_GPS, sig: int = 0) -> Pseudoranges:
+        """One system's signal from RAWX with a valid pseudorange (``prn`` is the system's own satellite number);
+        GPS L1 C/A is ``pseudoranges``. Galileo E1 C is ``signal(GNSS_GALILEO, 0)``."""
+        sel = (self.rawx["gnss"] == gnss) & (self.rawx["sig"] == sig) & ((self.rawx["trk"] & 1) == 1)
+        m = self.rawx[sel]
+        return Pseudoranges(self.rawx_t_abs[sel], m["sv"].astype(int), m["pr_m"].astype(float),
+                            m["doppler_hz"].astype(float), m["cn0_dbhz"].astype(float), m["lock_ms"] * 1e-3,
+                            self.source)
+
     def damage_summary(self) -> str:
         if not self.damage:
             return ""
@@ -346,9 +355,7 @@ def parse(data: bytes, source: str = "<bytes>", path=None) -> UbxFile:
         lnav.stats["sets without a GPS week (no RAWX/NAV-PVT)"] = len(lnav.sets)
     nav = Navigation(ephs, lnav.alpha, lnav.beta, int(np.median(leaps)) if leaps else None)
 
-    l1 = (meas["gnss"] == GNSS_GPS) & (meas["sig"] == 0) & ((meas["trk"] & 1) == 1)
-    m = meas[l1]
-    prs = Pseudoranges(t_meas[l1], m["sv"].astype(int), m["pr_m"].astype(float), m["doppler_hz"].astype(float),
-                       m["cn0_dbhz"].astype(float), m["lock_ms"] * 1e-3, source)
-    return UbxFile(t_meas, meas, prs, pvt_fixes(pvt, t_pvt, source), pvt, t_pvt, nav, counts, damage,
-                   lnav.stats, source)
+    out = UbxFile(t_meas, meas, Pseudoranges.empty(source), pvt_fixes(pvt, t_pvt, source), pvt, t_pvt, nav, counts,
+                  damage, lnav.stats, source)
+    out.pseudoranges = out.signal(GNSS_GPS, 0)
+    return out
