@@ -228,3 +228,22 @@ def test_scoring_interpolates_a_moving_solution():
                       _core.ned_to_ecef(north(t_ref), llh), np.array([[4.0, 6.0]]))
     assert s.outside_rms_h_m == pytest.approx(0.1, abs=1e-6)
     assert s.max_h_m[0] == pytest.approx(0.1, abs=1e-6) and s.n_ref[0] == 8
+
+
+def test_a_damaged_ubx_stream_is_one_note_and_the_rest_is_kept(tmp_path):
+    data = bytearray((WALK / "gnss_1730.ubx").read_bytes())
+    at = data.index(b"\xb5\x62\x02\x15", 200_000)  # an RXM-RAWX frame
+    data[at + 40] ^= 0xFF
+    (tmp_path / "damaged.ubx").write_bytes(bytes(data))
+    text = (WALK / "walk_0827_ubx.toml").read_text()
+    rel = Path(os.path.relpath(WALK, tmp_path)).as_posix()
+    text = text.replace('file = "imu_1730_sf.csv"', f'file = "{rel}/imu_1730_sf.csv"')
+    text = text.replace('file = "gnss_1730.ubx"', 'file = "damaged.ubx"')
+    text = text.replace('reference = "gnss_1730_sf.pos"', f'reference = "{rel}/gnss_1730_sf.pos"')
+    ds = dataset.load(_write(tmp_path, "d.toml", text))
+    assert ds.skipped["ubx: damaged stretches"] == 1
+    frame_len = 8 + data[at + 4] + 256 * data[at + 5]  # the damaged frame, nothing more
+    assert [n for n in ds.notes if "skipped" in n] == [
+        f"damaged.ubx: skipped 1 damaged stretch(es), {frame_len} bytes; "
+        f"first at offset {at} (bad checksum of class 0x02 id 0x15)"]
+    assert len(ds.fixes) == 536 and len(np.unique(ds.pseudoranges.t_abs)) == 535

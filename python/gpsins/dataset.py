@@ -201,6 +201,18 @@ def load(path: str | Path) -> Dataset:
         raise DatasetError(path, "no [imu] table", field="[imu]")
     if not tg:
         raise DatasetError(path, "no [gnss] table", field="[gnss]")
+    kind = tv.get("kind", "none")
+    if kind not in VEHICLE_KINDS:
+        raise DatasetError(path, f"unknown kind {kind!r} ({', '.join(VEHICLE_KINDS)})", field="[vehicle] kind")
+    ft = doc.get("filter", {})
+    if not isinstance(ft, dict):
+        raise DatasetError(path, "[filter] must be a table", field="[filter]")
+    spec = None
+    if "outages" in ts:
+        try:
+            spec = outages_mod.parse(ts["outages"])
+        except outages_mod.OutageError as e:
+            raise DatasetError(path, str(e), field="[scoring] outages") from None
 
     if "imu_to_body" in ti and "imu_to_body_ypr_deg" in ti:
         raise DatasetError(path, "give imu_to_body or imu_to_body_ypr_deg, not both", field="[imu]")
@@ -250,23 +262,11 @@ def load(path: str | Path) -> Dataset:
         if dropped:
             skipped["ubx: NAV-PVT without a valid fix"] = dropped
 
-    kind = tv.get("kind", "none")
-    if kind not in VEHICLE_KINDS:
-        raise DatasetError(path, f"unknown kind {kind!r} ({', '.join(VEHICLE_KINDS)})", field="[vehicle] kind")
-    ds.vehicle_kind = kind
-    ft = doc.get("filter", {})
-    if not isinstance(ft, dict):
-        raise DatasetError(path, "[filter] must be a table", field="[filter]")
-    ds.filter_table = ft
+    ds.vehicle_kind, ds.filter_table, ds.outages = kind, ft, spec
 
     if "reference" in ts:
         ds.reference = load_reference(_file(base, ts["reference"], path, "[scoring] reference"),
                                       ts.get("reference_q", [1]), ts.get("reference_geoid_height_m"))
-    if "outages" in ts:
-        try:
-            ds.outages = outages_mod.parse(ts["outages"])
-        except outages_mod.OutageError as e:
-            raise DatasetError(path, str(e), field="[scoring] outages") from None
     return ds
 
 
