@@ -490,3 +490,20 @@ def test_rtklib_pos_utc_times_and_dms_angles(tmp_path):
     np.testing.assert_allclose(np.degrees(f.llh()[0, :2]), np.degrees(ref.llh()[0, :2]), atol=1e-9)
     assert f.llh()[0, 2] == pytest.approx(ref.llh()[0, 2], abs=1e-6)
     np.testing.assert_allclose(f.sigma_ned_m[0], [0.0099, 0.0099, 0.01])
+
+
+def test_gzipped_files_read_the_same(shared_data, tmp_path):
+    import gzip
+    for src in (shared_data / "07590920.05o", shared_data / "07590920.05n", UBX_FILE, WALK / "imu_1730_sf.csv"):
+        (tmp_path / (src.name + ".gz")).write_bytes(gzip.compress(src.read_bytes()))
+    a, b = rinex.read_obs(shared_data / "07590920.05o").gps_l1(), rinex.read_obs(tmp_path / "07590920.05o.gz").gps_l1()
+    np.testing.assert_array_equal(a.pr_m, b.pr_m)
+    assert len(rinex.read_nav(tmp_path / "07590920.05n.gz").ephemerides) == \
+        len(rinex.read_nav(shared_data / "07590920.05n").ephemerides)
+    assert ubx.read(tmp_path / "gnss_1730.ubx.gz").counts == ubx.read(UBX_FILE).counts
+    cols = ["t", "ax", "ay", "az", "gx", "gy", "gz"]
+    np.testing.assert_array_equal(imu_csv.read(tmp_path / "imu_1730_sf.csv.gz", cols, "gpst_unix", "g").dv_mps,
+                                  imu_csv.read(WALK / "imu_1730_sf.csv", cols, "gpst_unix", "g").dv_mps)
+    (tmp_path / "cut.ubx.gz").write_bytes(gzip.compress(UBX_FILE.read_bytes())[:5000])
+    with pytest.raises(ReaderError, match=r"cut\.ubx\.gz"):
+        ubx.read(tmp_path / "cut.ubx.gz")

@@ -6,7 +6,7 @@
 - ``rinex``: RINEX 2 and 3 observation and GPS navigation files
 - ``ubx``: u-blox UBX (RXM-RAWX, RXM-SFRBX GPS LNAV, NAV-PVT)
 
-Damaged input raises ``ReaderError`` naming the file, the offset or line and the field;
+Files whose names end in .gz are read through gzip. Damaged input raises ``ReaderError`` naming the file, the offset or line and the field;
 binary streams skip damaged frames and count them instead.
 """
 

@@ -7,6 +7,7 @@ core takes them. Positions are ECEF metres; sigmas are 1-sigma standard deviatio
 from __future__ import annotations
 
 import datetime as dt
+import gzip
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -164,9 +165,17 @@ class Navigation:
         return sorted({e.prn for e in self.ephemerides})
 
 
-def read_text_lines(path: str | Path) -> list[str]:
+def read_bytes(path: str | Path) -> bytes:
+    """A file's bytes, gunzipped when its name ends in .gz (archives keep RINEX and logs that way)."""
     path = Path(path)
     try:
-        return path.read_text(encoding="ascii", errors="replace").splitlines()
-    except OSError as e:
-        raise ReaderError(path, e.strerror or str(e)) from None
+        if path.suffix.lower() == ".gz":
+            with gzip.open(path, "rb") as f:
+                return f.read()
+        return path.read_bytes()
+    except (OSError, EOFError) as e:
+        raise ReaderError(path, getattr(e, "strerror", None) or str(e)) from None
+
+
+def read_text_lines(path: str | Path) -> list[str]:
+    return read_bytes(path).decode("ascii", errors="replace").splitlines()

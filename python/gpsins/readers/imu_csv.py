@@ -10,6 +10,7 @@ number is an error naming the file, line and column.
 from __future__ import annotations
 
 import datetime as dt
+import gzip
 import re
 from collections import Counter
 from dataclasses import dataclass, field
@@ -17,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .common import SECONDS_PER_WEEK, UNIX_TO_GPS_S, ReaderError, leap_seconds
+from .common import SECONDS_PER_WEEK, UNIX_TO_GPS_S, ReaderError, leap_seconds, read_text_lines
 
 G0 = 9.80665  # standard gravity: what "g" means in IMU data sheets
 ACCEL_UNITS = {"g": (G0, True), "m/s^2": (1.0, True), "m/s2": (1.0, True), "m/s": (1.0, False)}
@@ -96,10 +97,11 @@ def read(path: str | Path, columns, time: str = "gpst_unix", accel_unit: str = "
     if gyro_unit not in GYRO_UNITS:
         raise ReaderError(path, f"unknown gyro_unit {gyro_unit!r} ({', '.join(GYRO_UNITS)})", field="gyro_unit")
     try:
-        with open(path, encoding="utf-8", errors="replace") as f:
+        opener = gzip.open if path.suffix.lower() == ".gz" else open
+        with opener(path, "rt", encoding="utf-8", errors="replace") as f:
             head = [line for _, line in zip(range(1000), f)]
-    except OSError as e:
-        raise ReaderError(path, e.strerror or str(e)) from None
+    except (OSError, EOFError) as e:
+        raise ReaderError(path, getattr(e, "strerror", None) or str(e)) from None
     if skip_rows is None:
         skip_rows = 0
         number = re.compile(r"^\s*[-+]?(\d|\.\d)")
@@ -114,7 +116,7 @@ def read(path: str | Path, columns, time: str = "gpst_unix", accel_unit: str = "
     try:  # NumPy's C parser straight from the file; the slow scan below only to name a bad value
         a = np.loadtxt(path, delimiter=delimiter, usecols=usecols, ndmin=2, comments="#", skiprows=skip_rows)
     except ValueError:
-        text = path.read_text(encoding="utf-8", errors="replace").splitlines()
+        text = read_text_lines(path)
         raise _locate_bad_value(path, text, usecols, names, delimiter, skip_rows) from None
     col = {n: a[:, k] for k, n in enumerate(names)}
     t = to_gps_seconds(col["t"], time, week, path)

@@ -15,15 +15,12 @@ from pathlib import Path
 import numpy as np
 
 from .. import _core
-from .common import Fixes, ReaderError
+from .common import Fixes, ReaderError, read_text_lines
 from .imu_csv import ImuData, to_gps_seconds
 
 
 def _table(path: Path, min_cols: int) -> np.ndarray:
-    try:
-        lines = path.read_text(encoding="utf-8", errors="replace").splitlines()
-    except OSError as e:
-        raise ReaderError(path, e.strerror or str(e)) from None
+    lines = read_text_lines(path)
     rows, first = [], None
     for i, line in enumerate(lines, start=1):
         text = line.split("#", 1)[0].replace(",", " ").strip()

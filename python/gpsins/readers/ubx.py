@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import _core
-from .common import SECONDS_PER_WEEK, Fixes, Navigation, Pseudoranges, ReaderError
+from .common import SECONDS_PER_WEEK, Fixes, Navigation, Pseudoranges, ReaderError, read_bytes
 
 SYNC = b"\xb5\x62"
 MAX_PAYLOAD = 8192  # longer "lengths" are taken as a false sync
@@ -318,11 +318,7 @@ class LnavCollector:
 
 def read(path: str | Path) -> UbxFile:
     path = Path(path)
-    try:
-        data = path.read_bytes()
-    except OSError as e:
-        raise ReaderError(path, e.strerror or str(e)) from None
-    return parse(data, path.name, path)
+    return parse(read_bytes(path), path.name, path)
 
 
 def parse(data: bytes, source: str = "<bytes>", path=None) -> UbxFile:
