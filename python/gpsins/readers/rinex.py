@@ -61,6 +61,8 @@ def read_nav(path: str | Path) -> Navigation:
     v3 = version >= 3.0
     if kind != "N" or (v3 and system not in ("G", "M")):
         raise RinexError(path, "not a GPS navigation file", line=1)
+    if version >= 4.0:  # records open with "> EPH" lines: another layout
+        raise RinexError(path, f"RINEX {version:g} navigation files are not read (RINEX 2 and 3 are)", line=1)
     nav = Navigation([])
     i = 0
     while i < len(lines) and "END OF HEADER" not in lines[i]:
