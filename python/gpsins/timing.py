@@ -21,8 +21,9 @@ Two methods:
      realtime clock steps, plus delays that are never negative. A stamp far
      below its neighbours on both sides cannot be a delay: it is a damaged stamp
      and is left out. A step is a change of the running minimum that lasts (the
-     minimum over a window is blind to delays shorter than the window). Each
-     segment between steps is fitted along the lower envelope of its stamps.
+     minimum over a window is blind to delays shorter than the window). The
+     segments between steps share the rate and are fitted along their joint
+     lower envelope, each with its own offset.
   2. Which IMU frames precede each step: the frames are in arrival order, so
      each step is one cut in the IMU stream, searched near the GPS time where
      the GPS stream shows it, from what the frames' stamps say under the clock
@@ -58,11 +59,36 @@ MIN_SIDE = 15  # blocks on each side before a step can be told from delays
 OUTLIER_TOL_S = 0.002  # a stamp this far below both neighbourhoods' minima is damaged
 MEDIAN_FRAMES = 5  # frames on each side whose median stands for a gap's edge
 PIECE_GAP_S = 1.0  # an IMU gap this long may restart its clock: fit each side on its own
-MIN_RATE_SPAN_S = 20.0  # a stretch shorter than this takes the IMU period from the others
+STALL_MAX_S = 10.0  # an apparent step up and back down within this is a host stall
+MIN_RATE_SPAN_S = 20.0  # an IMU stretch shorter than this takes the IMU period from the others
 
 
 class AlignmentError(ValueError):
     pass
+
+
+def _lower_chain(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Indices of the vertices of the points' lower convex hull, by increasing x (x not all equal)."""
+    x0, y0 = x.mean(), y.min()
+    xs, ys = (x - x0) / np.ptp(x), y - y0
+    try:
+        pts = np.unique(ConvexHull(np.column_stack([xs, ys])).vertices)
+    except QhullError:  # all points on a line
+        pts = np.array([np.argmin(xs), np.argmax(xs)])
+    pts = pts[np.lexsort((ys[pts], xs[pts]))]
+    px, py = xs[pts], ys[pts]
+    chain: list[int] = []
+    for i in range(len(px)):  # monotone chain over the few hull points
+        if chain and px[i] == px[chain[-1]]:
+            continue  # same abscissa, higher: not on the lower chain
+        while len(chain) >= 2:
+            a, b = chain[-2], chain[-1]
+            if (px[b] - px[a]) * (py[i] - py[a]) - (py[b] - py[a]) * (px[i] - px[a]) <= 0:
+                chain.pop()
+            else:
+                break
+        chain.append(i)
+    return pts[chain]
 
 
 def lower_envelope(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
@@ -71,32 +97,38 @@ def lower_envelope(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
     y = np.asarray(y, dtype=float)
     if len(x) < 2 or np.ptp(x) == 0:
         raise AlignmentError("lower envelope needs at least two distinct abscissae")
+    a, b = joint_lower_envelope(x, y, np.zeros(len(x), dtype=np.int64))
+    return float(a[0]), b
+
+
+def joint_lower_envelope(x: np.ndarray, y: np.ndarray, group: np.ndarray) -> tuple[np.ndarray, float]:
+    """One slope b and an intercept a_g per group: y_i >= a_g + b x_i minimising the summed
+    residual. For a given b each a_g is the minimum of y - b x over its group, so the objective
+    is convex and piecewise linear in b, with its optimum at the slope of an edge of some
+    group's lower hull: those slopes are the only candidates."""
+    x = np.asarray(x, dtype=float)
+    y = np.asarray(y, dtype=float)
     x0, y0 = x.mean(), y.min()
-    xs, ys = (x - x0) / np.ptp(x), y - y0
-    try:
-        hull = ConvexHull(np.column_stack([xs, ys]))
-        pts = np.unique(hull.vertices)
-    except QhullError:  # all points on a line
-        pts = np.array([np.argmin(xs), np.argmax(xs)])
-    px, py = xs[pts], ys[pts]
-    order = np.argsort(px)
-    px, py = px[order], py[order]
-    # Lower chain of the hull vertices (monotone chain over the few hull points).
-    chain: list[int] = []
-    for i in range(len(px)):
-        while len(chain) >= 2:
-            a, b = chain[-2], chain[-1]
-            if (px[b] - px[a]) * (py[i] - py[a]) - (py[b] - py[a]) * (px[i] - px[a]) <= 0:
-                chain.pop()
-            else:
-                break
-        chain.append(i)
-    k = int(np.clip(np.searchsorted(px[chain], 0.0) - 1, 0, len(chain) - 2))
-    i, j = chain[k], chain[k + 1]
-    slope = (py[j] - py[i]) / (px[j] - px[i])
-    a_s = py[i] - slope * px[i]
-    b = slope / np.ptp(x)
-    return float(y0 + a_s - b * x0), float(b)
+    xs, ys = x - x0, y - y0
+    groups = np.unique(group)
+    hulls, sums, slopes = [], [], []
+    for g in groups:
+        m = group == g
+        gx, gy = xs[m], ys[m]
+        h = _lower_chain(gx, gy) if len(gx) >= 2 and np.ptp(gx) > 0 else np.array([np.argmin(gy)])
+        hulls.append((gx[h], gy[h]))
+        sums.append((len(gx), gy.sum(), gx.sum()))
+        slopes.extend(np.diff(gy[h]) / np.diff(gx[h]))
+    if not slopes:
+        raise AlignmentError("lower envelope needs at least two distinct abscissae in one group")
+    cand = np.unique(slopes)
+
+    def cost(b: float) -> float:
+        return sum(sy - b * sx - n * np.min(hy - b * hx) for (n, sy, sx), (hx, hy) in zip(sums, hulls))
+
+    b = float(cand[int(np.argmin([cost(c) for c in cand]))])
+    a = np.array([np.min(hy - b * hx) for hx, hy in hulls])
+    return y0 + a - b * x0, b
 
 
 def _running_min(y: np.ndarray, w: int) -> tuple[np.ndarray, np.ndarray]:
@@ -129,11 +161,12 @@ def _median_slope(x: np.ndarray, y: np.ndarray, span: float) -> float:
     return float(np.median((y[j[ok]] - y[i]) / (x[j[ok]] - x[i])))
 
 
-def _steps(values: np.ndarray, threshold_s: float, window: int = GPS_WINDOW) -> np.ndarray:
+def _steps(values: np.ndarray, threshold_s: float, window: int = GPS_WINDOW) -> tuple[np.ndarray, float]:
     """Indices i where the floor of `values` (a clock offset plus non-negative delays, slope
     removed) moves by more than the threshold and stays: the minimum of the window from i
     on against the minimum of the window before it. An upward step is found at the start of
-    the run where the difference is large, a downward one at its end."""
+    the run where the difference is large, a downward one at its end. Also returns the
+    threshold used (raised when the delays are large)."""
     left, right = _running_min(values, window)
     # The minimum of m delays exceeds 7/m of their mean once in a thousand (exponential
     # delays; queueing behind other frames makes it more often): below 10/m, a step cannot
@@ -157,7 +190,7 @@ def _steps(values: np.ndarray, threshold_s: float, window: int = GPS_WINDOW) -> 
             else:  # the first value clearly on the lower floor
                 low = left[a] + 0.5 * d[a:b].min()
                 out.append(int(a + np.argmax(values[a:b] < low)) if np.any(values[a:b] < low) else int(b - 1))
-    return np.array(sorted(c for c in out if 0 < c < len(values)), dtype=np.int64)
+    return np.array(sorted(c for c in out if 0 < c < len(values)), dtype=np.int64), threshold_s
 
 
 @dataclass
@@ -176,6 +209,34 @@ class ClockMap:
 
     def to_gps(self, stamps: np.ndarray, segment: np.ndarray | int) -> np.ndarray:
         return self.t_ref + (stamps - self.offset[segment]) / self.rate[segment]
+
+
+def _fit_segments(x: np.ndarray, s: np.ndarray, keep: np.ndarray, cuts: list, rate0: float
+                  ) -> tuple[np.ndarray, np.ndarray, list[float]]:
+    """Offset of each segment between cuts and the system clock's rate (one for all: a clock
+    step does not change it), along their joint lower envelope; and the steps, in system seconds."""
+    starts = np.concatenate([[0], cuts]).astype(np.int64)
+    seg = np.searchsorted(starts, keep, side="right") - 1
+    if np.ptp(x[keep]) > 0 and any(np.ptp(x[keep][seg == g]) > 0 for g in np.unique(seg)):
+        off, rate = joint_lower_envelope(x[keep], s[keep], seg)
+    else:
+        rate = rate0
+        off = np.array([np.min(s[keep][seg == g] - rate * x[keep][seg == g]) for g in range(len(starts))])
+    return off, np.full(len(off), rate), [float(d) for d in np.diff(off)]
+
+
+def _spurious_steps(x: np.ndarray, cuts: list, steps: list[float], threshold: float) -> set[int]:
+    """Cuts that are not clock steps: one whose fitted size is below the threshold (the floor
+    only looked different), or an upward step undone by a downward one of the same size within
+    STALL_MAX_S: a host stall longer than the window, not two clock steps."""
+    small = [i for i, d in enumerate(steps) if abs(d) < threshold]
+    if small:
+        return {min(small, key=lambda i: abs(steps[i]))}
+    for i in range(len(steps) - 1):
+        up, down = steps[i], steps[i + 1]
+        if up > 0 > down and abs(up + down) < max(threshold, 0.1 * up) and x[cuts[i + 1]] - x[cuts[i]] < STALL_MAX_S:
+            return {i, i + 1}
+    return set()
 
 
 def fit_gps_clock(tow: np.ndarray, stamps: np.ndarray, latency_s: float, step_threshold_s: float = 0.01) -> ClockMap:
@@ -199,29 +260,20 @@ def fit_gps_clock(tow: np.ndarray, stamps: np.ndarray, latency_s: float, step_th
     keep = np.flatnonzero(~damaged)
     if len(keep) < 3:
         raise AlignmentError(f"only {len(keep)} GPS measurement blocks have a usable stamp")
-    cuts = keep[_steps(lag[keep], step_threshold_s)]
+    found, threshold = _steps(lag[keep], step_threshold_s)
+    cuts = list(keep[found])
+    while True:
+        off_a, rate_a, steps = _fit_segments(x, s, keep, cuts, rate0)
+        drop = _spurious_steps(x, cuts, steps, threshold)
+        if not drop:
+            break
+        cuts = [c for i, c in enumerate(cuts) if i not in drop]
+    cuts = np.array(cuts, dtype=np.int64)
     starts = np.concatenate([[0], cuts]).astype(np.int64)
-    ends = np.concatenate([cuts, [len(tow)]]).astype(np.int64)
-    members = [keep[(keep >= a) & (keep < b)] for a, b in zip(starts, ends)]
-    fits = [lower_envelope(x[k], s[k]) if len(k) >= 2 and np.ptp(x[k]) >= MIN_RATE_SPAN_S else None
-            for k in members]
-    spans = [float(np.ptp(x[k])) for k in members]
-    long = [i for i, f in enumerate(fits) if f is not None]
-    pooled = sum(fits[i][1] * spans[i] for i in long) / sum(spans[i] for i in long) if long else rate0
-    off, rate = [], []
-    for k, f in zip(members, fits):
-        if f is None:  # too short for its own rate: the others' rate, floor of the stamps
-            f = (float(np.min(s[k] - pooled * x[k])), pooled)
-        off.append(f[0])
-        rate.append(f[1])
     seg = np.searchsorted(starts, np.arange(len(tow)), side="right") - 1
-    off_a, rate_a = np.array(off), np.array(rate)
     resid = s - (off_a[seg] + rate_a[seg] * x)
     after = np.array([x[keep[keep < c][-1]] for c in cuts]) + t_ref
     before = np.array([x[keep[keep >= c][0]] for c in cuts]) + t_ref
-    # Step sizes in system time where the GPS stream shows them.
-    steps = [float((off_a[i] + rate_a[i] * (before[i - 1] - t_ref))
-                   - (off_a[i - 1] + rate_a[i - 1] * (before[i - 1] - t_ref))) for i in range(1, len(off))]
     return ClockMap(starts, off_a, rate_a, t_ref, steps, resid, after, before, damaged)
 
 
