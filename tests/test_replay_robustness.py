@@ -197,3 +197,37 @@ def test_fixes_pair_with_their_id20_by_gps_time_after_a_backward_step(tmp_path):
     assert len(gps.fixes) == len(tr["fix_t"])
     assert np.array_equal(gps.fix_sats, tr["fix_sats"][k])
     assert np.allclose(gps.fixes[:, 7], np.maximum(tr["fix_hdop"][k], 0.1), atol=0.051)
+
+
+def test_everything_at_once(tmp_path):
+    """Heavy jitter, host stalls, drops, IMU clock drift, a backward step of a counter period,
+    13 s without ID 23, one damaged stamp in each stream and a configured IMU rate 30 % high."""
+    s, d = simulate(tmp_path, "mixed", jitter_mean_s=0.03, load_stall_rate_hz=1.0, load_stall_mean_s=0.3,
+                    imu_drop_probability=0.01, imu_clock_ppm=50.0, clock_step_at_s=33.3, clock_step_s=-4.0)
+    k = sample_index(d)
+    t0 = realtime(s, 0.0)
+    scan = logs.read_record_file(d / "gps-000.bin", "superstar2")
+    gone = (logs.message_ids(scan) == 23) & (scan.stamps > t0 + 10) & (scan.stamps < t0 + 23)
+    st = scan.stamps.copy()
+    st[400] = flip_bit(st[400], 21)
+    rewrite(d, "gps", keep=~gone, stamps=st)
+    st = stamps_of(d, "imu").copy()
+    st[2000] = flip_bit(st[2000], 44)
+    rewrite(d, "imu", stamps=st)
+    dec = measurements.decode_session(d)
+    al = timing.align(dec.gps.tow, dec.gps.stamps, dec.gps.week, dec.imu.stamps, dec.imu.counter, 1.3 * s.imu_rate_hz,
+                      gps_latency_s=GPS_LAT + messages.MEASUREMENT_DELAY_S, imu_latency_s=IMU_LAT)
+    check(al, al.imu_t - (s.scenario.start.gps_tow_s + s.imu_t[k]), "everything at once")
+    assert len(al.steps_s) == 1 and abs(al.steps_s[0] + 4.0) < 5e-3
+    assert al.summary()["imu_frames_missing"] == dec.sidecar["counts"]["imu"]["frames_dropped_by_simulation"]
+    assert any("not the configured" in w for w in al.warnings)
+
+
+def test_a_session_that_cannot_be_aligned_says_why(tmp_path):
+    s, d = simulate(tmp_path, "bad", jitter_mean_s=0.0005)
+    dec = measurements.decode_session(d)
+    with pytest.raises(timing.AlignmentError, match="at least 3 GPS measurement blocks"):
+        timing.align(dec.gps.tow[:2], dec.gps.stamps[:2], dec.gps.week, dec.imu.stamps, dec.imu.counter, 64)
+    with pytest.raises(timing.AlignmentError, match="do not advance with GPS time"):
+        timing.align(dec.gps.tow, np.full(len(dec.gps.tow), dec.gps.stamps[0]), dec.gps.week, dec.imu.stamps,
+                     dec.imu.counter, 64)

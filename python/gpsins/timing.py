@@ -59,6 +59,7 @@ MIN_SIDE = 15  # blocks on each side before a step can be told from delays
 OUTLIER_TOL_S = 0.002  # a stamp this far below both neighbourhoods' minima is damaged
 MEDIAN_FRAMES = 5  # frames on each side whose median stands for a gap's edge
 PIECE_GAP_S = 1.0  # an IMU gap this long may restart its clock: fit each side on its own
+RATE_MISMATCH = 0.01  # configured IMU rate this far from what the stamps show: use the stamps
 STALL_MAX_S = 10.0  # an apparent step up and back down within this is a host stall
 MIN_RATE_SPAN_S = 20.0  # an IMU stretch shorter than this takes the IMU period from the others
 
@@ -479,11 +480,19 @@ def align(gps_tow: np.ndarray, gps_stamps: np.ndarray, week: int, imu_stamps: np
     seg = np.searchsorted(np.array(cuts, dtype=np.int64), np.arange(len(s)), side="right") if cuts else \
         np.zeros(len(s), dtype=np.int64)
     mapped = clock.to_gps(s, seg)
+    # The frame period as the stamps show it: a configured rate that is wrong would count
+    # the wrong number of counter periods across a gap.
+    if np.ptp(nc) > 0:
+        seen = _median_slope(nc.astype(float), mapped, min(0.25 * float(np.ptp(nc)), 10.0 * rate_hz))
+        if abs(seen * rate_hz - 1.0) > RATE_MISMATCH:
+            warnings.append(f"the IMU frames come at {1.0 / seen:.2f} Hz, not the configured {rate_hz:g} Hz: "
+                            f"the stamps' rate is used")
+            period = seen
     # Stage 3: sample indices against the mapped times (immune to the clock steps).
     n = unwrap_counter(imu_counter, mapped, period, usable, w)
     if cuts:
         refined = []
-        margin = int(4.0 * rate_hz)
+        margin = int(4.0 / period)
         for k, c in enumerate(cuts, start=1):
             a = max(refined[-1] if refined else 0, c - margin)
             b = min(cuts[k] if k < len(cuts) else len(s), c + margin)
@@ -493,7 +502,7 @@ def align(gps_tow: np.ndarray, gps_stamps: np.ndarray, week: int, imu_stamps: np
         mapped = clock.to_gps(s, seg)
         n = unwrap_counter(imu_counter, mapped, period, usable, w)
     # Stage 4: the IMU clock.
-    t, p, pieces = _fit_imu_clock(n, mapped, usable, period, int(PIECE_GAP_S * rate_hz))
+    t, p, pieces = _fit_imu_clock(n, mapped, usable, period, int(PIECE_GAP_S / period))
     if np.any(np.diff(t) <= 0):
         i = int(np.flatnonzero(np.diff(t) <= 0)[0]) + 1
         raise AlignmentError(f"IMU record {i}: its time does not follow record {i - 1} after alignment "
@@ -509,7 +518,7 @@ def align(gps_tow: np.ndarray, gps_stamps: np.ndarray, week: int, imu_stamps: np
     step_times = [float(x) for x in clock.step_before]
     for dt, at in zip(clock.steps_s, step_times):
         warnings.append(f"realtime clock step of {dt:+.3f} s at GPS time {at:.1f} s")
-    for g in [g for g in gaps if g[1] >= rate_hz * PIECE_GAP_S]:
+    for g in [g for g in gaps if g[1] * p >= PIECE_GAP_S]:
         warnings.append(f"IMU gap of {g[1]} frames ({g[1] * p:.2f} s) before GPS time {t[g[0]]:.2f} s")
-    return Alignment("robust", t, week, n, gaps, float(p), float((period / p - 1.0) * 1e6), clock.residual_s,
+    return Alignment("robust", t, week, n, gaps, float(p), float((1.0 / (rate_hz * p) - 1.0) * 1e6), clock.residual_s,
                      mapped - t, clock.steps_s, n_gps_bad, n_imu_bad, pieces, step_times, warnings)
