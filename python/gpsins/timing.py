@@ -57,6 +57,7 @@ GPS_WINDOW = 30  # ID 23 blocks (3 s at 10 Hz) for running minima: longer than a
 IMU_WINDOW_S = 3.0
 MIN_SIDE = 15  # blocks on each side before a step can be told from delays
 OUTLIER_TOL_S = 0.002  # a stamp this far below both neighbourhoods' minima is damaged
+UNWRAP_WINDOW_S = 10.0  # longer than host stalls: the floor on each side of a gap
 MEDIAN_FRAMES = 5  # frames on each side whose median stands for a gap's edge
 PIECE_GAP_S = 1.0  # an IMU gap this long may restart its clock: fit each side on its own
 RATE_MISMATCH = 0.01  # configured IMU rate this far from what the stamps show: use the stamps
@@ -279,27 +280,30 @@ def fit_gps_clock(tow: np.ndarray, stamps: np.ndarray, latency_s: float, step_th
 
 
 def unwrap_counter(counter: np.ndarray, times: np.ndarray, period_s: float, usable: np.ndarray | None = None,
-                   window: int = 192) -> np.ndarray:
+                   window: int = 640) -> np.ndarray:
     """Sample index of each frame from its 8-bit counter; a gap of 256 frames or more is
     resolved with the times (GPS times, or stamps without clock steps): the multiple of 256
     nearest to what the frames on each side of it say. Each side's time is the minimum over
-    up to `window` usable frames (delays only ever add, and a host stall delays a run of
-    frames), referred to the gap's edge by the counter."""
+    up to `window` usable frames, referred to the gap's edge by the counter: delays only ever
+    add, and a host stall delays a run of frames, so the window must outlast the stalls."""
     c = np.asarray(counter, dtype=np.int64)
     t = np.asarray(times, dtype=float)
     ok = np.ones(len(c), dtype=bool) if usable is None else np.asarray(usable, dtype=bool)
     n = _counter_steps(c)
     e = t - period_s * n  # flat except at gaps of whole counter periods (and delays)
+    e_ok = np.where(ok, e, np.inf)
     cand = np.flatnonzero((np.diff(e) / period_s) > 128) + 1
     extra = np.zeros(len(c), dtype=np.int64)
-    bounds = np.concatenate([[0], cand, [len(c)]])
-    for j, i in enumerate(cand):
-        a, b = max(bounds[j], i - window), min(bounds[j + 2], i + window)
-        before, after = e[a:i][ok[a:i]], e[i:b][ok[i:b]]
-        if not len(before) or not len(after):
-            before, after = e[a:i], e[i:b]
-        jump = after.min() - before.min()
-        extra[i] = max(0, int(np.round(jump / period_s / 256.0)))
+    added = 0  # periods found before the current candidate
+    for i in cand:
+        lo = max(0, i - window)
+        # Frames before i with the periods found up to each of them taken off.
+        found = added - np.cumsum(extra[lo:i][::-1])[::-1] + extra[lo:i]
+        before = np.min(e_ok[lo:i] - 256 * period_s * found) if i > lo else np.inf
+        after = e_ok[i:i + window].min() - 256 * period_s * added
+        if np.isfinite(before) and np.isfinite(after):
+            extra[i] = max(0, int(np.round((after - before) / period_s / 256.0)))
+            added += extra[i]
     return n + 256 * np.cumsum(extra)
 
 
@@ -489,7 +493,7 @@ def align(gps_tow: np.ndarray, gps_stamps: np.ndarray, week: int, imu_stamps: np
                             f"the stamps' rate is used")
             period = seen
     # Stage 3: sample indices against the mapped times (immune to the clock steps).
-    n = unwrap_counter(imu_counter, mapped, period, usable, w)
+    n = unwrap_counter(imu_counter, mapped, period, usable, int(UNWRAP_WINDOW_S / period))
     if cuts:
         refined = []
         margin = int(4.0 / period)
@@ -500,7 +504,7 @@ def align(gps_tow: np.ndarray, gps_stamps: np.ndarray, week: int, imu_stamps: np
         cuts = refined
         seg = np.searchsorted(np.array(cuts, dtype=np.int64), np.arange(len(s)), side="right")
         mapped = clock.to_gps(s, seg)
-        n = unwrap_counter(imu_counter, mapped, period, usable, w)
+        n = unwrap_counter(imu_counter, mapped, period, usable, int(UNWRAP_WINDOW_S / period))
     # Stage 4: the IMU clock.
     t, p, pieces = _fit_imu_clock(n, mapped, usable, period, int(PIECE_GAP_S / period))
     if np.any(np.diff(t) <= 0):
