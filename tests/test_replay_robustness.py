@@ -231,3 +231,22 @@ def test_a_session_that_cannot_be_aligned_says_why(tmp_path):
     with pytest.raises(timing.AlignmentError, match="do not advance with GPS time"):
         timing.align(dec.gps.tow, np.full(len(dec.gps.tow), dec.gps.stamps[0]), dec.gps.week, dec.imu.stamps,
                      dec.imu.counter, 64)
+
+
+def test_400_hz_counter_wraps_every_0_64_s(tmp_path):
+    """At 400 Hz the counter's period (0.64 s) is shorter than a host stall: stalls, drops, an 8 s
+    unplug and a backward step of two counter periods."""
+    sc = parse({"name": "fast_imu", "start": START, "segment": SEGMENTS, "imu": {"rate_hz": 400},
+                "timing": {"gps_latency_s": GPS_LAT, "imu_latency_s": IMU_LAT, "jitter_mean_s": 0.002,
+                           "load_stall_rate_hz": 1.0, "load_stall_mean_s": 0.3, "imu_drop_probability": 0.01,
+                           "clock_step_at_s": 27.3, "clock_step_s": -1.28}})
+    s = sim.simulate(sc, seed=5)
+    write_session(s, tmp_path / "fast_imu")
+    d = tmp_path / "fast_imu"
+    k = sample_index(d)
+    keep = ~((s.imu_t[k] > 40.0) & (s.imu_t[k] < 48.0))
+    rewrite(d, "imu", keep=keep)
+    al, err = align_errors(s, d, k[keep])
+    check(al, err, "400 Hz")
+    assert len(al.steps_s) == 1 and abs(al.steps_s[0] + 1.28) < 2e-3
+    assert al.summary()["imu_frames_missing"] == int(np.sum(np.diff(k[keep]) - 1))
