@@ -128,11 +128,12 @@ def test_recording_served_faster_than_real_time(tmp_path, speed):
     assert len(al.steps_s) == 1 and abs(al.steps_s[0] - 0.5 / speed) < 1e-3
 
 
-@pytest.mark.parametrize("speed", [1.0, 2.0])
-def test_missing_id23_for_a_stretch(tmp_path, speed):
-    """13 s without ID 23 (say a damaged stretch of the file), with a clock step inside it;
-    served at 2x the stretch is 6.5 s of system time against 13 s of GPS time."""
-    s, d = simulate(tmp_path, "noid23", jitter_mean_s=0.0005, clock_step_at_s=28.0, clock_step_s=-2.0)
+@pytest.mark.parametrize("speed,step_s", [(1.0, -2.0), (2.0, -2.0), (1.0, 0.3), (1.0, 4.0)])
+def test_missing_id23_for_a_stretch(tmp_path, speed, step_s):
+    """13 s without ID 23 (say a damaged stretch of the file), with a clock step inside it: the
+    GPS stream only brackets the step within those 13 s; the IMU stream must place it. Served
+    at 2x the stretch is 6.5 s of system time against 13 s of GPS time."""
+    s, d = simulate(tmp_path, "noid23", jitter_mean_s=0.0005, clock_step_at_s=28.0, clock_step_s=step_s)
     k = sample_index(d)
     scan = logs.read_record_file(d / "gps-000.bin", "superstar2")
     t0 = realtime(s, 0.0)
@@ -141,8 +142,8 @@ def test_missing_id23_for_a_stretch(tmp_path, speed):
     for sensor in DEVICES:
         rewrite(d, sensor, stamps=t0 + (stamps_of(d, sensor) - t0) / speed)
     al, err = align_errors(s, d, k, speed)
-    check(al, err, f"no ID 23 for 13 s, served at {speed:g}x")
-    assert len(al.steps_s) == 1 and abs(al.steps_s[0] + 2.0 / speed) < 2e-3
+    check(al, err, f"no ID 23 for 13 s, step {step_s:+g} s, served at {speed:g}x")
+    assert len(al.steps_s) == 1 and abs(al.steps_s[0] - step_s / speed) < 2e-3
 
 
 UNPLUG_SEGMENTS = [{"label": "stand", "duration_s": 30, "speed_mps": 0},

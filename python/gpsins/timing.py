@@ -60,6 +60,7 @@ OUTLIER_TOL_S = 0.002  # a stamp this far below both neighbourhoods' minima is d
 UNWRAP_WINDOW_S = 10.0  # longer than host stalls: the floor on each side of a gap
 MEDIAN_FRAMES = 5  # frames on each side whose median stands for a gap's edge
 PIECE_GAP_S = 1.0  # an IMU gap this long may restart its clock: fit each side on its own
+MARGIN_S = 2.0  # delays and stalls allowed for around a step's GPS bracket
 RATE_MISMATCH = 0.01  # configured IMU rate this far from what the stamps show: use the stamps
 STALL_MAX_S = 10.0  # an apparent step up and back down within this is a host stall
 MIN_RATE_SPAN_S = 20.0  # an IMU stretch shorter than this takes the IMU period from the others
@@ -334,22 +335,44 @@ def _coarse_cut(clock: ClockMap, k: int, stamps: np.ndarray, lo: int) -> int:
     pre = clock.to_gps(s, k - 1)
     post = clock.to_gps(s, k)
     pre_ahead, post_ahead = _median_ahead(pre), _median_ahead(post)
+    m = MEDIAN_FRAMES
+    behind = np.concatenate([np.full(m, np.nan), pre_ahead[:-m]]) if len(pre) > m else np.full(len(pre), np.nan)
     if delta >= 0:
-        # Frames before the step read at least delta early on the new map.
+        # Frames before the step read at least delta early on the new map (but a stretch
+        # without ID 23 leaves frames before the step that pass); a large step is also a
+        # jump on the old map, where the new map puts the frame near the step.
         hit = np.flatnonzero((post >= a) & (post_ahead >= a))
+        if delta >= 1.0:
+            with np.errstate(invalid="ignore"):
+                jump = np.flatnonzero((pre - behind > 0.5 * delta) & (pre_ahead - behind > 0.5 * delta)
+                                      & (behind >= a - MARGIN_S) & (post <= b + MARGIN_S) & (post >= a))
+            if len(jump):
+                hit = jump[:1]
     else:
         # After a backward step the old map reads |delta| early: a drop, or (when the IMU
         # was silent across the step) the first frame past the step on the old map.
         hit = np.flatnonzero((pre >= b) & (pre_ahead >= b))
-        m = MEDIAN_FRAMES
-        if abs(delta) >= 1.0 and len(pre) > m:
-            behind = np.concatenate([np.full(m, np.nan), _median_ahead(pre)[:-m]])
+        if abs(delta) >= 1.0:
             with np.errstate(invalid="ignore"):
                 drop = np.flatnonzero((behind - pre > 0.5 * abs(delta)) & (behind - pre_ahead > 0.5 * abs(delta))
-                                      & (behind <= b + 2.0) & (post_ahead >= a - 2.0))
+                                      & (behind <= b + MARGIN_S) & (post_ahead >= a - MARGIN_S))
             if len(drop):
                 hit = np.sort(np.concatenate([hit, drop[:1]]))
     return lo + int(hit[0]) if len(hit) else lo + len(s)
+
+
+def _ambiguous_span(clock: ClockMap, k: int, stamps: np.ndarray, lo: int, hi: int, coarse: int, margin: int
+                    ) -> tuple[int, int]:
+    """IMU records [a, b) that may lie on either side of step k: every frame whose true time can
+    be within a margin of the GPS blocks around the step (a stretch without ID 23 widens it)
+    on either map, which read |step| apart. Bounded by the neighbouring cuts [lo, hi]."""
+    delta = abs(clock.steps_s[k - 1] / clock.rate[k]) + MARGIN_S
+    sl = slice(lo, hi)
+    early = _median_ahead(clock.to_gps(stamps[sl], k - 1)) >= clock.step_after[k - 1] - delta
+    late = _median_ahead(clock.to_gps(stamps[sl], k)) >= clock.step_before[k - 1] + delta
+    a = lo + (int(np.argmax(early)) if early.any() else hi - lo)
+    b = lo + (int(np.argmax(late)) if late.any() else hi - lo)
+    return max(lo, min(a, coarse) - margin), min(hi, max(b, coarse) + margin)
 
 
 def _refine_cut(clock: ClockMap, k: int, stamps: np.ndarray, n: np.ndarray, period: float, lo: int, hi: int,
@@ -496,11 +519,10 @@ def align(gps_tow: np.ndarray, gps_stamps: np.ndarray, week: int, imu_stamps: np
     n = unwrap_counter(imu_counter, mapped, period, usable, int(UNWRAP_WINDOW_S / period))
     if cuts:
         refined = []
-        margin = int(4.0 / period)
         for k, c in enumerate(cuts, start=1):
-            a = max(refined[-1] if refined else 0, c - margin)
-            b = min(cuts[k] if k < len(cuts) else len(s), c + margin)
-            refined.append(_refine_cut(clock, k, s, n, period, a, max(a, b), usable) if b > a else c)
+            a, b = _ambiguous_span(clock, k, s, refined[-1] if refined else 0,
+                                   cuts[k] if k < len(cuts) else len(s), c, int(2.0 / period))
+            refined.append(_refine_cut(clock, k, s, n, period, a, b, usable) if b > a else c)
         cuts = refined
         seg = np.searchsorted(np.array(cuts, dtype=np.int64), np.arange(len(s)), side="right")
         mapped = clock.to_gps(s, seg)
