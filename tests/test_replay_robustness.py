@@ -9,7 +9,7 @@ import struct
 import numpy as np
 import pytest
 
-from gpsins import _core, logs, measurements, replay, sim, timing
+from gpsins import logs, measurements, replay, sim, timing
 from gpsins.sim import messages
 from gpsins.sim.scenario import parse
 from gpsins.sim.session import STAMP, load_truth, realtime, write_session

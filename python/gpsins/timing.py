@@ -21,27 +21,35 @@ Two methods:
      realtime clock steps, plus delays that are never negative. A stamp far
      below its neighbours on both sides cannot be a delay: it is a damaged stamp
      and is left out. A step is a change of the running minimum that lasts (the
-     minimum over a window is blind to delays shorter than the window). The
-     segments between steps share the rate and are fitted along their joint
-     lower envelope, each with its own offset.
+     minimum over a window is blind to delays shorter than the window; the
+     threshold grows with the delays). A step up undone by one down of the same
+     size within 10 s is a host stall longer than the window, not two steps.
+     The segments between steps share the rate and are fitted along their
+     joint lower envelope, each with its own offset.
   2. Which IMU frames precede each step: the frames are in arrival order, so
-     each step is one cut in the IMU stream, searched near the GPS time where
-     the GPS stream shows it, from what the frames' stamps say under the clock
-     maps before and after it (not from the stamps alone: a step of a whole
-     number of counter periods, 4 s at 64 Hz, looks exactly like a gap).
+     each step is one cut in the IMU stream. A coarse cut from the GPS time at
+     which the GPS stream brackets the step (and, for a step over a second, the
+     jump or drop it makes on the old map); then, over every frame that could
+     lie on either side, the cut that makes the IMU clock's floor tightest
+     (the lower envelope's objective with the cut as a free variable). Stamps
+     alone cannot do it: a step of a whole number of counter periods, 4 s at
+     64 Hz, looks exactly like a gap.
   3. The IMU's sample index from its 8-bit frame counter; across a gap of 256
      frames or more, the number of whole counter periods comes from the mapped
-     times (medians of a few frames on each side, so one damaged stamp cannot
-     invent a gap).
+     times: the floors over 10 s on each side (a host stall outlasts a 400 Hz
+     counter's 0.64 s period). The frame period is the configured rate's unless
+     the stamps disagree by more than 1 %.
   4. The IMU's own clock: t = t0 + P n along the lower envelope of the mapped
-     times, per stretch between gaps longer than ``piece_gap_s`` (an unplugged
+     times, per stretch between gaps longer than ``PIECE_GAP_S`` (an unplugged
      or restarted IMU may resume with another phase); stretches too short to
      give a rate use the others' P. Dropped frames leave gaps; the IMU's clock
      drift is P against the GPS-disciplined time.
 
 The lower envelope is the line under all points that minimises the summed
-residual (a linear programme); its optimum is the edge of the points' lower
-convex hull above their mean abscissa, found here with Qhull.
+residual (a linear programme). With one slope and an offset per group, each
+offset is the group's minimum of y - b x for a given slope b, so the objective
+is convex and piecewise linear in b and its optimum lies at the slope of an
+edge of a group's lower convex hull (Qhull).
 """
 
 from __future__ import annotations
@@ -58,7 +66,7 @@ IMU_WINDOW_S = 3.0
 MIN_SIDE = 15  # blocks on each side before a step can be told from delays
 OUTLIER_TOL_S = 0.002  # a stamp this far below both neighbourhoods' minima is damaged
 UNWRAP_WINDOW_S = 10.0  # longer than host stalls: the floor on each side of a gap
-MEDIAN_FRAMES = 5  # frames on each side whose median stands for a gap's edge
+MEDIAN_FRAMES = 5  # frames whose median stands for one frame's time in the coarse cut
 PIECE_GAP_S = 1.0  # an IMU gap this long may restart its clock: fit each side on its own
 MARGIN_S = 2.0  # delays and stalls allowed for around a step's GPS bracket
 RATE_MISMATCH = 0.01  # configured IMU rate this far from what the stamps show: use the stamps

@@ -3,8 +3,9 @@ without ptys) and the truth.
 
 System-time stamps follow the model the time-alignment stage must undo:
 stamp = realtime(first byte) + constant latency per device + non-negative
-(exponential) jitter + the wait to the end of a host stall (optional, heavy-tailed), where realtime = true UTC + the system clock's offset
-(+ an optional step). GPS frames sent at the same moment leave the port one
+(exponential) jitter + the wait to the end of a host stall (optional,
+heavy-tailed), where realtime = true UTC + the system clock's offset (+ an
+optional step). GPS frames sent at the same moment leave the port one
 after another at the line's byte time. The model's parameters are recorded in
 the sidecar's ``simulation`` block.
 """
@@ -116,7 +117,7 @@ def write_session(sim: Simulation, directory: str | Path) -> Path:
         "state": "stopped",
         "start": {"realtime": start, "monotonic": 1000.0},
         "stop": {"realtime": stop, "monotonic": 1000.0 + sc.duration_s},
-        "stamp": "simulated: realtime of the frame's first byte + latency + exponential jitter",
+        "stamp": "simulated: realtime of the frame's first byte + latency + exponential jitter + host stalls if any",
         "sensors": {
             "gps": {"device": "superstar2", "header_len": ss2.HEADER_LEN, "baud": tm.gps_baud,
                     "files": ["gps-000.bin"], "raw_files": []},
