@@ -153,12 +153,17 @@ def _running_min(y: np.ndarray, w: int) -> tuple[np.ndarray, np.ndarray]:
 
 def _damaged_low(y: np.ndarray, w: int, tol: float) -> np.ndarray:
     """Values below every neighbour within w on both sides by more than tol. Delays only ever
-    raise a stamp and a clock step moves all later ones: a lone low stamp is damage."""
+    raise a stamp and a clock step moves all later ones: a lone low stamp is damage. The
+    tolerance grows with the delays: the minimum of w exponential delays exceeds 7/w of their
+    mean once in a thousand, so a good stamp is rarely below both windows by more."""
     if len(y) < 3:
         return np.zeros(len(y), dtype=bool)
     left, right_incl = _running_min(y, w)
     right = np.concatenate([right_incl[1:], [np.inf]])
-    return y < np.minimum(left, right) - tol
+    floor = np.minimum(left, right)
+    ok = np.isfinite(floor)
+    mean_delay = float(np.median(np.maximum(y[ok] - floor[ok], 0.0))) / np.log(2.0) if ok.any() else 0.0
+    return y < floor - max(tol, 7.0 * mean_delay / w)
 
 
 def _median_slope(x: np.ndarray, y: np.ndarray, span: float) -> float:
