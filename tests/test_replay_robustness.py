@@ -97,6 +97,7 @@ def test_one_flipped_stamp_bit(tmp_path, sensor, bit):
     al, err = align_errors(s, d, k)
     check(al, err, f"{sensor} stamp bit {bit}")
     assert al.summary()["imu_frames_missing"] == 0
+    assert sum(f"{sensor.upper()} stamp" in w and "damaged" in w for w in al.warnings) == 1
 
 
 @pytest.mark.parametrize("jitter_s", [0.0, 0.03])

@@ -70,6 +70,7 @@ MEDIAN_FRAMES = 5  # frames whose median stands for one frame's time in the coar
 PIECE_GAP_S = 1.0  # an IMU gap this long may restart its clock: fit each side on its own
 MARGIN_S = 2.0  # delays and stalls allowed for around a step's GPS bracket
 RATE_MISMATCH = 0.01  # configured IMU rate this far from what the stamps show: use the stamps
+LATE_S = 60.0  # a stamp this late is damaged, not delayed
 STALL_MAX_S = 10.0  # an apparent step up and back down within this is a host stall
 MIN_RATE_SPAN_S = 20.0  # an IMU stretch shorter than this takes the IMU period from the others
 
@@ -554,6 +555,12 @@ def align(gps_tow: np.ndarray, gps_stamps: np.ndarray, week: int, imu_stamps: np
         warnings.append(f"{n_gps_bad} GPS stamp(s) far below their neighbours left out of the clock fit (damaged)")
     if n_imu_bad:
         warnings.append(f"{n_imu_bad} IMU stamp(s) far below their neighbours left out of the clock fit (damaged)")
+    # Far too late for a delay (no host holds frames this long without losing them): damaged too,
+    # harmless to the fits, which follow the floor.
+    late = {"GPS": int(np.sum(clock.residual_s > LATE_S)), "IMU": int(np.sum(mapped - t > LATE_S))}
+    for name, count in late.items():
+        if count:
+            warnings.append(f"{count} {name} stamp(s) more than {LATE_S:g} s late (damaged), ignored")
     step_times = [float(x) for x in clock.step_before]
     for dt, at in zip(clock.steps_s, step_times):
         warnings.append(f"realtime clock step of {dt:+.3f} s at GPS time {at:.1f} s")
