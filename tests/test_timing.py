@@ -1,6 +1,6 @@
 """Time alignment against the simulator's true sampling times: the stamp model's
-jitter, latencies known to the configuration, IMU clock drift, dropped frames
-and a realtime clock step."""
+jitter, host stalls, latencies known to the configuration, IMU clock drift,
+dropped frames and realtime clock steps."""
 
 import numpy as np
 import pytest
@@ -49,6 +49,11 @@ CASES = {
     "clock_step": {"jitter_mean_s": 0.0005, "imu_clock_ppm": -25.0, "clock_step_at_s": 27.3, "clock_step_s": 0.75},
     "step_back": {"jitter_mean_s": 0.001, "imu_drop_probability": 0.005, "clock_step_at_s": 41.0,
                   "clock_step_s": -1.5},
+    # 256 frames at 64 Hz: the IMU stamps alone cannot tell this step from a gap.
+    "step_of_counter_period": {"jitter_mean_s": 0.0005, "imu_clock_ppm": 30.0, "clock_step_at_s": 27.3,
+                               "clock_step_s": 4.0},
+    "loaded_host": {"jitter_mean_s": 0.001, "load_stall_rate_hz": 1.0, "load_stall_mean_s": 0.3,
+                    "imu_drop_probability": 0.01},
 }
 
 
@@ -91,3 +96,19 @@ def test_lower_envelope_is_the_linear_programme_optimum():
     lp = linprog([-len(x), -x.sum()], A_ub=np.column_stack([np.ones_like(x), x]), b_ub=y, bounds=[(None, None)] * 2)
     assert np.all(y - (a + b * x) >= -1e-12)
     assert np.isclose(a, lp.x[0], atol=1e-9) and np.isclose(b, lp.x[1], atol=1e-11)
+
+
+def test_steps_ignore_a_rate_and_lone_damaged_values():
+    """The step finder sees a lasting change of the floor, not a slope, a delayed run or one damaged value."""
+    rng = np.random.default_rng(3)
+    x = np.arange(600) * 0.1
+    y = rng.exponential(0.002, 600)
+    y[200:212] += np.linspace(0.4, 0.0, 12)  # a 0.4 s host stall
+    y[300] -= 0.3  # a damaged stamp
+    y[450:] -= 4.0  # a backward step of a whole counter period
+    # System time at half the rate of GPS time (served at 2x).
+    clock = timing.fit_gps_clock(x, 1000.0 + 0.5 * x + y, 0.0)
+    assert list(clock.starts) == [0, 450] and np.allclose(clock.rate, 0.5, atol=1e-4)
+    assert clock.damaged.sum() == 1 and clock.damaged[300]
+    assert abs(clock.steps_s[0] + 4.0) < 0.01
+    assert list(timing._steps(np.delete(y, 300), 0.01)[0]) == [449]

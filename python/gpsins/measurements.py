@@ -24,7 +24,8 @@ from gpsins_logger import bp3010, superstar2 as ss2
 from . import logs
 
 SECONDS_PER_WEEK = 604800.0
-FIX_PAIR_WINDOW_S = 0.2  # an ID 20 and its ID 21 are sent together
+FIX_PAIR_TOLERANCE_S = 0.05  # an ID 20 and its ID 21 describe the same epoch (times to 1 ms)
+GPS_EPOCH = np.datetime64("1980-01-06T00:00:00", "ms")
 
 
 @dataclass
@@ -116,14 +117,17 @@ def decode_gps(files: logs.SensorFiles, skipped: Counter) -> GpsMeasurements:
     # Time of week continues past a week rollover (tow drops by a week).
     tow = tow + SECONDS_PER_WEEK * np.concatenate([[0], np.cumsum(np.diff(tow) < -SECONDS_PER_WEEK / 2)])
 
-    # Pair each ID 21 with the ID 20 sent next to it.
+    # Pair each ID 21 with the ID 20 of the same epoch, by GPS time (stamps can jump with the clock).
     fixes, sats = [], []
-    ustamps = np.array([s for s, _ in nav_user])
-    for st, e in nav_ecef:
-        t = (e.week - week) * SECONDS_PER_WEEK + e.tow_s
-        k = int(np.argmin(np.abs(ustamps - st))) if len(ustamps) else -1
-        if k < 0 or abs(ustamps[k] - st) > FIX_PAIR_WINDOW_S:
-            skipped["ID 21 fixes without an ID 20 (no HDOP/VDOP/mode)"] += 1
+    ecef_t = np.array([(e.week - week) * SECONDS_PER_WEEK + e.tow_s for _, e in nav_ecef]).reshape(-1)
+    user_t = _nav_user_times(nav_user, nav_ecef, ecef_t, leap, week, skipped)
+    order = np.argsort(user_t, kind="stable")
+    for (st, e), t in zip(nav_ecef, ecef_t):
+        j = np.searchsorted(user_t[order], t)
+        near = [order[i] for i in (j - 1, j) if 0 <= i < len(order)]
+        k = min(near, key=lambda i: abs(user_t[i] - t)) if near else -1
+        if k < 0 or not abs(user_t[k] - t) <= FIX_PAIR_TOLERANCE_S:
+            skipped["ID 21 fixes without an ID 20 of the same epoch (no HDOP/VDOP/mode)"] += 1
             continue
         u = nav_user[k][1]
         mode = u.nav_mode if u.has_fix and np.any([e.x_m, e.y_m, e.z_m]) else 0
@@ -133,6 +137,34 @@ def decode_gps(files: logs.SensorFiles, skipped: Counter) -> GpsMeasurements:
         sats.append(u.sats_used)
     return GpsMeasurements(week, tow, np.array(tstamps), blocks, np.array(fixes).reshape(-1, 10),
                            np.array(sats, dtype=int), ephs, iono, leap)
+
+
+def _utc_seconds(u: ss2.NavUser) -> float:
+    """UTC of an ID 20 as seconds since the GPS epoch (no leap seconds); NaN if its date is not valid."""
+    try:
+        day = np.datetime64(f"{u.year:04d}-{u.month:02d}-{u.day:02d}", "ms")
+    except ValueError:
+        return float("nan")
+    if not (0 <= u.hour < 24 and 0 <= u.minute < 60 and 0 <= u.second < 61):
+        return float("nan")
+    return float((day - GPS_EPOCH) / np.timedelta64(1, "s")) + 3600.0 * u.hour + 60.0 * u.minute + u.second
+
+
+def _nav_user_times(nav_user: list, nav_ecef: list, ecef_t: np.ndarray, leap: int | None, week: int,
+                    skipped: Counter) -> np.ndarray:
+    """GPS time of each ID 20 in the fixes' time base. Without a leap-second count from the
+    receiver (ID 75/113): the whole number of seconds that lines most ID 20s up with the ID 21
+    nearest by stamp (the receiver sends the pair together; a clock step mispairs only a few)."""
+    utc = np.array([_utc_seconds(u) for _, u in nav_user]).reshape(-1) - week * SECONDS_PER_WEEK
+    if np.isnan(utc).any():
+        skipped["ID 20 with an invalid date (not paired)"] += int(np.isnan(utc).sum())
+    if leap is None and len(utc) and len(ecef_t):
+        ustamps = np.array([st for st, _ in nav_user])
+        k = np.clip(np.searchsorted(ustamps, [st for st, _ in nav_ecef]), 0, len(ustamps) - 1)
+        diff = np.round(ecef_t - utc[k])
+        vals, counts = np.unique(diff[np.isfinite(diff)], return_counts=True)
+        leap = int(vals[np.argmax(counts)]) if len(vals) else 0
+    return utc + (leap or 0)
 
 
 def decode_session(directory: str | Path) -> Decoded:

@@ -118,7 +118,16 @@ def replay(session: str | Path, out: str | Path, *, mode: str = "loose", config=
         tight = dict(pseudoranges=dec.gps.pseudorange_table(), ephemerides=ephs, klobuchar=klob,
                      gps_time_offset_s=dec.gps.week * measurements.SECONDS_PER_WEEK)
     t2 = time.perf_counter()
-    sol = flt.run(imu, dec.gps.fixes, cfg, mode=mode, covariance=True, **tight)
+    max_gap = float(cfg.get("max_gap_s", 0.5))
+    try:
+        sol = flt.run(imu, dec.gps.fixes, cfg, mode=mode, covariance=True, **tight)
+        split = []
+    except ValueError as e:
+        # Interim until the core re-initialises after long IMU gaps itself: run the filter
+        # on each stretch between them, each starting afresh.
+        if "gap longer than max_gap_s" not in str(e):
+            raise
+        sol, split = _run_stretches(imu, dec.gps.fixes, cfg, mode, tight, max_gap)
     clock["filter_s"] = time.perf_counter() - t2
     if len(sol.t) == 0:
         raise measurements.logs.LogError(f"{session}: the filter never initialised (no usable fix after levelling)")
@@ -159,13 +168,48 @@ def replay(session: str | Path, out: str | Path, *, mode: str = "loose", config=
     write_pos(out / "solution.pos", dec.gps.week, sol, sigma_ned, sats, note=f"mode {mode}, session {session.name}")
     (out / "config.toml").write_text(flt.to_toml(cfg), encoding="utf-8")
     clock["total_s"] = sum(v for v in clock.values())
+    gaps = al.gap_list(min_s=max_gap) if timing_method == "robust" else []
     summary = {"session": str(session), "mode": mode, "alignment": al.summary(), "counters": sol.counters,
+               "imu_gaps_longer_than_max_gap": gaps,
+               "reinitialisations": {"count": len(split), "at_t": split,
+                                     "how": "interim: the filter restarted on each stretch between IMU gaps"
+                                     if split else ""},
+               "warnings": al.warnings if timing_method == "robust" else [],
                "skipped": dict(dec.skipped), "fixes_after_end": sol.extra["fixes_after_end"],
                "wall_time_s": clock, "imu_samples": int(len(imu)), "errors": stats,
                "update_kinds": {flt.UPDATE_KINDS[int(k)]: int(np.sum(sol.updates["kind"] == k))
                                 for k in np.unique(sol.updates["kind"])}}
     (out / "run.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
     return ReplayResult(out, mode, summary)
+
+
+def _run_stretches(imu: np.ndarray, fixes: np.ndarray, cfg: dict, mode: str, tight: dict, max_gap: float
+                   ) -> tuple[flt.Solution, list[float]]:
+    """The filter run afresh on each stretch of IMU samples between gaps longer than max_gap;
+    the solutions concatenated. Returns it and the times at which the filter restarted."""
+    cut = np.flatnonzero(np.diff(imu[:, 0]) > max_gap) + 1
+    bounds = list(zip(np.concatenate([[0], cut]), np.concatenate([cut, [len(imu)]])))
+    parts = []
+    for j, (a, b) in enumerate(bounds):
+        t_lo = imu[a, 0] if j else -np.inf
+        t_hi = imu[b, 0] if b < len(imu) else np.inf
+        sel = (fixes[:, 0] > t_lo) & (fixes[:, 0] <= t_hi) if j else fixes[:, 0] <= t_hi
+        kw = dict(tight)
+        if "pseudoranges" in kw:
+            pr = kw["pseudoranges"]
+            kw["pseudoranges"] = pr[(pr[:, 0] > t_lo) & (pr[:, 0] <= t_hi)]
+        parts.append(flt.run(imu[a:b], fixes[sel], cfg, mode=mode, covariance=True, **kw))
+    first = parts[0]
+    cat = lambda name: np.concatenate([getattr(p, name) for p in parts])  # noqa: E731
+    updates = {k: np.concatenate([p.updates[k] for p in parts]) for k in first.updates}
+    counters = {k: sum(p.counters.get(k, 0) for p in parts) for k in first.counters}
+    sol = flt.Solution(first.mode, first.n_states, cat("t"), cat("r_ecef"), cat("v_ecef"), cat("q_eb"),
+                       cat("gyro_bias"), cat("accel_bias"), cat("sigma"), cat("standstill"), cat("heading_known"),
+                       updates, counters, None if first.scale_factors is None else cat("scale_factors"),
+                       None if first.clock is None else cat("clock"),
+                       None if first.covariance is None else cat("covariance"),
+                       {"fixes_after_end": parts[-1].extra["fixes_after_end"]})
+    return sol, [float(imu[a, 0]) for a, _ in bounds[1:]]
 
 
 def _fill(mask: np.ndarray, a: np.ndarray) -> np.ndarray:

@@ -107,6 +107,10 @@ class Timing:
     gps_latency_s: float = 0.0
     imu_latency_s: float = 0.0
     jitter_mean_s: float = 0.0003  # exponential, non-negative
+    # Host load: the logger stalls (Poisson events, Pareto durations with shape 2.5, heavy-tailed);
+    # a frame arriving during a stall is stamped when the stall ends. Both streams see the same stalls.
+    load_stall_rate_hz: float = 0.0
+    load_stall_mean_s: float = 0.15
     imu_clock_ppm: float = 0.0
     imu_drop_probability: float = 0.0
     system_clock_offset_s: float = 0.25  # system clock minus true UTC at the start

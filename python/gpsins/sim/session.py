@@ -3,8 +3,9 @@ without ptys) and the truth.
 
 System-time stamps follow the model the time-alignment stage must undo:
 stamp = realtime(first byte) + constant latency per device + non-negative
-(exponential) jitter, where realtime = true UTC + the system clock's offset
-(+ an optional step). GPS frames sent at the same moment leave the port one
+(exponential) jitter + the wait to the end of a host stall (optional,
+heavy-tailed), where realtime = true UTC + the system clock's offset (+ an
+optional step). GPS frames sent at the same moment leave the port one
 after another at the line's byte time. The model's parameters are recorded in
 the sidecar's ``simulation`` block.
 """
@@ -42,6 +43,30 @@ def _jitter(rng: np.random.Generator, n: int, mean_s: float) -> np.ndarray | flo
     return rng.exponential(mean_s, n) if mean_s > 0 else 0.0
 
 
+def _load_stalls(sim: Simulation) -> tuple[np.ndarray, np.ndarray]:
+    """(start, end) run times of the host's stalls; none (and no draws) when switched off."""
+    tm = sim.scenario.timing
+    if tm.load_stall_rate_hz <= 0:
+        return np.zeros(0), np.zeros(0)
+    rng = np.random.default_rng([sim.seed, 4])
+    n = rng.poisson(tm.load_stall_rate_hz * sim.scenario.duration_s)
+    start = np.sort(rng.uniform(0.0, sim.scenario.duration_s, n))
+    shape = 2.5  # Pareto: mean = x_m shape / (shape - 1)
+    length = tm.load_stall_mean_s * (shape - 1) / shape * (1.0 + rng.pareto(shape, n))
+    return start, start + length
+
+
+def _stall_delay(x: np.ndarray, stalls: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """Extra delay of stamps taken at run times x: up to the end of a stall that holds them."""
+    start, end = stalls
+    if not len(start):
+        return np.zeros(len(x))
+    k = np.searchsorted(start, x, side="right") - 1
+    # Stalls may overlap: the latest end among those started before x.
+    reach = np.maximum.accumulate(end)[np.maximum(k, 0)]
+    return np.where((k >= 0) & (x < reach), reach - x, 0.0)
+
+
 def _records(frames: list[bytes], stamps: np.ndarray, header_len: int) -> bytes:
     return b"".join(f[:header_len] + STAMP.pack(s) + f[header_len:] for f, s in zip(frames, stamps))
 
@@ -60,7 +85,9 @@ def write_session(sim: Simulation, directory: str | Path) -> Path:
     for k, m in enumerate(msgs):
         first[k] = max(m.t, free)
         free = first[k] + len(m.frame) * byte_s
-    gps_stamps = realtime(sim, first) + tm.gps_latency_s + _jitter(rng, len(msgs), tm.jitter_mean_s)
+    stalls = _load_stalls(sim)
+    gps_delay = tm.gps_latency_s + _jitter(rng, len(msgs), tm.jitter_mean_s)
+    gps_stamps = realtime(sim, first) + gps_delay + _stall_delay(first + gps_delay, stalls)
     (directory / "gps-000.bin").write_bytes(_records([m.frame for m in msgs], gps_stamps, ss2.HEADER_LEN))
     # IMU: one frame per sample, some dropped if configured; the counter counts every sample.
     samples = list(src.imu_samples(sim.imu_rate_hz))
@@ -70,7 +97,8 @@ def write_session(sim: Simulation, directory: str | Path) -> Path:
         s.sample.counter = (k + 1) & 0xFF
         frames.append(s.sample.encode(sim.imu_rate_hz))
     t_imu = np.array([s.t for s in samples])
-    imu_stamps = realtime(sim, t_imu) + tm.imu_latency_s + _jitter(rng, len(samples), tm.jitter_mean_s)
+    imu_delay = tm.imu_latency_s + _jitter(rng, len(samples), tm.jitter_mean_s)
+    imu_stamps = realtime(sim, t_imu) + imu_delay + _stall_delay(t_imu + imu_delay, stalls)
     kept = np.flatnonzero(keep)
     (directory / "imu-000.bin").write_bytes(_records([frames[k] for k in kept], imu_stamps[kept], 1))
     start = float(realtime(sim, 0.0))
@@ -89,7 +117,7 @@ def write_session(sim: Simulation, directory: str | Path) -> Path:
         "state": "stopped",
         "start": {"realtime": start, "monotonic": 1000.0},
         "stop": {"realtime": stop, "monotonic": 1000.0 + sc.duration_s},
-        "stamp": "simulated: realtime of the frame's first byte + latency + exponential jitter",
+        "stamp": "simulated: realtime of the frame's first byte + latency + exponential jitter + host stalls if any",
         "sensors": {
             "gps": {"device": "superstar2", "header_len": ss2.HEADER_LEN, "baud": tm.gps_baud,
                     "files": ["gps-000.bin"], "raw_files": []},

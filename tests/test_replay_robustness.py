@@ -1,0 +1,254 @@
+"""Sessions off the clean path: every one aligns to the simulator's true sampling times
+and replays. Faults are put into simulated sessions the way they happen: the stamp model's
+host stalls and clock steps, or the record files edited afterwards (a flipped stamp bit,
+frames lost while the IMU was unplugged, ID 23 missing for a stretch, a recording served
+faster than real time)."""
+
+import struct
+
+import numpy as np
+import pytest
+
+from gpsins import logs, measurements, replay, sim, timing
+from gpsins.sim import messages
+from gpsins.sim.scenario import parse
+from gpsins.sim.session import STAMP, load_truth, realtime, write_session
+
+from test_timing import GPS_LAT, IMU_LAT, SEGMENTS, START
+
+DEVICES = {"gps": "superstar2", "imu": "bp3010"}
+
+
+def simulate(tmp_path, name, segments=SEGMENTS, obstructions=(), **timing_opts):
+    sc = parse({"name": name, "start": START, "segment": segments, "obstruction": list(obstructions),
+                "timing": {"gps_latency_s": GPS_LAT, "imu_latency_s": IMU_LAT, **timing_opts}})
+    s = sim.simulate(sc, seed=5)
+    d = tmp_path / name
+    write_session(s, d)
+    return s, d
+
+
+def sample_index(d):
+    """True sample index of every IMU record of an unedited simulated session, from its counter
+    alone (the simulator drops single frames only, and its counter counts every sample)."""
+    c = measurements.decode_session(d).imu.counter.astype(int)
+    step = np.diff(c) % 256
+    step[step == 0] = 256
+    return (c[0] - 1) + np.concatenate([[0], np.cumsum(step)])
+
+
+def rewrite(d, sensor, keep=None, stamps=None):
+    """Write a record file again, keeping the records in `keep` with the given stamps."""
+    scan = logs.read_record_file(d / f"{sensor}-000.bin", DEVICES[sensor])
+    h = scan.layout.header_len
+    stamps = scan.stamps if stamps is None else stamps
+    keep = np.ones(scan.count, bool) if keep is None else keep
+    out = []
+    for k in np.flatnonzero(keep):
+        raw = scan.data[scan.starts[k]:scan.starts[k] + scan.lengths[k]].tobytes()
+        out.append(raw[:h] + STAMP.pack(stamps[k]) + raw[h + logs.STAMP_BYTES:])
+    (d / f"{sensor}-000.bin").write_bytes(b"".join(out))
+
+
+def stamps_of(d, sensor):
+    return logs.read_record_file(d / f"{sensor}-000.bin", DEVICES[sensor]).stamps
+
+
+def flip_bit(x: float, bit: int) -> float:
+    (u,) = struct.unpack("<Q", struct.pack("<d", x))
+    return struct.unpack("<d", struct.pack("<Q", u ^ (1 << bit)))[0]
+
+
+def align_errors(s, d, k_true, speed=1.0):
+    dec = measurements.decode_session(d)
+    al = timing.align(dec.gps.tow, dec.gps.stamps, dec.gps.week, dec.imu.stamps, dec.imu.counter, s.imu_rate_hz,
+                      gps_latency_s=(GPS_LAT + messages.MEASUREMENT_DELAY_S) / speed, imu_latency_s=IMU_LAT / speed)
+    return al, al.imu_t - (s.scenario.start.gps_tow_s + s.imu_t[k_true])
+
+
+def check(al, err, label):
+    rms, worst = float(np.sqrt(np.mean(err ** 2))), float(np.abs(err).max())
+    print(f"{label}: IMU time error RMS {1e3 * rms:.3f} ms, max {1e3 * worst:.3f} ms; steps {al.steps_s}; "
+          f"warnings {getattr(al, 'warnings', None)}")
+    assert rms < 1e-3 and worst < 5e-3
+
+
+@pytest.mark.parametrize("step_s", [4.0, -8.0, -30.0])
+def test_clock_step_of_whole_counter_periods(tmp_path, step_s):
+    """4 s is 256 frames at 64 Hz: in the IMU stamps alone the step looks like a gap."""
+    s, d = simulate(tmp_path, "step", jitter_mean_s=0.0005, clock_step_at_s=27.3, clock_step_s=step_s)
+    al, err = align_errors(s, d, sample_index(d))
+    check(al, err, f"step {step_s:+g} s")
+    assert len(al.steps_s) == 1 and abs(al.steps_s[0] - step_s) < 2e-3
+    assert al.summary()["imu_frames_missing"] == 0
+
+
+@pytest.mark.parametrize("sensor,bit", [("gps", 20), ("gps", 48), ("imu", 20), ("imu", 30), ("imu", 51)])
+def test_one_flipped_stamp_bit(tmp_path, sensor, bit):
+    """One bit of one stamp: -0.25 s (bit 20), -6.7e7 s (48), +256 s (30), +5.4e8 s (51);
+    all inside the reader's plausible range, so alignment must cope."""
+    s, d = simulate(tmp_path, "flip", jitter_mean_s=0.0005)
+    k = sample_index(d)
+    st = stamps_of(d, sensor).copy()
+    i = len(st) // 2 + 3
+    st[i] = flip_bit(st[i], bit)
+    assert logs.STAMP_MIN < st[i] < logs.STAMP_MAX
+    rewrite(d, sensor, stamps=st)
+    al, err = align_errors(s, d, k)
+    check(al, err, f"{sensor} stamp bit {bit}")
+    assert al.summary()["imu_frames_missing"] == 0
+    assert sum(f"{sensor.upper()} stamp" in w and "damaged" in w for w in al.warnings) == 1
+
+
+@pytest.mark.parametrize("jitter_s", [0.0, 0.03])
+def test_loaded_host_heavy_tailed_stamp_delays(tmp_path, jitter_s):
+    """Host stalls (about one a second, Pareto lengths with mean 0.3 s) on top of plain jitter."""
+    s, d = simulate(tmp_path, "load", jitter_mean_s=jitter_s, load_stall_rate_hz=1.0, load_stall_mean_s=0.3,
+                    imu_clock_ppm=40.0, imu_drop_probability=0.01)
+    al, err = align_errors(s, d, sample_index(d))
+    delay = al.imu_residual_s
+    print(f"IMU stamp delays: median {1e3 * np.median(delay):.1f} ms, p99 {1e3 * np.percentile(delay, 99):.0f} ms, "
+          f"max {1e3 * delay.max():.0f} ms")
+    assert delay.max() > 0.3  # the tail is there
+    check(al, err, f"loaded host, jitter {jitter_s}")
+    # 60 s of stamps with 30 ms jitter pin the drift to about 10 ppm (0.6 ms over the run).
+    assert al.steps_s == [] and abs(al.imu_clock_ppm - 40.0) < (2.0 if jitter_s == 0 else 15.0)
+
+
+@pytest.mark.parametrize("speed", [2.0, 4.0])
+def test_recording_served_faster_than_real_time(tmp_path, speed):
+    """Served at `speed` x real time, system time runs at 1/speed of GPS time."""
+    s, d = simulate(tmp_path, "fast", jitter_mean_s=0.0005, clock_step_at_s=31.0, clock_step_s=0.5)
+    k = sample_index(d)
+    t0 = realtime(s, 0.0)
+    for sensor in DEVICES:
+        st = stamps_of(d, sensor)
+        rewrite(d, sensor, stamps=t0 + (st - t0) / speed)
+    al, err = align_errors(s, d, k, speed)
+    check(al, err, f"served at {speed:g}x")
+    assert len(al.steps_s) == 1 and abs(al.steps_s[0] - 0.5 / speed) < 1e-3
+
+
+@pytest.mark.parametrize("speed,step_s", [(1.0, -2.0), (2.0, -2.0), (1.0, 0.3), (1.0, 4.0)])
+def test_missing_id23_for_a_stretch(tmp_path, speed, step_s):
+    """13 s without ID 23 (say a damaged stretch of the file), with a clock step inside it: the
+    GPS stream only brackets the step within those 13 s; the IMU stream must place it. Served
+    at 2x the stretch is 6.5 s of system time against 13 s of GPS time."""
+    s, d = simulate(tmp_path, "noid23", jitter_mean_s=0.0005, clock_step_at_s=28.0, clock_step_s=step_s)
+    k = sample_index(d)
+    scan = logs.read_record_file(d / "gps-000.bin", "superstar2")
+    t0 = realtime(s, 0.0)
+    gone = (logs.message_ids(scan) == 23) & (scan.stamps > t0 + 20) & (scan.stamps < t0 + 33)
+    rewrite(d, "gps", keep=~gone)
+    for sensor in DEVICES:
+        rewrite(d, sensor, stamps=t0 + (stamps_of(d, sensor) - t0) / speed)
+    al, err = align_errors(s, d, k, speed)
+    check(al, err, f"no ID 23 for 13 s, step {step_s:+g} s, served at {speed:g}x")
+    assert len(al.steps_s) == 1 and abs(al.steps_s[0] - step_s / speed) < 2e-3
+
+
+UNPLUG_SEGMENTS = [{"label": "stand", "duration_s": 30, "speed_mps": 0},
+                   {"label": "drive", "duration_s": 60, "speed_mps": 10, "turn_deg": 90}]
+
+
+def unplugged(tmp_path, name, t_from, t_to, **opts):
+    s, d = simulate(tmp_path, name, UNPLUG_SEGMENTS, **opts)
+    k = sample_index(d)
+    keep = ~((s.imu_t[k] > t_from) & (s.imu_t[k] < t_to))
+    rewrite(d, "imu", keep=keep)
+    return s, d, k[keep]
+
+
+@pytest.mark.parametrize("step_s", [None, -30.0])
+def test_imu_unplugged_for_8_s_time_map(tmp_path, step_s):
+    """The counter wraps twice in the gap; the stamps say how often. With a -30 s clock step
+    during the gap as well."""
+    opts = {"clock_step_at_s": 54.0, "clock_step_s": step_s} if step_s else {}
+    s, d, k = unplugged(tmp_path, "unplug", 50.0, 58.0, jitter_mean_s=0.0005, **opts)
+    al, err = align_errors(s, d, k)
+    check(al, err, f"IMU unplugged 8 s, step {step_s}")
+    long = al.gap_list(1.0)
+    assert len(long) == 1 and long[0]["frames_missing"] == int(np.diff(k).max()) - 1
+    assert al.pieces == 2
+
+
+def test_imu_unplugged_for_8_s_replays_inside_3_sigma(tmp_path):
+    s, d, _ = unplugged(tmp_path, "unplug", 50.0, 58.0)
+    res = replay.replay(d, tmp_path / "out")
+    gaps = res.summary["imu_gaps_longer_than_max_gap"]
+    assert len(gaps) == 1 and abs(gaps[0]["t_after"] - gaps[0]["t_before"] - 8.0) < 0.05
+    z = np.load(tmp_path / "out" / "results.npz")
+    after = (z["t"] > gaps[0]["t_after"]) & z["heading_known"] & np.isfinite(z["err_ned_m"][:, 0])
+    assert after.sum() > 20 * s.imu_rate_hz
+    inside = np.abs(z["err_ned_m"][after]) <= 3 * z["sigma_ned_m"][after]
+    print(f"after the gap: {after.sum()} samples, inside 3 sigma {inside.mean(axis=0)}, "
+          f"max |error| {np.abs(z['err_ned_m'][after]).max(axis=0)} m, run.json {res.summary['reinitialisations']}")
+    assert inside.all()
+
+
+def test_fixes_pair_with_their_id20_by_gps_time_after_a_backward_step(tmp_path):
+    """After a -30 s step, an ID 21's stamp is nearest to an ID 20 sent 30 s earlier."""
+    obstruction = {"t0_s": 5, "t1_s": 60, "azimuth_deg": [0, 180], "below_elevation_deg": 40, "flicker": 0.3}
+    segments = [{"label": "stand", "duration_s": 20, "speed_mps": 0},
+                {"label": "drive", "duration_s": 60, "speed_mps": 10, "turn_deg": 90}]
+    s, d = simulate(tmp_path, "pair", segments, [obstruction], clock_step_at_s=45.3, clock_step_s=-30.0)
+    tr = load_truth(d / "truth.npz")
+    assert len(np.unique(tr["fix_sats"])) > 2  # the pairing is visible in the data
+    gps = measurements.decode_session(d).gps
+    k = np.searchsorted(tr["fix_t"] + START["gps_tow_s"], gps.fixes[:, 0] - 1e-3)
+    assert len(gps.fixes) == len(tr["fix_t"])
+    assert np.array_equal(gps.fix_sats, tr["fix_sats"][k])
+    assert np.allclose(gps.fixes[:, 7], np.maximum(tr["fix_hdop"][k], 0.1), atol=0.051)
+
+
+def test_everything_at_once(tmp_path):
+    """Heavy jitter, host stalls, drops, IMU clock drift, a backward step of a counter period,
+    13 s without ID 23, one damaged stamp in each stream and a configured IMU rate 30 % high."""
+    s, d = simulate(tmp_path, "mixed", jitter_mean_s=0.03, load_stall_rate_hz=1.0, load_stall_mean_s=0.3,
+                    imu_drop_probability=0.01, imu_clock_ppm=50.0, clock_step_at_s=33.3, clock_step_s=-4.0)
+    k = sample_index(d)
+    t0 = realtime(s, 0.0)
+    scan = logs.read_record_file(d / "gps-000.bin", "superstar2")
+    gone = (logs.message_ids(scan) == 23) & (scan.stamps > t0 + 10) & (scan.stamps < t0 + 23)
+    st = scan.stamps.copy()
+    st[400] = flip_bit(st[400], 21)
+    rewrite(d, "gps", keep=~gone, stamps=st)
+    st = stamps_of(d, "imu").copy()
+    st[2000] = flip_bit(st[2000], 44)
+    rewrite(d, "imu", stamps=st)
+    dec = measurements.decode_session(d)
+    al = timing.align(dec.gps.tow, dec.gps.stamps, dec.gps.week, dec.imu.stamps, dec.imu.counter, 1.3 * s.imu_rate_hz,
+                      gps_latency_s=GPS_LAT + messages.MEASUREMENT_DELAY_S, imu_latency_s=IMU_LAT)
+    check(al, al.imu_t - (s.scenario.start.gps_tow_s + s.imu_t[k]), "everything at once")
+    assert len(al.steps_s) == 1 and abs(al.steps_s[0] + 4.0) < 5e-3
+    assert al.summary()["imu_frames_missing"] == dec.sidecar["counts"]["imu"]["frames_dropped_by_simulation"]
+    assert any("not the configured" in w for w in al.warnings)
+
+
+def test_a_session_that_cannot_be_aligned_says_why(tmp_path):
+    s, d = simulate(tmp_path, "bad", jitter_mean_s=0.0005)
+    dec = measurements.decode_session(d)
+    with pytest.raises(timing.AlignmentError, match="at least 3 GPS measurement blocks"):
+        timing.align(dec.gps.tow[:2], dec.gps.stamps[:2], dec.gps.week, dec.imu.stamps, dec.imu.counter, 64)
+    with pytest.raises(timing.AlignmentError, match="do not advance with GPS time"):
+        timing.align(dec.gps.tow, np.full(len(dec.gps.tow), dec.gps.stamps[0]), dec.gps.week, dec.imu.stamps,
+                     dec.imu.counter, 64)
+
+
+def test_400_hz_counter_wraps_every_0_64_s(tmp_path):
+    """At 400 Hz the counter's period (0.64 s) is shorter than a host stall: stalls, drops, an 8 s
+    unplug and a backward step of two counter periods."""
+    sc = parse({"name": "fast_imu", "start": START, "segment": SEGMENTS, "imu": {"rate_hz": 400},
+                "timing": {"gps_latency_s": GPS_LAT, "imu_latency_s": IMU_LAT, "jitter_mean_s": 0.002,
+                           "load_stall_rate_hz": 1.0, "load_stall_mean_s": 0.3, "imu_drop_probability": 0.01,
+                           "clock_step_at_s": 27.3, "clock_step_s": -1.28}})
+    s = sim.simulate(sc, seed=5)
+    write_session(s, tmp_path / "fast_imu")
+    d = tmp_path / "fast_imu"
+    k = sample_index(d)
+    keep = ~((s.imu_t[k] > 40.0) & (s.imu_t[k] < 48.0))
+    rewrite(d, "imu", keep=keep)
+    al, err = align_errors(s, d, k[keep])
+    check(al, err, "400 Hz")
+    assert len(al.steps_s) == 1 and abs(al.steps_s[0] + 1.28) < 2e-3
+    assert al.summary()["imu_frames_missing"] == int(np.sum(np.diff(k[keep]) - 1))
