@@ -97,7 +97,7 @@ def run(args: argparse.Namespace) -> int:
         results.append(res.out)
     page = report.make_report(results, out / "report")
     print("5. comparison against the simulator's truth (from the first known heading on)")
-    print(report.comparison_table(results))
+    report.print_comparison(results)
     (out / "run.json").write_text(json.dumps({"scenario": sc.name, "seed": args.seed, "speed": args.speed,
                                               "session": str(session), "truth": str(out / "truth.npz"),
                                               "results": [str(r) for r in results], "report": str(page)}, indent=2))

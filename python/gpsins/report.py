@@ -261,11 +261,53 @@ def make_report(paths: list[str | Path], out: str | Path) -> Path:
     return page
 
 
-def comparison_table(paths: list[str | Path]) -> str:
-    """Plain-text overall and per-segment comparison for the terminal."""
-    results = [load(p) for p in paths]
-    lines = [f"{'':14s}" + "".join(f"{r.name:>26s}" for r in results)]
+def comparison_tables(results: list[Result]) -> list:
+    """Rich tables for the terminal: the totals, then the errors per segment (Table 6.1 style)."""
+    from rich.table import Table
+
+    totals = Table(title="Errors vs truth", title_justify="left")
+    totals.add_column("")
+    for r in results:
+        totals.add_column(r.name, justify="right")
     for key, lab in (("horizontal_rms_m", "H RMS (m)"), ("horizontal_max_m", "H max (m)"),
-                     ("vertical_rms_m", "V RMS (m)"), ("vertical_max_m", "V max (m)"), ("nees9_mean", "mean NEES")):
-        lines.append(f"{lab:14s}" + "".join(f"{_fmt(r.run.get('errors', {}).get(key)):>26s}" for r in results))
-    return "\n".join(lines)
+                     ("vertical_rms_m", "V RMS (m)"), ("vertical_max_m", "V max (m)"), ("nees9_mean", "mean NEES"),
+                     ("inside_3_sigma", "inside 3 sigma (%)")):
+        scale = 100.0 if key == "inside_3_sigma" else 1.0
+        totals.add_row(lab, *(_fmt(None if (v := (r.run.get("errors") or {}).get(key)) is None else scale * v)
+                              for r in results))
+    tables = [totals]
+    segs = [segment_table(r) for r in results]
+    if any(segs):
+        per = Table(title="Errors per segment (Table 6.1): RMS (max), m", title_justify="left")
+        per.add_column("segment")
+        per.add_column("sats", justify="right")
+        for r in results:
+            per.add_column(f"{r.name} H", justify="right")
+            per.add_column(f"{r.name} V", justify="right")
+        for i, row in enumerate(segs[0]):
+            cells = [row["segment"], f"{row['sats_min']}-{row['sats_max']}"]
+            for tab in segs:
+                rr = tab[i] if i < len(tab) else {}
+                cells += [f"{_fmt(rr.get('h_rms'))} ({_fmt(rr.get('h_max'))})",
+                          f"{_fmt(rr.get('v_rms'))} ({_fmt(rr.get('v_max'))})"]
+            per.add_row(*cells)
+        tables.append(per)
+    return tables
+
+
+def print_comparison(paths: list[str | Path], file=None) -> None:
+    """The totals and the per-segment table on the terminal (or `file`)."""
+    from rich.console import Console
+
+    console = Console(file=file, width=None if file is None else 160)
+    for table in comparison_tables([load(p) for p in paths]):
+        console.print(table)
+
+
+def comparison_table(paths: list[str | Path]) -> str:
+    """The same tables as plain text."""
+    import io
+
+    buf = io.StringIO()
+    print_comparison(paths, buf)
+    return buf.getvalue()

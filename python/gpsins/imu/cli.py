@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -15,7 +16,11 @@ AXES = ("gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z")
 
 def load_rates(source: str, rate_hz: float | None) -> tuple[np.ndarray, float, tuple[str, ...]]:
     """(n, k) rate samples: a session's IMU (gyro rad/s then accel m/s^2) or a CSV/NPY file."""
+    from ..cli import CommandError
+
     p = Path(source)
+    if not p.exists():
+        raise CommandError(f"{source}: no such file or directory; give a session directory or a CSV/NPY of rates")
     if p.is_dir():
         from .. import logs
 
@@ -23,14 +28,18 @@ def load_rates(source: str, rate_hz: float | None) -> tuple[np.ndarray, float, t
         dt = 1.0 / imu.rate_hz
         return np.hstack([imu.dtheta_rad, imu.dv_mps]) / dt, float(imu.rate_hz), AXES
     if rate_hz is None:
-        raise SystemExit(f"gpsins allan: {source}: give the sample rate with --rate HZ")
+        raise CommandError(f"{source}: give the sample rate with --rate HZ")
     if p.suffix == ".npy":
         data = np.load(p)
     else:
         try:
-            data = np.loadtxt(p, delimiter="," if p.suffix == ".csv" else None, comments="#", ndmin=2)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")  # an empty file: said below
+                data = np.loadtxt(p, delimiter="," if p.suffix == ".csv" else None, comments="#", ndmin=2)
         except ValueError as e:
-            raise SystemExit(f"gpsins allan: {source}: {e}") from None
+            raise CommandError(f"{source}: not a table of numbers ({e})") from None
+    if data.size == 0:
+        raise CommandError(f"{source}: no samples; expected one row per sample, one column per axis")
     data = data.reshape(len(data), -1)
     names = AXES if data.shape[1] == 6 else tuple(f"col{k}" for k in range(data.shape[1]))
     return data, float(rate_hz), names
@@ -142,18 +151,32 @@ update_rate: {rate:g}
 """, encoding="utf-8")
 
 
+def _table(path: str, columns: int) -> np.ndarray:
+    from ..cli import CommandError
+
+    try:
+        rows = np.loadtxt(path, delimiter=",", comments="#", ndmin=2)
+    except FileNotFoundError:
+        raise CommandError(f"{path}: no such file") from None
+    except ValueError as e:
+        raise CommandError(f"{path}: not a comma-separated table of numbers ({e})") from None
+    if rows.shape[0] == 0 or rows.shape[1] < columns:
+        raise CommandError(f"{path}: expected rows of at least {columns} comma-separated numbers")
+    return rows
+
+
 def run_calibrate(args) -> int:
     lat = math.radians(args.lat_deg)
     if args.kind == "accel-updown":
         g = calibration.local_gravity_mps2(lat, args.height_m)
-        rows = np.loadtxt(args.table, delimiter=",", comments="#", ndmin=2)
+        rows = _table(args.table, 2)
         print(f"local gravity {g:.5f} m/s^2 (WGS-84 normal gravity at {args.lat_deg:g} deg, {args.height_m:g} m)")
         print("axis  bias (m/s^2)  scale factor")
         for k, (z1, z2) in enumerate(rows[:, :2]):
             c = calibration.accel_up_down(z1, z2, g)
             print(f"{'xyz'[k] if len(rows) <= 3 else k:4}  {c.bias:12.5f}  {c.scale_factor:12.6f}")
     else:
-        rows = np.loadtxt(args.table, delimiter=",", comments="#", ndmin=2)
+        rows = _table(args.table, 2)
         w_ex = calibration.earth_rate_component(lat, args.axis_up)
         c = calibration.gyro_rate_table(rows[:, 0], rows[:, 1], w_ex, args.drift_bias)
         print(f"gyro: bias {c.bias:.6f} rad/s, scale factor {c.scale_factor:.6f}, residual RMS {c.residual_rms:.2e} "
