@@ -232,7 +232,9 @@ def _message(e: BaseException, args: argparse.Namespace) -> str:
     from .timing import AlignmentError
 
     subject = _subject(args)
-    if subject and subject not in text and not isinstance(e, CommandError) and not _is_config_error(e):
+    names_a_file = isinstance(e, OSError) and e.filename is not None
+    if subject and subject not in text and not names_a_file and not isinstance(e, CommandError) \
+            and not _is_config_error(e):
         text = f"{subject}: {text}"
     if isinstance(e, AlignmentError):
         text += " (the GPS and IMU stamps cannot be mapped to GPS time; `gpsins dump` shows what the session holds)"

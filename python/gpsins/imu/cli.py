@@ -155,7 +155,9 @@ def _table(path: str, columns: int) -> np.ndarray:
     from ..cli import CommandError
 
     try:
-        rows = np.loadtxt(path, delimiter=",", comments="#", ndmin=2)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # an empty file: said below
+            rows = np.loadtxt(path, delimiter=",", comments="#", ndmin=2)
     except FileNotFoundError:
         raise CommandError(f"{path}: no such file") from None
     except ValueError as e:
