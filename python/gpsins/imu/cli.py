@@ -96,21 +96,27 @@ def _plots(out: Path, names, results, fits, data, rate) -> None:
         if not cols:
             continue
         fig, axs = plt.subplots(1, 2, figsize=(12, 5))
-        for n in cols:
+        for j, n in enumerate(cols):
+            color = f"C{j}"  # one colour per axis: data, band, fit and PSD
             r, f = results[n], fits[n]
-            axs[0].loglog(r.tau, r.adev, "o", ms=3, label=n)
-            axs[0].fill_between(r.tau, r.lo, r.hi, alpha=0.2)
-            axs[0].loglog(r.tau, f.model_adev, "-", lw=1)
+            axs[0].loglog(r.tau, r.adev, "o", ms=3, color=color, label=f"{n} data")
+            axs[0].fill_between(r.tau, r.lo, r.hi, alpha=0.2, color=color, lw=0)
+            axs[0].loglog(r.tau, f.model_adev, "-", lw=1, color=color)
             for term in f.terms:
                 single = noise_fit.fit_term_curve(r.tau, f, term)
                 if single is not None:
-                    axs[0].loglog(r.tau, single, ":", lw=0.7, color="grey")
+                    axs[0].loglog(r.tau, single, ":", lw=0.7, color=color, alpha=0.7)
             fr, p = psd.psd(data[:, names.index(n)], rate)
             fc, pc = psd.log_average(fr, p)
-            axs[1].loglog(fc, pc, label=n)
+            axs[1].loglog(fc, pc, color=color, label=n)
+        axs[0].plot([], [], "k-", lw=1, label="fit")
+        axs[0].plot([], [], "k:", lw=0.7, label="fitted terms")
+        axs[0].fill_between([], [], [], color="0.5", alpha=0.3, label="confidence band")
+        axs[1].legend(fontsize=8)
         axs[0].set_xlabel("tau (s)")
         axs[0].set_ylabel("Allan deviation (SI)")
-        axs[0].set_title(f"{group}: data, {100 * results[cols[0]].confidence:.0f} % band, fit (solid), terms (dotted)")
+        axs[0].set_title(f"{group}: data, {100 * results[cols[0]].confidence:.0f} % band, fit (solid), terms (dotted)",
+                         fontsize=10)
         axs[0].legend(fontsize=8)
         axs[1].set_xlabel("frequency (Hz)")
         axs[1].set_ylabel("one-sided PSD (SI^2/Hz)")
