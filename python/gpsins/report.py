@@ -511,7 +511,7 @@ def _fig_gnss(results, base, t0):
         k = (r.a["upd_kind"] == KIND_PR) & (r.a["upd_accepted"] > 0)
         if k.any():
             t, n = np.unique(r.a["upd_t"][k], return_counts=True)
-            axs[0].plot(t - t0, n, ".", ms=3, color=r.color, label=f"{r.name}: pseudoranges used")
+            axs[0].plot(t - t0, n, ".", ms=3, color=r.color, label=f"{r.name} pseudoranges used")
     axs[0].set_ylabel("satellites")
     axs[0].legend(fontsize=8, loc="lower left")
     ok = f[:, 9] > 0
