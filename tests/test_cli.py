@@ -194,7 +194,7 @@ def test_dump_explains_stamps_going_backwards(capsys, stepped_session, tmp_path)
     data[at:at + 8] = np.float64(earlier).tobytes()
     (d / "gps-000.bin").write_bytes(bytes(data))
     assert cli.main(["dump", str(d)]) == 0
-    assert "stamps backwards 1 (records stamped earlier than the record before" in capsys.readouterr().out
+    assert "stamps backwards 1 (records stamped earlier than the one before: the system clock was stepped back" in capsys.readouterr().out
 
 
 def _run(*argv, **kw):

@@ -127,9 +127,10 @@ def print_summary(summary: dict, out) -> None:
         print(f"  {name} ({e['device']}): {e['records']} records, {e['bytes']} bytes, "
               f"{e['duration_s']:.1f} s; discarded {e['discarded_bytes']} bytes, "
               f"truncated tail {e['truncated_tail_bytes']} bytes, stamps backwards {e['stamps_backwards']}"
-              + (" (records stamped earlier than the record before: the system clock was stepped back, e.g. by NTP;"
-                 " replay's robust timing splits its clock map there, the report method does not)"
-                 if e["stamps_backwards"] else ""), file=out)
+              + (" (records stamped earlier than the one before: the system clock was stepped back, or bytes came"
+                 " faster than the port's baud rate, e.g. from an emulator above real time, so back-dating by byte"
+                 " time overshot; replay's robust timing follows the earliest stamps and splits only at steps over"
+                 " 20 ms)" if e["stamps_backwards"] else ""), file=out)
         for d in e["damage"]:
             print(f"    damage in {d['file']}: first discarded byte at {d['first_discarded_offset']}, "
                   f"truncated tail at {d['truncated_tail_offset']}", file=out)

@@ -42,7 +42,10 @@ def record_drive(simulation: sim.Simulation, out: Path, speed: float = 1.0) -> P
     try:
         line = proc.stdout.readline().strip()
         if line != str(session):
-            raise RuntimeError(f"logger did not start: {line} {proc.stderr.read() if proc.poll() is not None else ''}")
+            from .cli import CommandError
+
+            why = " ".join((line + " " + (proc.stderr.read() if proc.poll() is not None else "")).split())
+            raise CommandError(f"{cfg}: the logger daemon did not start ({why or 'no output'})")
         em.start()
         total = simulation.scenario.duration_s / speed
         t0 = time.monotonic()
@@ -54,7 +57,9 @@ def record_drive(simulation: sim.Simulation, out: Path, speed: float = 1.0) -> P
         proc.send_signal(signal.SIGINT)
         _, err = proc.communicate(timeout=30)
         if proc.returncode != 0:
-            raise RuntimeError(f"logger exited with {proc.returncode}: {err}")
+            from .cli import CommandError
+
+            raise CommandError(f"{cfg}: the logger daemon exited with {proc.returncode}: {' '.join(err.split())}")
     finally:
         if proc.poll() is None:
             proc.kill()
