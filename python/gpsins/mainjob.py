@@ -95,8 +95,11 @@ def run(args: argparse.Namespace) -> int:
         print(f"4. replaying the session through the {mode} filter")
         # The emulated receiver sends ID 23 its measurement delay after the epoch; on a
         # faster-than-real-time drive that delay shrinks with the speed.
-        res = replay.replay(session, out / mode, mode=mode,
-                            gps_latency_s=MEASUREMENT_DELAY_S / args.speed + replay.DEFAULT_IMU_LATENCY_S)
+        try:
+            res = replay.replay(session, out / mode, mode=mode,
+                                gps_latency_s=MEASUREMENT_DELAY_S / args.speed + replay.DEFAULT_IMU_LATENCY_S)
+        except ValueError as e:  # name the recorded session in the one-line message
+            raise type(e)(f"{session}: {e}") from e
         wall = res.summary["wall_time_s"]["total_s"]
         print(f"   {res.summary['imu_samples']} IMU samples in {wall:.2f} s; results in {res.out}")
         results.append(res.out)

@@ -56,8 +56,14 @@ class Result:
 
     @property
     def session(self) -> Path | None:
-        p = Path(self.run.get("session", ""))
-        return p if self.run.get("session") and p.is_dir() else None
+        """The replayed session directory: as recorded in run.json, else beside the results directory."""
+        if not self.run.get("session"):
+            return None
+        p = Path(self.run["session"])
+        for cand in (p, self.path.parent / p.name, self.path.parent.parent / p.name):
+            if cand.is_dir():
+                return cand
+        return None
 
 
 def load(path: str | Path) -> Result:
