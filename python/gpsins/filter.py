@@ -148,7 +148,7 @@ _STRINGS = {"preset": PRESETS, "mode": ("loose", "tight"),
 
 
 def _key_types() -> dict[str, str]:
-    """Kind of every top-level key: 'bool', 'int', 'float', 'vec3', 'table' or 'str'."""
+    """Kind of every top-level key: 'bool', 'int', 'float', 'vec3', 'table', 'str' or 'any'."""
     c = _core.InsConfig()
     kinds = {}
     for k in _core_fields():
@@ -159,6 +159,8 @@ def _key_types() -> dict[str, str]:
         kinds[deg] = kinds.get(rad, "float")
     kinds.update({"preset": "str", "mode": "str", "imu_noise": "table", "gyro_bias_residual_rad_per_s": "vec3",
                   "accel_bias_residual_mps2": "vec3"})
+    for k in _EXTRA_KEYS - set(kinds):
+        kinds[k] = "any"  # a convenience key without a declared kind: known, its value unchecked here
     return kinds
 
 
@@ -228,7 +230,7 @@ def check_config(cfg: dict, where: str = "<config>", only: dict | None = None) -
                 raise _unknown(where, [f"{key}.{b}" for b in bad], valid)
             for sub, v in value.items():
                 _check_value(f"{key}.{sub}", v, "str" if sub == "model" else "vec3", where)
-        else:
+        elif kind != "any":
             _check_value(key, value, kind, where)
 
 
