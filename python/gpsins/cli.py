@@ -91,7 +91,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
 
     page = report.make_report(args.results, args.out or Path(args.results[0]) / "report")
     report.print_comparison(args.results)
-    print(f"report: {page}")
+    print(f"report: {page} (self-contained: {page.with_suffix('.html')})")
     return 0
 
 
@@ -157,7 +157,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="loosely coupled (receiver fixes), tightly coupled (pseudoranges) or both")
     p.add_argument("--nav", help="RINEX 2 navigation file: ephemerides and Klobuchar when the log lacks them")
     p.add_argument("--config", help="filter configuration: TOML file or preset name (default, report2005)")
-    p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override one configuration key")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override one configuration key (TABLE.KEY inside a table; --set help lists them)")
     p.add_argument("--timing", choices=("robust", "report"), default="robust", help="IMU time alignment method")
     p.add_argument("--gps-latency", type=float, default=0.0205, help="GPS epoch to ID 23 stamp, s (default 0.0205)")
     p.add_argument("--imu-latency", type=float, default=0.0005, help="IMU sample to stamp, s (default 0.0005)")
@@ -265,6 +265,8 @@ def _quiet_broken_pipe() -> None:
 
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:2] == ["--debug", "log"]:
+        argv = argv[1:]  # the logger reports its own errors
     if argv[:1] == ["log"]:
         return _run_logger(argv[1:])
     debug = "--debug" in argv  # accepted anywhere on the line

@@ -109,5 +109,5 @@ def run(args: argparse.Namespace) -> int:
     (out / "run.json").write_text(json.dumps({"scenario": sc.name, "seed": args.seed, "speed": args.speed,
                                               "session": str(session), "truth": str(out / "truth.npz"),
                                               "results": [str(r) for r in results], "report": str(page)}, indent=2))
-    print(f"session: {session}\ntruth:   {out / 'truth.npz'}\nreport:  {page}")
+    print(f"session: {session}\ntruth:   {out / 'truth.npz'}\nreport:  {page} and {page.with_suffix('.html')}")
     return 0
