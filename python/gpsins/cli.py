@@ -157,7 +157,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="loosely coupled (receiver fixes), tightly coupled (pseudoranges) or both")
     p.add_argument("--nav", help="RINEX 2 navigation file: ephemerides and Klobuchar when the log lacks them")
     p.add_argument("--config", help="filter configuration: TOML file or preset name (default, report2005)")
-    p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override one configuration key (TABLE.KEY inside a table; --set help lists them)")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE",
+                   help="override one configuration key (TABLE.KEY inside a table; --set help lists them)")
     p.add_argument("--timing", choices=("robust", "report"), default="robust", help="IMU time alignment method")
     p.add_argument("--gps-latency", type=float, default=0.0205, help="GPS epoch to ID 23 stamp, s (default 0.0205)")
     p.add_argument("--imu-latency", type=float, default=0.0005, help="IMU sample to stamp, s (default 0.0005)")
