@@ -194,7 +194,8 @@ def test_dump_explains_stamps_going_backwards(capsys, stepped_session, tmp_path)
     data[at:at + 8] = np.float64(earlier).tobytes()
     (d / "gps-000.bin").write_bytes(bytes(data))
     assert cli.main(["dump", str(d)]) == 0
-    assert "stamps backwards 1 (records stamped earlier than the one before: the system clock was stepped back" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "stamps backwards 1 (records stamped earlier than the one before: the system clock was stepped back" in out
 
 
 def _run(*argv, **kw):
@@ -223,6 +224,7 @@ def test_log_forwards_to_the_logger_parser(tmp_path):
     p = _run("log", "--config", tmp_path / "nosuch.toml")
     assert p.returncode == 2 and "nosuch.toml" in p.stderr and "Traceback" not in p.stderr
     cfg = tmp_path / "logger.toml"  # read by the daemon: it checks the ports
-    cfg.write_text(f'[session]\nroot = "{tmp_path}"\n[gps]\nport = "{tmp_path / "nodev"}"\n[imu]\nport = "{tmp_path}"\n')
+    cfg.write_text(f'[session]\nroot = "{tmp_path}"\n[gps]\nport = "{tmp_path / "nodev"}"\n'
+                   f'[imu]\nport = "{tmp_path}"\n')
     p = _run("log", "--config", cfg)
     assert p.returncode == 2 and "gps.port" in p.stderr and "nodev" in p.stderr, p.stderr

@@ -199,7 +199,8 @@ def _check_value(key: str, value, kind: str, where: str) -> None:
         if name in _POSITIVE and not x > 0:
             raise ConfigError(f"{_at(where, key)}: must be positive, got {x!r}")
         if x < 0:
-            raise ConfigError(f"{_at(where, key)}: must not be negative, got {x!r} (it is a spread, density, time or rate)")
+            raise ConfigError(f"{_at(where, key)}: must not be negative, got {x!r} "
+                              "(it is a spread, density, time or rate)")
 
 
 def _unknown(where: str, keys: list[str], valid: set[str]) -> ConfigError:

@@ -568,7 +568,8 @@ def _fig_clock(results, base, t0, truth):
         return None
     true_clock = None
     if truth is not None and "clock_bias_s" in truth:
-        tt = truth["gnss_t"] + float(truth["t0_tow_s"]) + (int(truth["gps_week"]) - int(base.a["week"])) * SECONDS_PER_WEEK
+        weeks = int(truth["gps_week"]) - int(base.a["week"])
+        tt = truth["gnss_t"] + float(truth["t0_tow_s"]) + weeks * SECONDS_PER_WEEK
         true_clock = (tt, SPEED_OF_LIGHT * truth["clock_bias_s"], SPEED_OF_LIGHT * truth["clock_drift"])
     ncol = 2 if true_clock else 1
     fig, axs = plt.subplots(2, ncol, figsize=(7 * ncol, 6), sharex=True, squeeze=False)
@@ -721,12 +722,14 @@ def _run_lines(r: Result) -> list[str]:
     lines = [f"session: {Path(run['session']).name}; IMU samples {run['imu_samples']}; filter wall time "
              f"{run['wall_time_s']['filter_s']:.2f} s (replay {run['wall_time_s']['total_s']:.2f} s)",
              f"alignment: {run['alignment']['method']}, IMU clock {run['alignment']['imu_clock_ppm']:+.1f} ppm, "
-             f"{run['alignment']['imu_frames_missing']} frames missing, clock steps {run['alignment']['clock_steps_s']}",
+             f"{run['alignment']['imu_frames_missing']} frames missing, "
+             f"clock steps {run['alignment']['clock_steps_s']}",
              "counters: " + ", ".join(f"{k} {v}" for k, v in run["counters"].items() if v),
              "skipped: " + (", ".join(f"{k}: {v}" for k, v in run["skipped"].items()) or "nothing")]
     e = run.get("errors") or {}
     if e:
-        lines.append(f"errors vs truth: horizontal RMS {e['horizontal_rms_m']:.2f} m (max {e['horizontal_max_m']:.2f}), "
+        lines.append(f"errors vs truth: horizontal RMS {e['horizontal_rms_m']:.2f} m "
+                     f"(max {e['horizontal_max_m']:.2f}), "
                      f"vertical RMS {e['vertical_rms_m']:.2f} m (max {e['vertical_max_m']:.2f}), mean NEES "
                      f"{e['nees9_mean']:.2f} (9 dof), inside 3 sigma {100 * e['inside_3_sigma']:.1f} %")
     return lines
