@@ -652,7 +652,7 @@ def build_figures(results: list[Result]) -> dict[str, plt.Figure]:
     results = _load_all(results)
     base = results[0]
     t0 = base.a["t"][0]
-    truth = _truth_file(base)
+    truth = _truth_file(base) if base.has_truth else None  # replay --no-truth: none in the figures either
     figs = {"trajectory.png": _fig_trajectory(results, base, t0)}
     if base.has_truth:
         figs["position_error.png"] = _fig_position_error(results, base, t0)
@@ -822,7 +822,7 @@ def comparison_tables(results: list[Result]) -> list:
         if rec:
             cells.append(_fmt(rec.get(rkey)) if rkey else "")
         totals.add_row(lab, *cells)
-    tables = [totals]
+    tables = [totals] if any(r.run.get("errors") for r in results) else []
     segs = [segment_table(r) for r in results]
     if any(segs):
         per = Table(title="Errors per segment (Table 6.1): RMS (max), m", title_justify="left")
