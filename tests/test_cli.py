@@ -175,7 +175,7 @@ def test_spp_compares_with_the_truth_next_to_the_session(capsys, session):
 
 
 def test_report_on_a_missing_results_directory(capsys, tmp_path):
-    _one_line(capsys, ["report", tmp_path / "nope"], "results.npz: no such file or directory")
+    _one_line(capsys, ["report", tmp_path / "nope"], "nope: no results.npz and run.json; give a directory written by")
 
 
 def test_calibrate_missing_table(capsys, tmp_path):

@@ -89,6 +89,9 @@ def _cmd_replay(args: argparse.Namespace) -> int:
 def _cmd_report(args: argparse.Namespace) -> int:
     from . import report
 
+    for path in args.results:
+        if not (Path(path) / "results.npz").is_file() or not (Path(path) / "run.json").is_file():
+            raise CommandError(f"{path}: no results.npz and run.json; give a directory written by gpsins replay --out")
     page = report.make_report(args.results, args.out or Path(args.results[0]) / "report")
     report.print_comparison(args.results)
     print(f"report: {page} (self-contained: {page.with_suffix('.html')})")
