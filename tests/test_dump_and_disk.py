@@ -85,8 +85,8 @@ def test_cli_raw_superstar2_capture(tmp_path, shared_data, capsys):
 
 
 def test_dump_names_a_missing_session(tmp_path, capsys):
-    assert cli_main(["dump", str(tmp_path / "nope")]) == 1
-    assert "session.json" in capsys.readouterr().err
+    assert cli_main(["dump", str(tmp_path / "nope")]) == 2
+    assert "nope: no such directory" in capsys.readouterr().err
 
 
 def test_full_disk_is_counted_not_raised(tmp_path):

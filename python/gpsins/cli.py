@@ -1,18 +1,36 @@
-"""The ``gpsins`` command: one subcommand per job, each a thin layer over a module."""
+"""The ``gpsins`` command: one subcommand per job, each a thin layer over a module.
+
+Expected failures (a missing or damaged file, a bad configuration key, data
+that cannot be aligned) end in one line on stderr,
+``gpsins CMD: <file or key>: <what, and what to do>``, and exit status 2;
+``--debug`` shows the traceback instead.
+"""
 
 from __future__ import annotations
 
 import argparse
+import errno
+import os
 import sys
 from pathlib import Path
 
 from . import __version__
 
+EXIT_USAGE = 2
 
-def _cmd_log(args: argparse.Namespace) -> int:
-    from gpsins_logger import daemon
 
-    return daemon.main(args.logger_args)
+class CommandError(ValueError):
+    """A failure the user can fix: its message is the one line after ``gpsins CMD:``."""
+
+
+def _session_dir(path: str) -> str:
+    """A session argument that is at least a directory (the readers say what is wrong inside it)."""
+    p = Path(path)
+    if not p.exists():
+        raise CommandError(f"{path}: no such directory; give a session directory (written by gpsins log or gpsins sim)")
+    if not p.is_dir():
+        raise CommandError(f"{path}: is a file; give the session directory that holds session.json and the .bin files")
+    return path
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
@@ -24,6 +42,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
 def _cmd_dump(args: argparse.Namespace) -> int:
     from . import dump
 
+    if not args.raw:
+        _session_dir(args.path)
     return dump.main(args)
 
 
@@ -39,29 +59,20 @@ def _cmd_emulate(args: argparse.Namespace) -> int:
     return sim_cli.run_emulate(args)
 
 
-def _overrides(pairs: list[str]) -> dict:
-    """--set key=value (value parsed as TOML: numbers, booleans, lists, strings)."""
-    import tomllib
-
-    out = {}
-    for item in pairs or []:
-        key, sep, value = item.partition("=")
-        if not sep:
-            raise SystemExit(f"gpsins: --set expects key=value, got '{item}'")
-        try:
-            out[key.strip()] = tomllib.loads(f"v = {value}")["v"]
-        except tomllib.TOMLDecodeError:
-            out[key.strip()] = value
-    return out
-
-
 def _cmd_replay(args: argparse.Namespace) -> int:
-    from . import replay
+    from . import filter as flt, replay
+
+    if args.set and "help" in args.set:
+        print(flt.describe_keys(args.config))
+        return 0
+    overrides = flt.parse_overrides(args.set or [])
+    flt.load_config(args.config, overrides)  # a bad key or value fails here, before any decoding
+    _session_dir(args.session)
 
     modes = ["loose", "tight"] if args.mode == "both" else [args.mode]
     for mode in modes:
         res = replay.replay(args.session, Path(args.out) / mode if len(modes) > 1 else args.out, mode=mode,
-                            config=args.config, overrides=_overrides(args.set), timing_method=args.timing,
+                            config=args.config, overrides=overrides, timing_method=args.timing,
                             gps_latency_s=args.gps_latency, imu_latency_s=args.imu_latency, truth=not args.no_truth,
                             nav=args.nav)
         c = res.summary["counters"]
@@ -78,9 +89,12 @@ def _cmd_replay(args: argparse.Namespace) -> int:
 def _cmd_report(args: argparse.Namespace) -> int:
     from . import report
 
+    for path in args.results:
+        if not (Path(path) / "results.npz").is_file() or not (Path(path) / "run.json").is_file():
+            raise CommandError(f"{path}: no results.npz and run.json; give a directory written by gpsins replay --out")
     page = report.make_report(args.results, args.out or Path(args.results[0]) / "report")
-    print(report.comparison_table(args.results))
-    print(f"report: {page}")
+    report.print_comparison(args.results)
+    print(f"report: {page} (self-contained: {page.with_suffix('.html')})")
     return 0
 
 
@@ -99,12 +113,15 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
 def _cmd_spp(args: argparse.Namespace) -> int:
     from . import spp
 
+    if args.session:
+        _session_dir(args.session)
     return spp.main(args)
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="gpsins", description=__doc__)
     parser.add_argument("--version", action="version", version=f"gpsins {__version__}")
+    parser.add_argument("--debug", action="store_true", help="show the traceback of a failure (anywhere on the line)")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     p = sub.add_parser("run", help="the main job on its built-in default")
@@ -143,7 +160,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="loosely coupled (receiver fixes), tightly coupled (pseudoranges) or both")
     p.add_argument("--nav", help="RINEX 2 navigation file: ephemerides and Klobuchar when the log lacks them")
     p.add_argument("--config", help="filter configuration: TOML file or preset name (default, report2005)")
-    p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override one configuration key")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE",
+                   help="override one configuration key (TABLE.KEY inside a table; --set help lists them)")
     p.add_argument("--timing", choices=("robust", "report"), default="robust", help="IMU time alignment method")
     p.add_argument("--gps-latency", type=float, default=0.0205, help="GPS epoch to ID 23 stamp, s (default 0.0205)")
     p.add_argument("--imu-latency", type=float, default=0.0005, help="IMU sample to stamp, s (default 0.0005)")
@@ -184,15 +202,92 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-trop", action="store_true")
     p.set_defaults(func=_cmd_spp)
 
-    p = sub.add_parser("log", help="run the logger daemon (same as gpsins-logger)", add_help=False)
-    p.add_argument("logger_args", nargs=argparse.REMAINDER)
-    p.set_defaults(func=_cmd_log)
+    sub.add_parser("log", help="run the logger daemon (same as gpsins-logger; gpsins log --help)", add_help=False)
     return parser
 
 
+def _subject(args: argparse.Namespace) -> str | None:
+    """The file a command works on, to name it in a message that does not."""
+    for key in ("session", "path", "source", "table", "raw", "rinex"):
+        value = getattr(args, key, None)
+        if value:
+            return str(value)
+    results = getattr(args, "results", None)
+    return str(results[0]) if results else None
+
+
+_HINTS = {
+    errno.ENOENT: "no such file or directory; check the path",
+    errno.ENOTDIR: "not a directory; give the session directory, not a file in it",
+    errno.EISDIR: "is a directory; give a file",
+    errno.EACCES: "permission denied",
+    errno.ENOSPC: "no space left on the device",
+}
+
+
+def _message(e: BaseException, args: argparse.Namespace) -> str:
+    """One line naming the file or key, from an exception raised for bad input."""
+    if isinstance(e, OSError) and e.filename is not None:
+        text = f"{e.filename}: {_HINTS.get(e.errno, e.strerror or str(e))}"
+    elif isinstance(e, OSError):
+        text = e.strerror or str(e)
+    else:
+        text = str(e) or type(e).__name__
+    from .timing import AlignmentError
+
+    subject = _subject(args)
+    names_a_file = isinstance(e, OSError) and e.filename is not None
+    if subject and subject not in text and not names_a_file and not isinstance(e, CommandError) \
+            and not _is_config_error(e):
+        text = f"{subject}: {text}"
+    if isinstance(e, AlignmentError):
+        text += " (the GPS and IMU stamps cannot be mapped to GPS time; `gpsins dump` shows what the session holds)"
+    return " ".join(text.split())
+
+
+def _is_config_error(e: BaseException) -> bool:
+    from .filter import ConfigError
+
+    return isinstance(e, ConfigError)
+
+
+def _run_logger(argv: list[str]) -> int:
+    """``gpsins log ...``: the logger daemon's own command line, unchanged."""
+    from gpsins_logger import daemon
+
+    return daemon.main(argv)
+
+
+def _quiet_broken_pipe() -> None:
+    """The reader of our stdout went away (``| head``): stop without a traceback."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError):
+        pass
+
+
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    return int(args.func(args) or 0)
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:2] == ["--debug", "log"]:
+        argv = argv[1:]  # the logger reports its own errors
+    if argv[:1] == ["log"]:
+        return _run_logger(argv[1:])
+    debug = "--debug" in argv  # accepted anywhere on the line
+    args = build_parser().parse_args([a for a in argv if a != "--debug"])
+    try:
+        return int(args.func(args) or 0)
+    except BrokenPipeError:
+        _quiet_broken_pipe()
+        return 0
+    except KeyboardInterrupt:
+        print(f"gpsins {args.command}: interrupted", file=sys.stderr)
+        return 130
+    except (ValueError, OSError) as e:  # LogError, AlignmentError, ConfigError, ... are ValueErrors
+        if debug:
+            raise
+        print(f"gpsins {args.command}: {_message(e, args)}", file=sys.stderr)
+        return EXIT_USAGE
 
 
 if __name__ == "__main__":

@@ -126,7 +126,11 @@ def print_summary(summary: dict, out) -> None:
     for name, e in summary["sensors"].items():
         print(f"  {name} ({e['device']}): {e['records']} records, {e['bytes']} bytes, "
               f"{e['duration_s']:.1f} s; discarded {e['discarded_bytes']} bytes, "
-              f"truncated tail {e['truncated_tail_bytes']} bytes, stamps backwards {e['stamps_backwards']}", file=out)
+              f"truncated tail {e['truncated_tail_bytes']} bytes, stamps backwards {e['stamps_backwards']}"
+              + (" (records stamped earlier than the one before: the system clock was stepped back, or bytes came"
+                 " faster than the port's baud rate, e.g. from an emulator above real time, so back-dating by byte"
+                 " time overshot; replay's robust timing follows the earliest stamps and splits only at steps over"
+                 " 20 ms)" if e["stamps_backwards"] else ""), file=out)
         for d in e["damage"]:
             print(f"    damage in {d['file']}: first discarded byte at {d['first_discarded_offset']}, "
                   f"truncated tail at {d['truncated_tail_offset']}", file=out)
@@ -140,17 +144,14 @@ def print_summary(summary: dict, out) -> None:
 
 
 def main(args) -> int:
-    try:
-        if args.raw:
-            summary = raw_summary(args.path, args.raw)
-        elif args.csv:
-            write_csv(args.path, sys.stdout)
-            return 0
-        else:
-            summary = session_summary(args.path)
-    except (logs.LogError, OSError) as e:
-        print(f"gpsins dump: {e}", file=sys.stderr)
-        return 1
+    # A missing or unreadable file raises LogError or OSError: gpsins.cli prints it as one line, exit 2.
+    if args.raw:
+        summary = raw_summary(args.path, args.raw)
+    elif args.csv:
+        write_csv(args.path, sys.stdout)
+        return 0
+    else:
+        summary = session_summary(args.path)
     if args.format == "json":
         json.dump(summary, sys.stdout, indent=2)
         print()

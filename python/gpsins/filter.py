@@ -69,13 +69,18 @@ def _merge(base: dict, over: dict) -> dict:
     out = dict(base)
     for k, v in over.items():
         out[k] = _merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+        # A value given in radians replaces the preset's degrees (and the other way round).
+        twin = _DEGREE_KEYS.get(k) or next((d for d, r in _DEGREE_KEYS.items() if r == k), None)
+        if twin and twin in out and twin not in over:
+            del out[twin]
     return out
 
 
 def load_config(source: str | Path | dict | None = None, overrides: dict | None = None) -> dict:
     """The full configuration table: a preset name, a TOML file, or a dict, then overrides.
 
-    A file or dict without ``preset`` starts from ``default``.
+    A file or dict without ``preset`` starts from ``default``. Overrides (from
+    ``parse_overrides``) are checked as ``--set`` so an error names them.
     """
     if source is None:
         data, where = {}, "<defaults>"
@@ -85,36 +90,171 @@ def load_config(source: str | Path | dict | None = None, overrides: dict | None 
         data, where = {"preset": str(source)}, f"preset {source}"
     else:
         path = Path(source)
+        if not path.is_file():
+            what = "is a directory" if path.is_dir() else "no such file"
+            raise ConfigError(f"{path}: {what}; give a TOML file or a preset name ({', '.join(PRESETS)})")
         try:
             data = tomllib.loads(path.read_text(encoding="utf-8"))
-        except (OSError, tomllib.TOMLDecodeError) as e:
-            raise ConfigError(f"{path}: {e}") from e
+        except OSError as e:
+            raise ConfigError(f"{path}: cannot read ({e.strerror})") from e
+        except tomllib.TOMLDecodeError as e:
+            raise ConfigError(f"{path}: not valid TOML ({e})") from e
         data = data.get("filter", data)
         where = str(path)
     cfg = _merge(_preset(data.get("preset", "default")), data)
     cfg["preset"] = data.get("preset", "default")
-    if overrides:
-        cfg = _merge(cfg, overrides)
     check_config(cfg, where)
+    if overrides:
+        check_config(_merge(cfg, overrides), "--set", only=overrides)
+        cfg = _merge(cfg, overrides)
     return cfg
 
 
-def check_config(cfg: dict, where: str = "<config>") -> None:
-    allowed = _core_fields() | set(_DEGREE_KEYS) | _EXTRA_KEYS
-    unknown = sorted(set(cfg) - allowed)
+def parse_overrides(pairs: list[str]) -> dict:
+    """``--set key=value`` items as a nested table: ``imu_noise.bias_tau_s=50`` reaches [imu_noise].
+
+    Values are TOML (numbers, booleans, lists, quoted strings); anything else is
+    kept as text, so a type check can name it.
+    """
+    out: dict = {}
+    for item in pairs:
+        key, sep, value = item.partition("=")
+        key = key.strip()
+        if not sep or not key:
+            raise ConfigError(f"--set {item}: expected KEY=VALUE (--set help lists the keys)")
+        try:
+            parsed = tomllib.loads(f"v = {value.strip()}")["v"]
+        except tomllib.TOMLDecodeError:
+            parsed = value.strip()
+        *tables, leaf = key.split(".")
+        node = out
+        for t in tables:
+            node = node.setdefault(t, {})
+            if not isinstance(node, dict):
+                raise ConfigError(f"--set {key}: {t} is a value, not a table")
+        node[leaf] = parsed
+    return out
+
+
+# Numeric keys that may be negative (offsets, calibrations, angles); the rest are
+# spreads, noise densities, times and rates, which may not.
+_SIGNED = ("_cal", "lever_arm", "initial_yaw", "gps_time_offset_s", "pseudorange_sigma_m")
+_POSITIVE = {"imu_rate_hz", "fix_uere_m", "bias_tau_s", "zero_velocity_sigma_mps", "zero_rate_sigma_rad_per_s",
+             "standstill_window_s", "pseudorange_decimation", "gm_tau_s"}
+_RANGES = {"gate_probability": (0.0, 1.0), "pseudorange_elevation_mask_deg": (0.0, 90.0),
+           "pseudorange_elevation_mask_rad": (0.0, math.pi / 2)}
+_STRINGS = {"preset": PRESETS, "mode": ("loose", "tight"),
+            "model": ("random_walk", "gauss_markov", "constant")}
+
+
+def _key_types() -> dict[str, str]:
+    """Kind of every top-level key: 'bool', 'int', 'float', 'vec3', 'table', 'str' or 'any'."""
+    c = _core.InsConfig()
+    kinds = {}
+    for k in _core_fields():
+        v = getattr(c, k)
+        kinds[k] = ("vec3" if isinstance(v, np.ndarray) else "bool" if isinstance(v, bool) else "int"
+                    if isinstance(v, int) else "float" if isinstance(v, float) else "table")
+    for deg, rad in _DEGREE_KEYS.items():
+        kinds[deg] = kinds.get(rad, "float")
+    kinds.update({"preset": "str", "mode": "str", "imu_noise": "table", "gyro_bias_residual_rad_per_s": "vec3",
+                  "accel_bias_residual_mps2": "vec3"})
+    for k in _EXTRA_KEYS - set(kinds):
+        kinds[k] = "any"  # a convenience key without a declared kind: known, its value unchecked here
+    return kinds
+
+
+def _at(where: str, key: str) -> str:
+    return f"--set {key}" if where == "--set" else f"{where}: {key}"
+
+
+def _check_value(key: str, value, kind: str, where: str) -> None:
+    name = key.rsplit(".", 1)[-1]
+    if kind == "str":
+        if value not in _STRINGS.get(name, (value,)):
+            raise ConfigError(f"{_at(where, key)}: got {value!r}; one of {', '.join(_STRINGS[name])}")
+        return
+    if kind == "bool":
+        if not isinstance(value, bool):
+            raise ConfigError(f"{_at(where, key)}: expected true or false, got {value!r}")
+        return
+    numbers = value if kind == "vec3" and isinstance(value, list) else [value]
+    if kind == "vec3" and len(numbers) not in (1, 3):
+        raise ConfigError(f"{_at(where, key)}: expected one number or three (x, y, z), got {len(numbers)}")
+    for x in numbers:
+        if isinstance(x, bool) or not isinstance(x, (int, float)):
+            what = "an integer" if kind == "int" else "a number" if kind == "float" else "one or three numbers"
+            raise ConfigError(f"{_at(where, key)}: expected {what}, got {value!r}")
+        if kind == "int" and not float(x).is_integer():
+            raise ConfigError(f"{_at(where, key)}: expected an integer, got {value!r}")
+        if math.isnan(x):
+            if name in ("initial_yaw_deg", "initial_yaw_rad"):
+                continue  # nan: take the heading from the course over ground
+            raise ConfigError(f"{_at(where, key)}: nan is not allowed here")
+        lo, hi = _RANGES.get(name, (None, None))
+        if lo is not None and not lo <= x <= hi:
+            raise ConfigError(f"{_at(where, key)}: {x!r} is outside [{lo:g}, {hi:g}]")
+        if any(tag in name for tag in _SIGNED):
+            continue
+        if name in _POSITIVE and not x > 0:
+            raise ConfigError(f"{_at(where, key)}: must be positive, got {x!r}")
+        if x < 0:
+            raise ConfigError(f"{_at(where, key)}: must not be negative, got {x!r} "
+                              "(it is a spread, density, time or rate)")
+
+
+def _unknown(where: str, keys: list[str], valid: set[str]) -> ConfigError:
+    import difflib
+
+    leaf = keys[0].rsplit(".", 1)[-1]
+    close = [v for v in sorted(valid) if v.startswith(leaf)][:3] or difflib.get_close_matches(leaf, sorted(valid), n=3)
+    hint = f" (did you mean {', '.join(close)}?)" if close else ""
+    return ConfigError(f"{where}: unknown key{'s' if len(keys) > 1 else ''} {', '.join(keys)}{hint}; "
+                       f"`gpsins replay SESSION --out X --set help` lists the keys and presets ({', '.join(PRESETS)})")
+
+
+def check_config(cfg: dict, where: str = "<config>", only: dict | None = None) -> None:
+    """Keys known, values of the right type and range; `only` limits the value checks to those keys."""
+    kinds = _key_types()
+    unknown = sorted(set(cfg) - set(kinds))
     if unknown:
-        raise ConfigError(f"{where}: unknown key(s) {', '.join(unknown)}")
-    bad = sorted(set(cfg.get("imu_noise", {})) - _NOISE_KEYS)
-    if bad:
-        raise ConfigError(f"{where}: unknown key(s) in [imu_noise]: {', '.join(bad)}")
-    for sec in ("gyro_bias", "accel_bias"):
-        if sec in cfg and not isinstance(cfg[sec], dict):
-            raise ConfigError(f"{where}: [{sec}] must be a table")
-        bad = sorted(set(cfg.get(sec, {})) - _BIAS_KEYS)
-        if bad:
-            raise ConfigError(f"{where}: unknown key(s) in [{sec}]: {', '.join(bad)}")
-    if cfg.get("mode", "loose") not in ("loose", "tight"):
-        raise ConfigError(f"{where}: mode must be 'loose' or 'tight', got {cfg.get('mode')!r}")
+        raise _unknown(where, unknown, set(kinds))
+    checked = only if only is not None else cfg
+    for key, value in checked.items():
+        kind = kinds[key]
+        if kind == "table":
+            if not isinstance(value, dict):
+                raise ConfigError(f"{_at(where, key)}: must be a table ([{key}] in TOML, or --set {key}.KEY=VALUE)")
+            valid = _NOISE_KEYS if key == "imu_noise" else _BIAS_KEYS
+            bad = sorted(set(value) - valid)
+            if bad:
+                raise _unknown(where, [f"{key}.{b}" for b in bad], valid)
+            for sub, v in value.items():
+                _check_value(f"{key}.{sub}", v, "str" if sub == "model" else "vec3", where)
+        elif kind != "any":
+            _check_value(key, value, kind, where)
+
+
+def describe_keys(source=None) -> str:
+    """The configuration keys with their values in `source` (default preset), and the presets: for --set help."""
+    cfg = load_config(source)
+    core = _core.InsConfig()
+    kinds = _key_types()
+    lines = [f"presets: {', '.join(PRESETS)} (--config NAME or a TOML file with preset = NAME)",
+             "keys (--set KEY=VALUE; tables with --set TABLE.KEY=VALUE; vectors as [x, y, z] or one number):"]
+    for key in sorted(kinds):
+        if key == "preset":
+            continue
+        if kinds[key] == "table":
+            for sub in sorted(_NOISE_KEYS if key == "imu_noise" else _BIAS_KEYS):
+                value = cfg.get(key, {}).get(sub)
+                lines.append(f"  {key}.{sub} = {'(unset)' if value is None else value}")
+        else:
+            value = cfg.get(key, getattr(core, key, None))
+            if isinstance(value, np.ndarray):
+                value = value.tolist()
+            lines.append(f"  {key} = {value}  [{kinds[key]}]")
+    return "\n".join(lines)
 
 
 def _vec3(value, key: str) -> np.ndarray:

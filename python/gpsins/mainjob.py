@@ -42,7 +42,10 @@ def record_drive(simulation: sim.Simulation, out: Path, speed: float = 1.0) -> P
     try:
         line = proc.stdout.readline().strip()
         if line != str(session):
-            raise RuntimeError(f"logger did not start: {line} {proc.stderr.read() if proc.poll() is not None else ''}")
+            from .cli import CommandError
+
+            why = " ".join((line + " " + (proc.stderr.read() if proc.poll() is not None else "")).split())
+            raise CommandError(f"{cfg}: the logger daemon did not start ({why or 'no output'})")
         em.start()
         total = simulation.scenario.duration_s / speed
         t0 = time.monotonic()
@@ -54,7 +57,9 @@ def record_drive(simulation: sim.Simulation, out: Path, speed: float = 1.0) -> P
         proc.send_signal(signal.SIGINT)
         _, err = proc.communicate(timeout=30)
         if proc.returncode != 0:
-            raise RuntimeError(f"logger exited with {proc.returncode}: {err}")
+            from .cli import CommandError
+
+            raise CommandError(f"{cfg}: the logger daemon exited with {proc.returncode}: {' '.join(err.split())}")
     finally:
         if proc.poll() is None:
             proc.kill()
@@ -90,16 +95,19 @@ def run(args: argparse.Namespace) -> int:
         print(f"4. replaying the session through the {mode} filter")
         # The emulated receiver sends ID 23 its measurement delay after the epoch; on a
         # faster-than-real-time drive that delay shrinks with the speed.
-        res = replay.replay(session, out / mode, mode=mode,
-                            gps_latency_s=MEASUREMENT_DELAY_S / args.speed + replay.DEFAULT_IMU_LATENCY_S)
+        try:
+            res = replay.replay(session, out / mode, mode=mode,
+                                gps_latency_s=MEASUREMENT_DELAY_S / args.speed + replay.DEFAULT_IMU_LATENCY_S)
+        except ValueError as e:  # name the recorded session in the one-line message
+            raise type(e)(f"{session}: {e}") from e
         wall = res.summary["wall_time_s"]["total_s"]
         print(f"   {res.summary['imu_samples']} IMU samples in {wall:.2f} s; results in {res.out}")
         results.append(res.out)
     page = report.make_report(results, out / "report")
     print("5. comparison against the simulator's truth (from the first known heading on)")
-    print(report.comparison_table(results))
+    report.print_comparison(results)
     (out / "run.json").write_text(json.dumps({"scenario": sc.name, "seed": args.seed, "speed": args.speed,
                                               "session": str(session), "truth": str(out / "truth.npz"),
                                               "results": [str(r) for r in results], "report": str(page)}, indent=2))
-    print(f"session: {session}\ntruth:   {out / 'truth.npz'}\nreport:  {page}")
+    print(f"session: {session}\ntruth:   {out / 'truth.npz'}\nreport:  {page} and {page.with_suffix('.html')}")
     return 0

@@ -38,6 +38,8 @@ RESULT_ARRAYS = {
     "err_ned_m": "position error (estimate - truth) NED", "err_ypr_deg": "attitude error",
     "err_v_ned_mps": "velocity error NED", "nees9": "NEES of the 9 navigation states",
     "seg_labels": "truth segment labels", "seg_t": "truth segments' start and end times",
+    "sigma_v_ned_mps": "velocity sigma north, east, down",
+    "clock": "tight mode: receiver clock bias (m) and drift (m/s); their sigmas are the last two of `sigma`",
 }
 
 
@@ -141,6 +143,11 @@ def replay(session: str | Path, out: str | Path, *, mode: str = "loose", config=
                   sigma=sol.sigma, sigma_ned_m=sigma_ned, sigma_ypr_deg=sigma_ypr, standstill=sol.standstill,
                   heading_known=sol.heading_known, fixes=dec.gps.fixes, fix_sats=dec.gps.fix_sats)
     arrays.update({f"upd_{k}": v for k, v in sol.updates.items()})
+    c_en_sol = evaluate.c_en(arrays["llh"][:, 0], arrays["llh"][:, 1])
+    p_v_ned = np.swapaxes(c_en_sol, -1, -2) @ sol.covariance[:, 3:6, 3:6] @ c_en_sol
+    arrays["sigma_v_ned_mps"] = np.sqrt(np.diagonal(p_v_ned, axis1=1, axis2=2))
+    if sol.clock is not None:
+        arrays["clock"] = sol.clock
     stats = {}
     found = load_session_truth(session, dec.gps.week * measurements.SECONDS_PER_WEEK) if truth else None
     if found:

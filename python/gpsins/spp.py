@@ -181,25 +181,59 @@ def write_pos(path: str | Path, run: SppRun, source: str, llh: bool = True) -> N
     Path(path).write_text("\n".join(lines) + "\n", encoding="ascii")
 
 
+def truth_errors(run: SppRun, directory: str | Path) -> np.ndarray | None:
+    """NED errors of the solved epochs against a simulator's truth.npz next to a session, if there is one."""
+    from .replay import load_session_truth
+
+    found = load_session_truth(Path(directory), 0.0)
+    if found is None or not run.ok.any():
+        return None
+    truth = found[0]
+    t = run.t_abs[run.ok]
+    inside = (t >= truth.t[0]) & (t <= truth.t[-1])
+    if not inside.any():
+        return None
+    ref = truth.at(t[inside]).r_ecef
+    llh = _core.ecef_to_geodetic(ref)
+    c_en = evaluate.c_en(llh[:, 0], llh[:, 1])
+    return np.einsum("nji,nj->ni", c_en, run.r_ecef[run.ok][inside] - ref)
+
+
+def _rms_line(what: str, e: np.ndarray) -> str:
+    return (f"vs {what}: horizontal RMS {np.sqrt(np.mean(e[:, 0] ** 2 + e[:, 1] ** 2)):.3f} m, "
+            f"vertical RMS {np.sqrt(np.mean(e[:, 2] ** 2)):.3f} m over {len(e)} epochs")
+
+
 def main(args) -> int:
+    from .cli import CommandError
+
     if args.rinex:
         if not args.nav:
-            raise SystemExit("gpsins spp: --rinex needs --nav NAV_FILE")
+            raise CommandError(f"{args.rinex}: --rinex needs --nav NAV_FILE (the broadcast ephemerides)")
         ep = from_rinex(args.rinex, args.nav)
     elif args.raw:
         ep = from_raw(args.raw, args.nav)
     elif args.session:
         ep = from_session(args.session, args.nav)
     else:
-        raise SystemExit("gpsins spp: give a SESSION, --raw FILE or --rinex OBS --nav NAV")
+        raise CommandError("nothing to solve: give a SESSION, --raw FILE or --rinex OBS --nav NAV")
+    if not ep.t_abs:
+        what = args.rinex or args.raw or args.session
+        raise CommandError(f"{what}: no pseudorange epochs (Superstar II ID 23 with a known GPS week, or RINEX "
+                           "observations); is it the right file?")
     run = solve(ep, args.mask_deg, not args.no_iono, not args.no_trop)
     print(f"{ep.source}: {run.ok.sum()} of {len(run.ok)} epochs solved "
           f"({len(ep.store)} ephemerides, Klobuchar {'yes' if ep.alpha else 'no'})")
     if ep.reference_xyz is not None and run.ok.any():
-        e = errors_ned(run, ep.reference_xyz)
-        print(f"vs the header position: horizontal RMS {np.sqrt(np.mean(e[:, 0] ** 2 + e[:, 1] ** 2)):.3f} m, "
-              f"vertical RMS {np.sqrt(np.mean(e[:, 2] ** 2)):.3f} m")
+        print(_rms_line("the header position", errors_ned(run, ep.reference_xyz)))
+    if args.session:
+        e = truth_errors(run, args.session)
+        if e is not None:
+            print(_rms_line("the simulator's truth", e))
     if args.out:
         write_pos(args.out, run, ep.source, llh=not args.ecef)
         print(f"positions in {args.out}")
+    if not run.ok.any():
+        raise CommandError(f"{ep.source}: no epoch solved ({len(ep.store)} ephemerides); a session needs ID 22 "
+                           "subframes, a raw capture or RINEX obs a --nav file with the broadcast ephemerides")
     return 0

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -15,7 +16,11 @@ AXES = ("gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z")
 
 def load_rates(source: str, rate_hz: float | None) -> tuple[np.ndarray, float, tuple[str, ...]]:
     """(n, k) rate samples: a session's IMU (gyro rad/s then accel m/s^2) or a CSV/NPY file."""
+    from ..cli import CommandError
+
     p = Path(source)
+    if not p.exists():
+        raise CommandError(f"{source}: no such file or directory; give a session directory or a CSV/NPY of rates")
     if p.is_dir():
         from .. import logs
 
@@ -23,14 +28,18 @@ def load_rates(source: str, rate_hz: float | None) -> tuple[np.ndarray, float, t
         dt = 1.0 / imu.rate_hz
         return np.hstack([imu.dtheta_rad, imu.dv_mps]) / dt, float(imu.rate_hz), AXES
     if rate_hz is None:
-        raise SystemExit(f"gpsins allan: {source}: give the sample rate with --rate HZ")
+        raise CommandError(f"{source}: give the sample rate with --rate HZ")
     if p.suffix == ".npy":
         data = np.load(p)
     else:
         try:
-            data = np.loadtxt(p, delimiter="," if p.suffix == ".csv" else None, comments="#", ndmin=2)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")  # an empty file: said below
+                data = np.loadtxt(p, delimiter="," if p.suffix == ".csv" else None, comments="#", ndmin=2)
         except ValueError as e:
-            raise SystemExit(f"gpsins allan: {source}: {e}") from None
+            raise CommandError(f"{source}: not a table of numbers ({e})") from None
+    if data.size == 0:
+        raise CommandError(f"{source}: no samples; expected one row per sample, one column per axis")
     data = data.reshape(len(data), -1)
     names = AXES if data.shape[1] == 6 else tuple(f"col{k}" for k in range(data.shape[1]))
     return data, float(rate_hz), names
@@ -87,21 +96,27 @@ def _plots(out: Path, names, results, fits, data, rate) -> None:
         if not cols:
             continue
         fig, axs = plt.subplots(1, 2, figsize=(12, 5))
-        for n in cols:
+        for j, n in enumerate(cols):
+            color = f"C{j}"  # one colour per axis: data, band, fit and PSD
             r, f = results[n], fits[n]
-            axs[0].loglog(r.tau, r.adev, "o", ms=3, label=n)
-            axs[0].fill_between(r.tau, r.lo, r.hi, alpha=0.2)
-            axs[0].loglog(r.tau, f.model_adev, "-", lw=1)
+            axs[0].loglog(r.tau, r.adev, "o", ms=3, color=color, label=f"{n} data")
+            axs[0].fill_between(r.tau, r.lo, r.hi, alpha=0.2, color=color, lw=0)
+            axs[0].loglog(r.tau, f.model_adev, "-", lw=1, color=color)
             for term in f.terms:
                 single = noise_fit.fit_term_curve(r.tau, f, term)
                 if single is not None:
-                    axs[0].loglog(r.tau, single, ":", lw=0.7, color="grey")
+                    axs[0].loglog(r.tau, single, ":", lw=0.7, color=color, alpha=0.7)
             fr, p = psd.psd(data[:, names.index(n)], rate)
             fc, pc = psd.log_average(fr, p)
-            axs[1].loglog(fc, pc, label=n)
+            axs[1].loglog(fc, pc, color=color, label=n)
+        axs[0].plot([], [], "k-", lw=1, label="fit")
+        axs[0].plot([], [], "k:", lw=0.7, label="fitted terms")
+        axs[0].fill_between([], [], [], color="0.5", alpha=0.3, label="confidence band")
+        axs[1].legend(fontsize=8)
         axs[0].set_xlabel("tau (s)")
         axs[0].set_ylabel("Allan deviation (SI)")
-        axs[0].set_title(f"{group}: data, {100 * results[cols[0]].confidence:.0f} % band, fit (solid), terms (dotted)")
+        axs[0].set_title(f"{group}: data, {100 * results[cols[0]].confidence:.0f} % band, fit (solid), terms (dotted)",
+                         fontsize=10)
         axs[0].legend(fontsize=8)
         axs[1].set_xlabel("frequency (Hz)")
         axs[1].set_ylabel("one-sided PSD (SI^2/Hz)")
@@ -142,18 +157,34 @@ update_rate: {rate:g}
 """, encoding="utf-8")
 
 
+def _table(path: str, columns: int) -> np.ndarray:
+    from ..cli import CommandError
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # an empty file: said below
+            rows = np.loadtxt(path, delimiter=",", comments="#", ndmin=2)
+    except FileNotFoundError:
+        raise CommandError(f"{path}: no such file") from None
+    except ValueError as e:
+        raise CommandError(f"{path}: not a comma-separated table of numbers ({e})") from None
+    if rows.shape[0] == 0 or rows.shape[1] < columns:
+        raise CommandError(f"{path}: expected rows of at least {columns} comma-separated numbers")
+    return rows
+
+
 def run_calibrate(args) -> int:
     lat = math.radians(args.lat_deg)
     if args.kind == "accel-updown":
         g = calibration.local_gravity_mps2(lat, args.height_m)
-        rows = np.loadtxt(args.table, delimiter=",", comments="#", ndmin=2)
+        rows = _table(args.table, 2)
         print(f"local gravity {g:.5f} m/s^2 (WGS-84 normal gravity at {args.lat_deg:g} deg, {args.height_m:g} m)")
         print("axis  bias (m/s^2)  scale factor")
         for k, (z1, z2) in enumerate(rows[:, :2]):
             c = calibration.accel_up_down(z1, z2, g)
             print(f"{'xyz'[k] if len(rows) <= 3 else k:4}  {c.bias:12.5f}  {c.scale_factor:12.6f}")
     else:
-        rows = np.loadtxt(args.table, delimiter=",", comments="#", ndmin=2)
+        rows = _table(args.table, 2)
         w_ex = calibration.earth_rate_component(lat, args.axis_up)
         c = calibration.gyro_rate_table(rows[:, 0], rows[:, 1], w_ex, args.drift_bias)
         print(f"gyro: bias {c.bias:.6f} rad/s, scale factor {c.scale_factor:.6f}, residual RMS {c.residual_rms:.2e} "
