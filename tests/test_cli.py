@@ -27,18 +27,19 @@ def session(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def stepped_session(session, tmp_path_factory):
-    """The same session with the GPS stamps stepped by 1 s half way and the IMU's not: cannot be aligned."""
+    """The same session with every IMU stamp moved an hour back, so that no GPS stamp shares its clock:
+    the two files cannot be aligned."""
     d = tmp_path_factory.mktemp("cli") / "stepped"
     d.mkdir()
     for f in session.iterdir():
         (d / f.name).write_bytes(f.read_bytes())
-    scan = logs.read_record_file(d / "gps-000.bin", "superstar2")
-    data = bytearray((d / "gps-000.bin").read_bytes())
-    for start in scan.starts[scan.count // 2:]:
+    scan = logs.read_record_file(d / "imu-000.bin", "bp3010")
+    data = bytearray((d / "imu-000.bin").read_bytes())
+    for start in scan.starts:
         at = int(start) + scan.layout.header_len
-        stamp = np.frombuffer(bytes(data[at:at + 8]), "<f8")[0] + 1.0
+        stamp = np.frombuffer(bytes(data[at:at + 8]), "<f8")[0] - 3600.0
         data[at:at + 8] = np.float64(stamp).tobytes()
-    (d / "gps-000.bin").write_bytes(bytes(data))
+    (d / "imu-000.bin").write_bytes(bytes(data))
     return d
 
 
@@ -136,7 +137,7 @@ def test_config_file_missing_or_broken(capsys, session, tmp_path):
 
 def test_alignment_error_names_the_session(capsys, stepped_session, tmp_path):
     _one_line(capsys, ["replay", stepped_session, "--out", tmp_path / "o"],
-              f"{stepped_session}: ", "clock step", "gpsins dump")
+              f"{stepped_session}: ", "do not overlap", "gpsins dump")
 
 
 def test_debug_shows_the_traceback(stepped_session, tmp_path):

@@ -73,6 +73,7 @@ RATE_MISMATCH = 0.01  # configured IMU rate this far from what the stamps show: 
 LATE_S = 60.0  # a stamp this late is damaged, not delayed
 STALL_MAX_S = 10.0  # an apparent step up and back down within this is a host stall
 MIN_RATE_SPAN_S = 20.0  # an IMU stretch shorter than this takes the IMU period from the others
+OVERLAP_SLACK_S = 600.0  # IMU stamps this far outside the GPS stamps cannot share their clock map
 
 
 class AlignmentError(ValueError):
@@ -505,6 +506,13 @@ def align(gps_tow: np.ndarray, gps_stamps: np.ndarray, week: int, imu_stamps: np
     s = imu_stamps - imu_latency_s
     if not np.all(np.isfinite(s)):
         raise AlignmentError(f"{int(np.sum(~np.isfinite(s)))} IMU stamps are not finite numbers")
+    # A map fitted on the GPS stamps says nothing about system times far outside them.
+    g = np.asarray(gps_stamps, dtype=float)
+    g = g[np.isfinite(g)]
+    imu_lo, imu_hi = np.percentile(s, [1, 99])
+    if imu_hi < g.min() - OVERLAP_SLACK_S or imu_lo > g.max() + OVERLAP_SLACK_S:
+        raise AlignmentError(f"the IMU stamps (system time {imu_lo:.1f} to {imu_hi:.1f} s) do not overlap the GPS "
+                             f"stamps ({g.min():.1f} to {g.max():.1f} s): the two files were not recorded together")
     # Damaged IMU stamps: far below both neighbourhoods once the counter's trend is removed.
     nc = _counter_steps(imu_counter)
     w = max(8, int(IMU_WINDOW_S * rate_hz))
