@@ -4,6 +4,7 @@ import csv
 import io
 import json
 import os
+import time
 
 import numpy as np
 
@@ -14,7 +15,7 @@ from gpsins_logger import bp3010
 from gpsins_logger import superstar2 as ss2
 from gpsins_logger.recorder import SensorInfo, Session
 
-T0 = 1.7e9
+T0 = time.time()  # the stamps must lie inside the session the recorder opens now
 
 
 def _write_session(path, seconds=5.0, damage_gps_at=None):
@@ -29,6 +30,10 @@ def _write_session(path, seconds=5.0, damage_gps_at=None):
         smp.sample.counter = (k + 1) & 0xFF
         s.record("imu", smp.sample.encode(), T0 + smp.t)
     s.close()
+    # The records were written at once: let the sidecar span the time they claim.
+    side = json.loads((path / "session.json").read_text())
+    side["stop"]["realtime"] = T0 + seconds
+    (path / "session.json").write_text(json.dumps(side))
     if damage_gps_at is not None:
         f = path / "gps-000.bin"
         data = bytearray(f.read_bytes())

@@ -19,11 +19,13 @@ import numpy as np
 
 from gpsins_logger import bp3010
 from gpsins_logger import superstar2 as ss2
-from gpsins_logger.recorder import RAW_HEADER
+from gpsins_logger.recorder import CLOCK_STEP_THRESHOLD_S, RAW_HEADER
 
 STAMP_BYTES = 8
 # A stamp outside (1970, 2286) cannot be system time: the candidate is not a record.
 STAMP_MIN, STAMP_MAX = 0.0, 1e10
+# Stamps may lie this far outside the session's recorded span (start/stop, clock pairs).
+SPAN_MARGIN_S = 2.0
 
 
 class LogError(ValueError):
@@ -152,8 +154,11 @@ def scan(buf: np.ndarray | bytes, layout: Layout, path: str = "<bytes>") -> Scan
     tail_offset = None
     inc = p[p + length > size]
     if len(inc):
-        k = np.searchsorted(starts, inc, side="right") - 1
-        inside = (k >= 0) & (inc < np.where(k >= 0, starts[np.maximum(k, 0)] + lengths[np.maximum(k, 0)], 0))
+        inside = np.zeros(len(inc), dtype=bool)
+        if len(starts):
+            k = np.searchsorted(starts, inc, side="right") - 1
+            kk = np.maximum(k, 0)
+            inside = (k >= 0) & (inc < starts[kk] + lengths[kk])
         reached = inc[~inside]
         if len(reached):
             tail_offset = int(reached[0])
@@ -177,7 +182,100 @@ def scan(buf: np.ndarray | bytes, layout: Layout, path: str = "<bytes>") -> Scan
     return Scan(path, layout, buf, starts, lengths, stats)
 
 
-def read_record_file(path: str | Path, device: str) -> Scan:
+@dataclass(frozen=True)
+class StampLimits:
+    """What a plausible stamp is for one session: inside [lo, hi], and never
+    earlier than a neighbouring record's stamp by more than back_s (a clock
+    step the clock pairs saw, or the logger's clamp tolerance)."""
+
+    lo: float = STAMP_MIN
+    hi: float = STAMP_MAX
+    back_s: float = CLOCK_STEP_THRESHOLD_S
+
+
+def stamp_limits(directory: Path, sidecar: dict) -> StampLimits:
+    """The session's span from the sidecar's start/stop and the clock pairs,
+    widened by a margin; a session without a stop (the logger was killed) may
+    have records up to a clock-pair interval after the last pair."""
+    real, offsets = [], []
+    for key in ("start", "stop"):
+        pair = sidecar.get(key)
+        if isinstance(pair, dict) and _finite(pair.get("realtime")):
+            real.append(float(pair["realtime"]))
+    try:
+        with open(directory / "clock.csv", encoding="ascii", errors="replace") as f:
+            next(f, None)
+            for line in f:
+                try:
+                    r, m = (float(v) for v in line.split(","))
+                except ValueError:
+                    continue  # a torn last line
+                if np.isfinite(r) and np.isfinite(m):
+                    real.append(r)
+                    offsets.append(r - m)
+    except OSError:
+        pass
+    if not real:
+        return StampLimits()
+    back = CLOCK_STEP_THRESHOLD_S
+    if len(offsets) > 1:
+        back = max(back, -float(np.min(np.diff(offsets))) + CLOCK_STEP_THRESHOLD_S)
+    interval = 0.0
+    if not isinstance(sidecar.get("stop"), dict):
+        cfg = sidecar.get("config", {}).get("session", {}) if isinstance(sidecar.get("config"), dict) else {}
+        interval = float(cfg.get("clock_pair_interval_s", 10.0)) if _finite(cfg.get("clock_pair_interval_s", 10.0)) \
+            else 10.0
+    return StampLimits(min(real) - SPAN_MARGIN_S, max(real) + interval + SPAN_MARGIN_S, back)
+
+
+def _finite(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and bool(np.isfinite(v))
+
+
+def reject_bad_stamps(s: Scan, limits: StampLimits) -> Scan:
+    """Drop records whose stamp is impossible (outside the session, or out of
+    line with both its neighbours), count them, keep their neighbours."""
+    if not s.layout.stamped or not s.count:
+        s.stats.setdefault("bad_stamps", 0)
+        s.stats.setdefault("first_bad_stamp_offset", None)
+        return s
+    st = s.stamps
+    bad = ~((st >= limits.lo) & (st <= limits.hi))
+    # Neighbour test on the records left: a stamp is damaged when it runs back
+    # from the previous record or ahead of the next by more than a clock step,
+    # while those two agree with each other. Repeat so a damaged record does
+    # not hide its neighbour's damage; each pass only removes records.
+    for _ in range(8):
+        keep = np.flatnonzero(~bad)
+        if len(keep) < 2:
+            break
+        t = st[keep]
+        prev = np.concatenate(([-np.inf], t[:-1]))
+        nxt = np.concatenate((t[1:], [np.inf]))
+        back_from_prev = t < prev - limits.back_s
+        ahead_of_next = t > nxt + limits.back_s
+        agree = nxt >= prev - limits.back_s
+        # The ends have one neighbour: it must agree with its own other neighbour.
+        if len(t) >= 3:
+            agree[0] = t[2] >= t[1] - limits.back_s
+            agree[-1] = t[-2] >= t[-3] - limits.back_s
+        else:
+            agree[:] = False
+        out = (back_from_prev | ahead_of_next) & agree
+        if not out.any():
+            break
+        bad[keep[out]] = True
+    n_bad = int(np.count_nonzero(bad))
+    s.stats["bad_stamps"] = n_bad
+    s.stats["first_bad_stamp_offset"] = int(s.starts[np.argmax(bad)]) if n_bad else None
+    if n_bad:
+        s.stats["discarded_bytes"] += int(s.lengths[bad].sum())
+        s.stats["records"] -= n_bad
+        s.starts, s.lengths = s.starts[~bad], s.lengths[~bad]
+    return s
+
+
+def read_record_file(path: str | Path, device: str, limits: StampLimits | None = None) -> Scan:
     path = Path(path)
     if device not in LAYOUTS:
         raise LogError(f"{path}: unknown device {device!r} (known: {', '.join(LAYOUTS)})")
@@ -185,7 +283,7 @@ def read_record_file(path: str | Path, device: str) -> Scan:
         buf = np.fromfile(path, dtype=np.uint8)
     except OSError as e:
         raise LogError(f"{path}: cannot read: {e.strerror}") from None
-    out = scan(buf, LAYOUTS[device], str(path))
+    out = reject_bad_stamps(scan(buf, LAYOUTS[device], str(path)), limits or StampLimits())
     st = out.stamps
     back = np.flatnonzero(np.diff(st) < 0)
     out.stats["stamps_backwards"] = int(len(back))
@@ -243,7 +341,8 @@ class SensorFiles:
         return [f for s in self.scans for f in s.frames()]
 
     def stats(self) -> dict:
-        keys = ("records", "bytes", "discarded_bytes", "truncated_tail_bytes", "resyncs", "stamps_backwards")
+        keys = ("records", "bytes", "discarded_bytes", "truncated_tail_bytes", "resyncs", "bad_stamps",
+                "stamps_backwards")
         return {k: sum(s.stats[k] for s in self.scans) for k in keys}
 
 
@@ -270,13 +369,16 @@ def read_session(directory: str | Path) -> SessionLog:
         raise LogError(f"{side}: missing; not a gpsins session directory") from None
     except json.JSONDecodeError as e:
         raise LogError(f"{side}: not valid JSON ({e})") from None
+    if not isinstance(sidecar, dict) or not isinstance(sidecar.get("sensors", {}), dict):
+        raise LogError(f"{side}: not a gpsins sidecar (no sensors table)")
+    limits = stamp_limits(directory, sidecar)
     sensors = {}
     for name, info in sidecar.get("sensors", {}).items():
         scans = []
         for fname in info.get("files", []):
             path = directory / fname
             if path.exists():
-                scans.append(read_record_file(path, info["device"]))
+                scans.append(read_record_file(path, info["device"], limits))
         sensors[name] = SensorFiles(name, info["device"], scans)
     return SessionLog(directory, sidecar, sensors)
 
