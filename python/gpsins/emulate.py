@@ -134,6 +134,7 @@ class DeviceEmulator(threading.Thread):
         self.sent: list[SentFrame] = []
         self.garbage_bytes = 0
         self.disconnect_count = 0
+        self.replugged_realtime: list[float] = []  # when the device came back after each disconnect
         self._stop_event = threading.Event()
         self._line_free = 0.0
         self._start_mono = 0.0
@@ -179,12 +180,14 @@ class DeviceEmulator(threading.Thread):
             time.sleep(max(timeout, 0.0))
 
     def _disconnect(self, down_s: float) -> None:
+        # An unplug as udev shows it: the device node and its stable name vanish.
         self.disconnect_count += 1
         self._online = False
-        self.pty.close()
+        self.pty.remove()
         self.on_disconnect()
         self._stop_event.wait(down_s / self.speed)
         self.pty.open()
+        self.replugged_realtime.append(time.time())
         self._online = True
 
     # -- sending ------------------------------------------------------------------
