@@ -5,11 +5,13 @@ import contextlib
 import fcntl
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
 import threading
 import time
+import tomllib
 
 import numpy as np
 import pytest
@@ -305,3 +307,43 @@ def test_stamps_of_a_sensor_never_run_backwards_when_bytes_come_faster_than_the_
         st = r.session.sensors[name].stamps
         assert len(st) > 50 and np.all(np.diff(st) >= 0), f"{name}: {np.diff(st).min() * 1e3:.3f} ms back"
         assert r.session.sensors[name].frames() == sent_ok(getattr(r.emulators, name))
+
+
+# --- the service unit --------------------------------------------------------------------------------
+
+UNIT = __import__("pathlib").Path(__file__).resolve().parents[1] / "logger" / "gpsins-logger.service"
+
+
+def _unit_settings() -> dict[str, list[str]]:
+    out: dict[str, list[str]] = {}
+    for line in UNIT.read_text().splitlines():
+        line = line.strip()
+        if line and not line.startswith(("#", "[")) and "=" in line:
+            key, value = line.split("=", 1)
+            out.setdefault(key, []).append(value)
+    return out
+
+
+def test_service_unit_keeps_the_daemon_working_and_confined():
+    u = _unit_settings()
+    assert u["User"] != ["root"] and "dialout" in " ".join(u.get("SupplementaryGroups", []) + u.get("Group", []))
+    assert u["StateDirectory"] == ["gpsins"] and u["ProtectSystem"] == ["strict"]
+    root = tomllib.loads((UNIT.parent / "logger.example.toml").read_text())["session"]["root"]
+    assert root.startswith("/var/lib/gpsins/"), "the example's session root must be inside the state directory"
+    allowed = " ".join(u["DeviceAllow"])
+    assert "/dev/gpsins-gps rw" in allowed and "/dev/gpsins-imu rw" in allowed and u["DevicePolicy"] == ["closed"]
+    assert u["PrivateNetwork"] == ["yes"] and u["IPAddressDeny"] == ["any"]
+    assert u["RestrictAddressFamilies"] == ["AF_UNIX"] and "@system-service" in u["SystemCallFilter"]
+    assert u["CapabilityBoundingSet"] == [""] and u["NoNewPrivileges"] == ["yes"]
+    assert u["Restart"] == ["on-failure"] and u["RestartPreventExitStatus"] == ["2"]
+
+
+def test_service_unit_exposure_score():
+    exe = shutil.which("systemd-analyze")
+    if not exe:
+        pytest.skip("systemd-analyze not installed (Debian package systemd)")
+    p = subprocess.run([exe, "security", "--offline=true", str(UNIT)], capture_output=True, text=True, timeout=60)
+    m = re.search(r"Overall exposure level for \S+: ([0-9.]+)", p.stdout + p.stderr)
+    assert m, p.stdout + p.stderr
+    print(f"exposure {m.group(1)}")
+    assert float(m.group(1)) <= 2.0
