@@ -76,6 +76,7 @@ class FrameFinder:
         self._base = 0  # stream offset of _buf[0]
         self._locked = False
         self._last: bytes | None = None  # last accepted frame (counter rules)
+        self._tail_start: int | None = None  # flush(): first incomplete candidate after the last frame
 
     @property
     def pending(self) -> int:
@@ -92,12 +93,19 @@ class FrameFinder:
         return out
 
     def flush(self) -> list[Frame]:
-        """End of stream: decide what can still be decided; what remains is a
-        truncated last frame, reported as the tail (not as discarded bytes)."""
+        """End of stream: decide what can still be decided. A candidate whose
+        declared length runs past the end is skipped like a false sync, so
+        whole frames inside its span are still found; the bytes from the first
+        such candidate after the last frame are the truncated tail (reported
+        as the tail, not as discarded bytes)."""
         out: list[Frame] = []
+        self._tail_start: int | None = None
         i = self._scan(out, final=True)
-        self.stats.tail_bytes = len(self._buf) - i
-        self.stats.tail_offset = self._base + i if self.stats.tail_bytes else None
+        tail_start = self._tail_start if self._tail_start is not None else i
+        self.stats.tail_bytes = len(self._buf) - tail_start
+        # The hunt counted the tail's bytes as discarded; they are the tail.
+        self.stats.discarded_bytes -= i - tail_start
+        self.stats.tail_offset = self._base + tail_start if self.stats.tail_bytes else None
         self._base += len(self._buf)
         del self._buf[:]
         return out
@@ -110,6 +118,7 @@ class FrameFinder:
         out.append(Frame(self._base + i, frame))
         self._last = frame
         self.stats.frames += 1
+        self._tail_start = None
 
     def _scan(self, out: list[Frame], final: bool) -> int:
         buf, rule = self._buf, self.rule
@@ -126,7 +135,13 @@ class FrameFinder:
                 return i
             n = rule.frame_len(buf, i) if rule.header_ok(buf, i) else 0
             if n and size - i < n:
-                return i
+                if not final:
+                    return i
+                if self._tail_start is None:
+                    self._tail_start = i
+                self._discard(1)
+                i += 1
+                continue
             good = n > 0 and rule.checksum_ok(buf, i, n)
             # A complete frame with a valid header whose checksum fails: counted
             # once, where the finder decides what to do with it.

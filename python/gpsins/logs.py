@@ -7,6 +7,9 @@ then follows the chain of records from the start, resynchronising at the
 next valid candidate after damage, exactly as the logger's streaming finder
 does on a byte stream. Python loops only over damaged places, never over
 records. A truncated last record is accepted as the file's tail and reported.
+Stamps are checked against the session (see :func:`reject_bad_stamps`).
+Damaged input of any kind reads as records plus counted damage; only a file
+that cannot be read at all raises :class:`LogError`.
 """
 
 from __future__ import annotations
@@ -88,8 +91,10 @@ def _gather(buf: np.ndarray, offsets: np.ndarray, width: int) -> np.ndarray:
     return np.lib.stride_tricks.sliding_window_view(buf, width)[offsets]
 
 
-def _candidates(buf: np.ndarray, lay: Layout) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """All header-valid candidates: positions, lengths, and checksum/stamp validity."""
+def _candidates(buf: np.ndarray, lay: Layout, lo: float = STAMP_MIN, hi: float = STAMP_MAX
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """All header-valid candidates: positions, lengths, checksum/stamp validity,
+    and which pass the checksum but carry an impossible stamp."""
     size = len(buf)
     sl = lay.stamp_len
     if lay.device == "superstar2":
@@ -102,6 +107,7 @@ def _candidates(buf: np.ndarray, lay: Layout) -> tuple[np.ndarray, np.ndarray, n
         length = np.full(len(p), bp3010.FRAME_LEN + sl, dtype=np.int64)
     complete = p + length <= size
     ok = np.zeros(len(p), dtype=bool)
+    bad_stamp = np.zeros(len(p), dtype=bool)
     pc, lc = p[complete], length[complete]
     if len(pc):
         # Running sums modulo the checksum's width: unsigned wrap-around is exact
@@ -122,15 +128,23 @@ def _candidates(buf: np.ndarray, lay: Layout) -> tuple[np.ndarray, np.ndarray, n
         if lay.stamped:
             st = _gather(buf, pc + lay.header_len, STAMP_BYTES).view("<f8").reshape(-1)
             with np.errstate(invalid="ignore"):
-                good &= np.isfinite(st) & (st > STAMP_MIN) & (st < STAMP_MAX)
+                plausible = np.isfinite(st) & (st > lo) & (st < hi)
+            bad_stamp[complete] = good & ~plausible
+            good &= plausible
         ok[complete] = good
-    return p, length, ok
+    return p, length, ok, bad_stamp
 
 
-def scan(buf: np.ndarray | bytes, layout: Layout, path: str = "<bytes>") -> Scan:
+def scan(buf: np.ndarray | bytes, layout: Layout, path: str = "<bytes>", limits: "StampLimits | None" = None
+         ) -> Scan:
+    """Accepted records of buf. With limits (the session's span), a candidate
+    whose stamp lies outside the span is not a record: random bytes that pass
+    an 8-bit sum then almost never pass as a record, so they cannot swallow
+    an intact record that overlaps them."""
     buf = np.frombuffer(buf, dtype=np.uint8) if isinstance(buf, (bytes, bytearray, memoryview)) else buf
     size = len(buf)
-    p, length, ok = _candidates(buf, layout)
+    lo, hi = (limits.lo, limits.hi) if limits is not None else (STAMP_MIN, STAMP_MAX)
+    p, length, ok, bad_stamp = _candidates(buf, layout, lo, hi)
     vp, vl = p[ok], length[ok]
     # Greedy chain from the start: after a record ending at e, the next record is
     # the first valid candidate at or after e. succ[k] is that candidate's index.
@@ -148,30 +162,29 @@ def scan(buf: np.ndarray | bytes, layout: Layout, path: str = "<bytes>") -> Scan
         chosen[k:stop + 1] = True
         k = succ[stop]
     starts, lengths = vp[chosen], vl[chosen]
-    # The tail: the first incomplete header-valid candidate not inside an accepted
-    # record. The streaming finder stops there and waits, so records after it
-    # (possible only inside its declared span) are not accepted either.
+    # The tail: the first incomplete header-valid candidate after the last
+    # accepted record. An incomplete candidate earlier than that was a false
+    # header (whole records follow it), as the streaming finder decides at flush.
     tail_offset = None
-    inc = p[p + length > size]
+    last_end = int(starts[-1] + lengths[-1]) if len(starts) else 0
+    inc = p[(p + length > size) & (p >= last_end)]
     if len(inc):
-        inside = np.zeros(len(inc), dtype=bool)
-        if len(starts):
-            k = np.searchsorted(starts, inc, side="right") - 1
-            kk = np.maximum(k, 0)
-            inside = (k >= 0) & (inc < starts[kk] + lengths[kk])
-        reached = inc[~inside]
-        if len(reached):
-            tail_offset = int(reached[0])
-            keep = starts < tail_offset
-            starts, lengths = starts[keep], lengths[keep]
+        tail_offset = int(inc[0])
     tail = size - tail_offset if tail_offset is not None else 0
     covered = int(lengths.sum())
     # Where each covered stretch ends vs where the next begins: the first mismatch is the first discarded byte.
     prev_end = np.concatenate(([0], starts + lengths))
     gaps = np.flatnonzero(prev_end != np.concatenate((starts, [size - tail])))
     first_discarded = int(prev_end[gaps[0]]) if len(gaps) else None
+    # A record with a good checksum but a stamp no clock can give (non-finite,
+    # <= 0, beyond 2286) that sits where the chain of records resumes.
+    resume = np.concatenate(([0], starts + lengths))
+    broken = p[bad_stamp]
+    broken = broken[np.isin(broken, resume)]
     stats = {
         "records": int(len(starts)),
+        "bad_stamps": int(len(broken)),
+        "first_bad_stamp_offset": int(broken[0]) if len(broken) else None,
         "bytes": int(size),
         "discarded_bytes": int(size - covered - tail),
         "truncated_tail_bytes": int(tail),
@@ -236,8 +249,6 @@ def reject_bad_stamps(s: Scan, limits: StampLimits) -> Scan:
     """Drop records whose stamp is impossible (outside the session, or out of
     line with both its neighbours), count them, keep their neighbours."""
     if not s.layout.stamped or not s.count:
-        s.stats.setdefault("bad_stamps", 0)
-        s.stats.setdefault("first_bad_stamp_offset", None)
         return s
     st = s.stamps
     bad = ~((st >= limits.lo) & (st <= limits.hi))
@@ -266,9 +277,11 @@ def reject_bad_stamps(s: Scan, limits: StampLimits) -> Scan:
             break
         bad[keep[out]] = True
     n_bad = int(np.count_nonzero(bad))
-    s.stats["bad_stamps"] = n_bad
-    s.stats["first_bad_stamp_offset"] = int(s.starts[np.argmax(bad)]) if n_bad else None
     if n_bad:
+        s.stats["bad_stamps"] += n_bad
+        first = int(s.starts[np.argmax(bad)])
+        old = s.stats["first_bad_stamp_offset"]
+        s.stats["first_bad_stamp_offset"] = first if old is None else min(old, first)
         s.stats["discarded_bytes"] += int(s.lengths[bad].sum())
         s.stats["records"] -= n_bad
         s.starts, s.lengths = s.starts[~bad], s.lengths[~bad]
@@ -283,7 +296,8 @@ def read_record_file(path: str | Path, device: str, limits: StampLimits | None =
         buf = np.fromfile(path, dtype=np.uint8)
     except OSError as e:
         raise LogError(f"{path}: cannot read: {e.strerror}") from None
-    out = reject_bad_stamps(scan(buf, LAYOUTS[device], str(path)), limits or StampLimits())
+    limits = limits or StampLimits()
+    out = reject_bad_stamps(scan(buf, LAYOUTS[device], str(path), limits), limits)
     st = out.stamps
     back = np.flatnonzero(np.diff(st) < 0)
     out.stats["stamps_backwards"] = int(len(back))
