@@ -178,9 +178,17 @@ def scan(buf: np.ndarray | bytes, layout: Layout, path: str = "<bytes>", limits:
     first_discarded = int(prev_end[gaps[0]]) if len(gaps) else None
     # A record with a good checksum but a stamp no clock can give (non-finite,
     # <= 0, beyond 2286) that sits where the chain of records resumes.
+    # Several in a row each start where the one before ends.
     resume = np.concatenate(([0], starts + lengths))
-    broken = p[bad_stamp]
-    broken = broken[np.isin(broken, resume)]
+    bp_, bl_ = p[bad_stamp], length[bad_stamp]
+    hit = np.zeros(len(bp_), dtype=bool)
+    while True:
+        more = ~hit & np.isin(bp_, resume)
+        if not more.any():
+            break
+        hit |= more
+        resume = np.concatenate((resume, bp_[more] + bl_[more]))
+    broken = bp_[hit]
     stats = {
         "records": int(len(starts)),
         "bad_stamps": int(len(broken)),
