@@ -24,15 +24,21 @@ def bp_frames(n: int = 2000, seed: int = 0) -> list[bytes]:
 
 
 def faulted_stream(frames: list[bytes], rng: np.random.Generator, p_flip: float, p_garbage: float,
-                   garbage_max: int = 30) -> tuple[bytes, list[bool]]:
-    """Concatenate frames with one random bit flipped in some and garbage inserted
-    before others; returns the stream and which frames are intact."""
+                   garbage_max: int = 30, p_truncate: float = 0.0, p_drop: float = 0.0) -> tuple[bytes, list[bool]]:
+    """Concatenate frames with one random bit flipped in some, garbage inserted
+    before others, some cut short (at least 2 bytes, as the emulator does) and
+    some dropped; returns the stream and which frames are intact on it."""
     out = bytearray()
     intact = []
     for f in frames:
         if rng.random() < p_garbage:
             out += rng.integers(0, 256, int(rng.integers(1, garbage_max + 1)), dtype=np.uint8).tobytes()
-        if rng.random() < p_flip:
+        if p_drop and rng.random() < p_drop:
+            intact.append(False)
+        elif p_truncate and rng.random() < p_truncate:
+            out += f[:int(rng.integers(1, len(f) - 1))]
+            intact.append(False)
+        elif rng.random() < p_flip:
             b = bytearray(f)
             bit = int(rng.integers(0, 8 * len(f)))
             b[bit // 8] ^= 1 << (bit % 8)

@@ -14,8 +14,12 @@ Two hunting policies, chosen by the rule:
   about once in 256 tries) a candidate found while hunting is accepted only
   when its counter continues the last accepted frame's within MAX_GAP frames,
   or when a valid frame within the next MAX_GAP frames' worth of bytes
-  continues its counter. Once locked, a frame that fails is dropped alone if
-  the frame after it is where the lock expects it.
+  continues its counter. When damage on both sides leaves no such frame
+  near (truncated frames before and after an intact one), it is taken when
+  its counter continues the last accepted frame's, a frame starts right
+  after it and a valid frame ahead continues its counter. Once locked, a
+  frame that fails is dropped alone if the frame after it is where the lock
+  expects it.
 """
 
 from __future__ import annotations
@@ -215,6 +219,8 @@ class FrameFinder:
             return None
         if score == 0:
             between = self._between(i, n, final)
+            if between is False:
+                between = self._bridged(i, n, final)
             if not between:
                 return between
         buf, rule = self._buf, self.rule
@@ -244,6 +250,32 @@ class FrameFinder:
         """The frame right after j has the sync and the next counter."""
         buf, rule = self._buf, self.rule
         return buf[j + n] == rule.sync and rule.counter_gap(bytes(buf[j:j + n]), buf, j + n) == 1
+
+    def _bridged(self, i: int, n: int, final: bool) -> bool | None:
+        """Damage on both sides (e.g. truncated frames before and after it),
+        so no anchored frame is near: taken when its counter continues the
+        last accepted frame's (if any), a frame starts right after it, and a
+        valid frame ahead continues its counter. Garbage passes all three about once
+        in 256 * 256 * 256 / 7^2 sync bytes."""
+        buf, rule = self._buf, self.rule
+        if self._last is not None and not 2 <= rule.counter_gap(self._last, buf, i) <= MAX_GAP:
+            return False
+        if len(buf) <= i + n:
+            return False if final else None
+        if buf[i + n] != rule.sync:
+            return False
+        candidate = bytes(buf[i:i + n])
+        window_end = i + n + MAX_GAP * LOOKAHEAD_BYTES_PER_FRAME
+        j = i + n
+        while True:
+            j = buf.find(rule.sync, j, window_end)
+            if j < 0:
+                return False if final or len(buf) >= window_end + n else None
+            if j + n > len(buf):
+                return False if final else None
+            if rule.checksum_ok(buf, j, n) and 1 <= rule.counter_gap(candidate, buf, j) <= MAX_GAP:
+                return True
+            j += 1
 
     def _between(self, i: int, n: int, final: bool) -> bool | None:
         buf, rule = self._buf, self.rule
