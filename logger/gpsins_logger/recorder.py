@@ -11,7 +11,10 @@ Layout of a session (spec/logfile.md):
 Every record is written whole with one write() on a file opened O_APPEND,
 so a crash can at worst truncate the last record; files are fsynced on a
 bounded period and at close. Disk errors are counted and reported, never
-raised into the caller's read loop.
+raised into the caller's read loop: a failed write is undone (a short write
+truncated away), counted, and the next write tries again, so logging resumes
+by itself when space returns. Only starting a session raises (StartupError),
+after removing what it created.
 """
 
 from __future__ import annotations
@@ -42,7 +45,10 @@ CLOCK_STEP_THRESHOLD_S = 0.05
 
 STAMP_MEANING = ("CLOCK_REALTIME seconds (IEEE double, little-endian) at which the frame's first byte "
                  "arrived, estimated as the return time of the read that delivered it minus the bytes "
-                 "after it at the line's byte time (10 bits per byte, 8N1)")
+                 "after it at the line's byte time (10 bits per byte, 8N1); kept in order per sensor on "
+                 "CLOCK_MONOTONIC (no earlier than the previous frame's first byte plus its length at the "
+                 "byte time, no later than the read's return), so stamps run backwards only where the "
+                 "realtime clock was stepped back (clock.csv)")
 
 
 def clock_pair() -> dict[str, float]:
