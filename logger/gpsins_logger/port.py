@@ -19,8 +19,10 @@ The earliest such read gives the tightest estimate (later reads may have
 waited for more bytes). The estimate is made on CLOCK_MONOTONIC and kept in
 order there: a frame's first byte cannot arrive before the previous frame's
 first byte plus that frame's length at the line's byte time, nor after the
-read that delivered it returned. So stamps of one sensor never run
-backwards, except where the system's realtime clock itself is stepped back
+read that delivered it returned (when the two disagree, because an earlier
+stamp came from a late read, the read's bound wins, but a stamp is always at
+least one byte time after the previous one). So stamps of one sensor strictly
+increase, except where the system's realtime clock itself is stepped back
 (seen in clock.csv and counted as a clock step).
 """
 
@@ -212,9 +214,13 @@ class SensorThread(threading.Thread):
                 data = s.read(1)  # blocks until a byte arrives, or cancel_read()
                 if not data:
                     continue
-                waiting = s.in_waiting
-                if waiting:
-                    data += s.read(waiting)
+                lost = None
+                try:
+                    waiting = s.in_waiting
+                    if waiting:
+                        data += s.read(waiting)
+                except (serial.SerialException, OSError) as e:
+                    lost = e  # unplugged between the two reads: keep what came, then close
                 realtime, monotonic = time.time(), time.monotonic()
                 self.counts["bytes_read"] += len(data)
                 if self.raw_capture:
@@ -222,6 +228,8 @@ class SensorThread(threading.Thread):
                 reads.append((finder.stats.bytes_in + len(data), realtime, monotonic))
                 for frame in finder.feed(data):
                     self.session.record(self.sensor, frame.data, self._stamp(frame.offset, len(frame.data), reads))
+                if lost is not None:
+                    raise lost
         finally:
             # The port closed: a frame the finder was still deciding on is
             # complete and may be intact; only a truncated tail is unfinished.
@@ -246,8 +254,9 @@ class SensorThread(threading.Thread):
         if self._last_mono is not None:
             floor = self._last_mono + self._last_len * self.byte_time_s
             if best < floor:
-                best = min(floor, cap)
+                # The read bound wins over the line-rate bound (an earlier stamp
+                # was late), but two first bytes are always a byte time apart.
+                best = max(min(floor, cap), self._last_mono + self.byte_time_s)
                 self.counts["stamps_clamped"] += 1
-            best = max(best, self._last_mono)
         self._last_mono, self._last_len = best, length
         return best + offset_real
