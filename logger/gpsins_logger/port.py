@@ -16,14 +16,11 @@ The stamp of a frame is the system time (CLOCK_REALTIME) at which its first
 byte arrived, estimated from the return time of a read that delivered bytes
 of the frame minus the bytes after the first one at the line's byte time.
 The earliest such read gives the tightest estimate (later reads may have
-waited for more bytes). The estimate is made on CLOCK_MONOTONIC and kept in
-order there: a frame's first byte cannot arrive before the previous frame's
-first byte plus that frame's length at the line's byte time, nor after the
-read that delivered it returned (when the two disagree, because an earlier
-stamp came from a late read, the read's bound wins, but a stamp is always at
-least one byte time after the previous one). So stamps of one sensor strictly
-increase, except where the system's realtime clock itself is stepped back
-(seen in clock.csv and counted as a clock step).
+waited for more bytes). The estimate is made on CLOCK_MONOTONIC and kept in order there: an
+estimate earlier than the previous frame's plus one byte time (a stamp from
+a late read followed by one from a prompt read) is moved to that bound. So
+stamps of one sensor strictly increase, except where the system's realtime
+clock itself is stepped back (seen in clock.csv and counted as a clock step).
 """
 
 from __future__ import annotations
@@ -79,8 +76,7 @@ class SensorThread(threading.Thread):
         self._serial: serial.Serial | None = None
         self._lock = threading.Lock()
         self._state = ""
-        self._last_mono: float | None = None  # monotonic stamp and length of the last frame
-        self._last_len = 0
+        self._last_mono: float | None = None  # monotonic stamp of the last frame
 
     def stop(self) -> None:
         self._stop_event.set()
@@ -227,36 +223,33 @@ class SensorThread(threading.Thread):
                     self.session.raw(self.sensor, data, monotonic, realtime)
                 reads.append((finder.stats.bytes_in + len(data), realtime, monotonic))
                 for frame in finder.feed(data):
-                    self.session.record(self.sensor, frame.data, self._stamp(frame.offset, len(frame.data), reads))
+                    self.session.record(self.sensor, frame.data, self._stamp(frame.offset, reads))
                 if lost is not None:
                     raise lost
         finally:
             # The port closed: a frame the finder was still deciding on is
             # complete and may be intact; only a truncated tail is unfinished.
             for frame in finder.flush():
-                self.session.record(self.sensor, frame.data, self._stamp(frame.offset, len(frame.data), reads))
+                self.session.record(self.sensor, frame.data, self._stamp(frame.offset, reads))
             for key in ("discarded_bytes", "checksum_failures", "lock_losses"):
                 self.counts[key] += getattr(finder.stats, key)
             self.counts["unfinished_bytes"] += finder.stats.tail_bytes
 
-    def _stamp(self, offset: int, length: int, reads) -> float:
-        best, offset_real, cap = float("inf"), 0.0, float("inf")
+    def _stamp(self, offset: int, reads) -> float:
+        best, offset_real = float("inf"), 0.0
         for end, real, mono in reversed(reads):
             if end <= offset:
                 break
             est = mono - (end - offset - 1) * self.byte_time_s
             if est < best:
                 best, offset_real = est, real - mono
-            cap = mono  # the earliest read holding the frame's bytes had them all by its return
         if best == float("inf"):  # the reads were forgotten (a frame longer than the deque spans)
             best, offset_real = time.monotonic(), time.time() - time.monotonic()
-            cap = best
-        if self._last_mono is not None:
-            floor = self._last_mono + self._last_len * self.byte_time_s
-            if best < floor:
-                # The read bound wins over the line-rate bound (an earlier stamp
-                # was late), but two first bytes are always a byte time apart.
-                best = max(min(floor, cap), self._last_mono + self.byte_time_s)
-                self.counts["stamps_clamped"] += 1
-        self._last_mono, self._last_len = best, length
+        if self._last_mono is not None and best < self._last_mono + self.byte_time_s:
+            # Two first bytes are at least a byte time apart. (Not a whole frame:
+            # an emulator may send faster than the configured line, and a floor
+            # of a frame per frame would then drift ahead without bound.)
+            best = self._last_mono + self.byte_time_s
+            self.counts["stamps_clamped"] += 1
+        self._last_mono = best
         return best + offset_real

@@ -45,10 +45,9 @@ CLOCK_STEP_THRESHOLD_S = 0.05
 
 STAMP_MEANING = ("CLOCK_REALTIME seconds (IEEE double, little-endian) at which the frame's first byte "
                  "arrived, estimated as the return time of the read that delivered it minus the bytes "
-                 "after it at the line's byte time (10 bits per byte, 8N1); kept in order per sensor on "
-                 "CLOCK_MONOTONIC (no earlier than the previous frame's first byte plus its length at the "
-                 "byte time, no later than the read's return), so stamps run backwards only where the "
-                 "realtime clock was stepped back (clock.csv)")
+                 "after it at the line's byte time (10 bits per byte, 8N1); kept strictly increasing per sensor "
+                 "on CLOCK_MONOTONIC (an estimate earlier than the previous stamp plus one byte time is moved "
+                 "there), so stamps run backwards only where the realtime clock was stepped back (clock.csv)")
 
 
 def clock_pair() -> dict[str, float]:
