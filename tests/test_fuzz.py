@@ -111,7 +111,7 @@ def test_a_file_holding_only_a_truncated_record(tmp_path):
         s = logs.scan(data[:n], logs.BP_RECORDS)
         assert s.count == 0 and s.stats["truncated_tail_bytes"] + s.stats["discarded_bytes"] == n
     f = tmp_path / "gps-000.bin"
-    f.write_bytes(bytes.fromhex("011 7e8 400 000".replace(" ", "")))
+    f.write_bytes(bytes.fromhex("0117e8400000"))
     s = logs.read_record_file(f, "superstar2")
     assert s.count == 0 and s.stats["truncated_tail_bytes"] == 6
 

@@ -9,9 +9,9 @@ import re
 import shutil
 import subprocess
 import sys
-import threading
 import time
 import tomllib
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,7 +19,6 @@ import pytest
 from corpora import bp_frames
 from gpsins import logs
 from gpsins.emulate import Faults, PtyLink
-from gpsins_logger import bp3010
 from gpsins_logger.port import SensorThread
 from gpsins_logger.recorder import SensorInfo, Session
 from ptyrig import run_rig, sent_ok, write_config
@@ -312,7 +311,7 @@ def test_stamps_of_a_sensor_never_run_backwards_when_bytes_come_faster_than_the_
 
 # --- the service unit --------------------------------------------------------------------------------
 
-UNIT = __import__("pathlib").Path(__file__).resolve().parents[1] / "logger" / "gpsins-logger.service"
+UNIT = Path(__file__).resolve().parents[1] / "logger" / "gpsins-logger.service"
 
 
 def _unit_settings() -> dict[str, list[str]]:

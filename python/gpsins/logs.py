@@ -179,15 +179,14 @@ def scan(buf: np.ndarray | bytes, layout: Layout, path: str = "<bytes>", limits:
     # A record with a good checksum but a stamp no clock can give (non-finite,
     # <= 0, beyond 2286) that sits where the chain of records resumes.
     # Several in a row each start where the one before ends.
-    resume = np.concatenate(([0], starts + lengths))
+    resume = np.concatenate(([0], starts + lengths))  # sorted
     bp_, bl_ = p[bad_stamp], length[bad_stamp]
-    hit = np.zeros(len(bp_), dtype=bool)
-    while True:
-        more = ~hit & np.isin(bp_, resume)
-        if not more.any():
-            break
+    k = np.minimum(np.searchsorted(resume, bp_), len(resume) - 1)
+    hit = resume[k] == bp_
+    more = hit
+    while more.any():
+        more = ~hit & np.isin(bp_, bp_[more] + bl_[more])  # small arrays: the broken ones only
         hit |= more
-        resume = np.concatenate((resume, bp_[more] + bl_[more]))
     broken = bp_[hit]
     stats = {
         "records": int(len(starts)),
