@@ -5,7 +5,9 @@
 Defaults: 60 s at real time (64 Hz IMU + 10 Hz ID 23 and the 1 Hz messages).
 SPEED 10 replays ten times faster (a stress run). A soak is SECONDS=600.
 Prints, per sensor, the stamp minus the emulator's first-byte realtime
-(median, p99, max) and the daemon's CPU share.
+(median, p99, max), the largest step back between consecutive stamps (0 since
+the per-sensor clamp) and the daemon's CPU share. Run it beside two busy
+loops (`python -c 'while 1: pass'`) to see stamps under load.
 """
 
 import resource
@@ -33,8 +35,10 @@ def main() -> None:
             got = r.session.sensors[name].frames()
             lost = len(ok) - len(got)
             lat = (r.session.sensors[name].stamps - np.array([s.first_byte_realtime for s in ok])) * 1e3
+            back = max(0.0, -float(np.diff(r.session.sensors[name].stamps).min(initial=0.0))) * 1e3
             print(f"  {name}: {len(got)} frames, {lost} lost; stamp - first byte: median {np.median(lat):.3f} ms, "
-                  f"p99 {np.percentile(lat, 99):.3f} ms, max {lat.max():.3f} ms, min {lat.min():.3f} ms")
+                  f"p99 {np.percentile(lat, 99):.3f} ms, max {lat.max():.3f} ms, min {lat.min():.3f} ms; "
+                  f"largest backward step {back:.3f} ms")
         print(f"  daemon CPU {cpu.ru_utime + cpu.ru_stime:.2f} s = {100 * (cpu.ru_utime + cpu.ru_stime) / wall:.1f} % "
               f"of one core; peak RSS {cpu.ru_maxrss / 1024:.0f} MB")
 

@@ -24,15 +24,16 @@ class RigResult:
     stderr: str
 
 
-def write_config(path: Path, devdir: Path, root: Path, imu_rate_hz: int = 64, extra: str = "") -> Path:
+def write_config(path: Path, devdir: Path, root: Path, imu_rate_hz: int = 64, extra: str = "",
+                 session_extra: str = "", reconnect_extra: str = "") -> Path:
     path.write_text(f"""
 [session]
 root = "{root}"
 fsync_interval_s = 0.2
 clock_pair_interval_s = 0.5
+{session_extra}
 [reconnect]
-initial_backoff_s = 0.05
-max_backoff_s = 0.2
+{reconnect_extra or "initial_backoff_s = 0.05"}
 [gps]
 port = "{devdir / 'gps'}"
 [imu]
@@ -45,14 +46,21 @@ rate_hz = {imu_rate_hz}
 
 def run_rig(tmp: Path, seconds: float = 4.0, stop_signal=signal.SIGINT, gps_faults: Faults | None = None,
             imu_faults: Faults | None = None, imu_rate_hz: int = 64, speed: float = 1.0,
-            during=None, source=None) -> RigResult:
+            during=None, source=None, before=None, session_dir: Path | None = None, prefix: tuple = (),
+            session_extra: str = "", reconnect_extra: str = "") -> RigResult:
+    """`before(em)` runs before the daemon starts, `during(proc, em)` while the
+    emulators stream; `prefix` goes before the daemon's command (e.g. setpriv)."""
     devdir = tmp / "dev"
     source = source or StaticSource(seconds, seed=1)
     em = Emulators(devdir, source, speed=speed, gps_faults=gps_faults, imu_faults=imu_faults)
-    cfg = write_config(tmp / "logger.toml", devdir, tmp / "sessions", imu_rate_hz)
-    session_dir = tmp / "session"
-    proc = subprocess.Popen([sys.executable, "-m", "gpsins_logger.daemon", "--config", str(cfg), "--session-dir",
-                             str(session_dir)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    cfg = write_config(tmp / "logger.toml", devdir, tmp / "sessions", imu_rate_hz, session_extra=session_extra,
+                       reconnect_extra=reconnect_extra)
+    session_dir = session_dir or tmp / "session"
+    if before:
+        before(em)
+    proc = subprocess.Popen([*prefix, sys.executable, "-m", "gpsins_logger.daemon", "--config", str(cfg),
+                             "--session-dir", str(session_dir)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
     try:
         assert proc.stdout.readline().strip() == str(session_dir)
         em.start()

@@ -3,7 +3,9 @@
 import csv
 import io
 import json
+import logging
 import os
+import time
 
 import numpy as np
 
@@ -12,9 +14,9 @@ from gpsins.cli import main as cli_main
 from gpsins.sources import StaticSource
 from gpsins_logger import bp3010
 from gpsins_logger import superstar2 as ss2
-from gpsins_logger.recorder import SensorInfo, Session
+from gpsins_logger.recorder import DiskHealth, SensorInfo, Session
 
-T0 = 1.7e9
+T0 = time.time()  # the stamps must lie inside the session the recorder opens now
 
 
 def _write_session(path, seconds=5.0, damage_gps_at=None):
@@ -29,6 +31,11 @@ def _write_session(path, seconds=5.0, damage_gps_at=None):
         smp.sample.counter = (k + 1) & 0xFF
         s.record("imu", smp.sample.encode(), T0 + smp.t)
     s.close()
+    # The records were written at once: let the sidecar span the time they claim.
+    side = json.loads((path / "session.json").read_text())
+    side["start"]["realtime"] = min(T0, side["start"]["realtime"])
+    side["stop"]["realtime"] = max(T0 + seconds, side["stop"]["realtime"])
+    (path / "session.json").write_text(json.dumps(side))
     if damage_gps_at is not None:
         f = path / "gps-000.bin"
         data = bytearray(f.read_bytes())
@@ -89,23 +96,39 @@ def test_dump_names_a_missing_session(tmp_path, capsys):
     assert "nope: no such directory" in capsys.readouterr().err
 
 
-def test_full_disk_is_counted_not_raised(tmp_path):
+def test_full_disk_is_counted_not_raised(tmp_path, caplog, monkeypatch):
+    caplog.set_level(logging.INFO, logger="gpsins_logger")
+    monkeypatch.setattr(DiskHealth, "QUIET_S", 0.0)  # recovery at the first good write, not 1 s later
+    t0 = time.time()
     s = Session(tmp_path / "s", {"imu": SensorInfo("bp3010", 1)})
     frame = bp3010.ImuSample((0.0, 0.0, 0.0), (0.0, 0.0, -0.15)).encode()
-    assert s.record("imu", frame, T0)
+    assert s.record("imu", frame, t0)
     full = os.open("/dev/full", os.O_WRONLY)
     saved = os.dup(s._records["imu"]._fd)
     try:
         os.dup2(full, s._records["imu"]._fd)  # every write now fails with ENOSPC
-        assert not s.record("imu", frame, T0 + 0.1)
-        assert not s.record("imu", frame, T0 + 0.2)
+        assert not s.record("imu", frame, t0 + 0.1)
+        assert not s.record("imu", frame, t0 + 0.2)
+        saved_clock = os.dup(s._clock._fd)
+        os.dup2(full, s._clock._fd)
+        assert not s.clock_pair()  # counted, not raised
+        s.sync()
+        os.dup2(saved_clock, s._clock._fd)
+        os.close(saved_clock)
+        assert s.sidecar()["disk"]["state"] == "failing"
     finally:
         os.dup2(saved, s._records["imu"]._fd)
         os.close(saved)
         os.close(full)
-    assert s.record("imu", frame, T0 + 0.3)  # the disk came back: logging goes on
+    assert s.record("imu", frame, t0 + 0.3)  # the disk came back: logging goes on
     s.close()
-    c = s.sidecar()["counts"]["imu"]
+    side = s.sidecar()
+    c = side["counts"]["imu"]
     assert c["frames_written"] == 2 and c["frames_lost_to_disk_errors"] == 2 and c["write_errors"] >= 2
+    assert side["disk"]["state"] == "ok" and side["disk"]["failing_episodes"] == 1
+    assert side["disk"]["clock_write_errors"] >= 1
+    # One line when failing starts, one when it ends with what was lost; nothing in between.
+    lines = [r.getMessage() for r in caplog.records if "disk writes" in r.getMessage()]
+    assert len(lines) == 2 and "failing" in lines[0] and "work again" in lines[1] and "imu 2 frames" in lines[1]
     stamps = dump.logs.read_session(tmp_path / "s").sensors["imu"].stamps
-    assert stamps.tolist() == [T0, T0 + 0.3]
+    assert stamps.tolist() == [t0, t0 + 0.3]

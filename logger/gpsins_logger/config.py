@@ -53,12 +53,16 @@ class SessionConfig:
     root: str = "sessions"
     fsync_interval_s: float = 1.0
     clock_pair_interval_s: float = 10.0
+    raw_reserve_mb: float = 50.0  # below this much free space the raw capture pauses first
 
 
 @dataclass
 class ReconnectConfig:
-    initial_backoff_s: float = 0.2
+    initial_backoff_s: float = 0.2  # back-off for a port that fails right after opening
     max_backoff_s: float = 5.0
+    poll_interval_s: float = 0.05  # how often an absent device's path is looked at
+    unopenable_retry_s: float = 5.0  # retry period for a present device that cannot be opened
+    give_up_after_s: float = 0.0  # stop trying an unopenable device after this long; 0 = never
 
 
 @dataclass
@@ -75,7 +79,9 @@ class LoggerConfig:
 
 _TYPES = {"port": str, "baud": int, "link_open": bool, "raw_rate_hz": int, "messages": list, "raw_capture": bool,
           "rate_hz": int, "root": str, "fsync_interval_s": (int, float), "clock_pair_interval_s": (int, float),
-          "initial_backoff_s": (int, float), "max_backoff_s": (int, float)}
+          "raw_reserve_mb": (int, float),
+          "initial_backoff_s": (int, float), "max_backoff_s": (int, float), "poll_interval_s": (int, float),
+          "unopenable_retry_s": (int, float), "give_up_after_s": (int, float)}
 
 
 def _section(cls, data: dict, name: str, where: str):
@@ -131,8 +137,16 @@ def from_dict(data: dict, where: str = "<config>", check_ports: bool = True) -> 
     for key in ("fsync_interval_s", "clock_pair_interval_s"):
         if getattr(cfg.session, key) <= 0:
             raise ConfigError(f"{where}: 'session.{key}' must be positive")
+    if cfg.session.raw_reserve_mb < 0:
+        raise ConfigError(f"{where}: 'session.raw_reserve_mb' must be >= 0")
     if not 0 < cfg.reconnect.initial_backoff_s <= cfg.reconnect.max_backoff_s:
         raise ConfigError(f"{where}: need 0 < reconnect.initial_backoff_s <= reconnect.max_backoff_s")
+    if not 0 < cfg.reconnect.poll_interval_s <= 1.0:
+        raise ConfigError(f"{where}: 'reconnect.poll_interval_s' must be in (0, 1]")
+    if cfg.reconnect.unopenable_retry_s <= 0:
+        raise ConfigError(f"{where}: 'reconnect.unopenable_retry_s' must be positive")
+    if cfg.reconnect.give_up_after_s < 0:
+        raise ConfigError(f"{where}: 'reconnect.give_up_after_s' must be >= 0 (0 = never give up)")
     return cfg
 
 

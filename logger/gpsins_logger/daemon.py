@@ -18,7 +18,7 @@ from pathlib import Path
 
 from . import __version__, config as config_mod
 from .port import SensorThread
-from .recorder import SensorInfo, Session, new_session_dir
+from .recorder import SensorInfo, Session, StartupError, new_session_dir
 
 log = logging.getLogger("gpsins_logger")
 
@@ -42,10 +42,12 @@ class Daemon:
             settings_of[name] = (device, sc)
         directory = session_dir or new_session_dir(Path(cfg.session.root))
         self.session = Session(directory, infos, config=_config_record(cfg),
-                               fsync_interval_s=cfg.session.fsync_interval_s)
+                               fsync_interval_s=cfg.session.fsync_interval_s,
+                               raw_reserve_bytes=int(cfg.session.raw_reserve_mb * 1e6))
         self.threads = [
             SensorThread(name, device, sc.port, sc.baud, sc.requests(), self.session, sc.raw_capture,
-                         cfg.reconnect.initial_backoff_s, cfg.reconnect.max_backoff_s)
+                         cfg.reconnect.initial_backoff_s, cfg.reconnect.max_backoff_s, cfg.reconnect.poll_interval_s,
+                         cfg.reconnect.unopenable_retry_s, cfg.reconnect.give_up_after_s)
             for name, (device, sc) in settings_of.items()
         ]
 
@@ -80,6 +82,7 @@ class Daemon:
                 if now >= next_clock:
                     self.session.clock_pair()
                     next_clock = now + self.cfg.session.clock_pair_interval_s
+                self.session.check_free_space()
                 self.session.sync()
                 self.session.write_sidecar()
         finally:
@@ -124,6 +127,9 @@ def main(argv: list[str] | None = None) -> int:
         daemon = Daemon(cfg, args.session_dir)
     except FileExistsError as e:
         print(f"gpsins-logger: session directory exists: {e.filename}", file=sys.stderr)
+        return 2
+    except StartupError as e:
+        print(f"gpsins-logger: {e}", file=sys.stderr)
         return 2
     print(daemon.session.directory, flush=True)
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGTSTP):

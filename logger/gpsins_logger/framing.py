@@ -14,8 +14,12 @@ Two hunting policies, chosen by the rule:
   about once in 256 tries) a candidate found while hunting is accepted only
   when its counter continues the last accepted frame's within MAX_GAP frames,
   or when a valid frame within the next MAX_GAP frames' worth of bytes
-  continues its counter. Once locked, a frame that fails is dropped alone if
-  the frame after it is where the lock expects it.
+  continues its counter. When damage on both sides leaves no such frame
+  near (truncated frames before and after an intact one), it is taken when
+  its counter continues the last accepted frame's, a frame starts right
+  after it and a valid frame ahead continues its counter. Once locked, a
+  frame that fails is dropped alone if the frame after it is where the lock
+  expects it.
 """
 
 from __future__ import annotations
@@ -76,6 +80,7 @@ class FrameFinder:
         self._base = 0  # stream offset of _buf[0]
         self._locked = False
         self._last: bytes | None = None  # last accepted frame (counter rules)
+        self._tail_start: int | None = None  # flush(): first incomplete candidate after the last frame
 
     @property
     def pending(self) -> int:
@@ -92,12 +97,19 @@ class FrameFinder:
         return out
 
     def flush(self) -> list[Frame]:
-        """End of stream: decide what can still be decided; what remains is a
-        truncated last frame, reported as the tail (not as discarded bytes)."""
+        """End of stream: decide what can still be decided. A candidate whose
+        declared length runs past the end is skipped like a false sync, so
+        whole frames inside its span are still found; the bytes from the first
+        such candidate after the last frame are the truncated tail (reported
+        as the tail, not as discarded bytes)."""
         out: list[Frame] = []
+        self._tail_start: int | None = None
         i = self._scan(out, final=True)
-        self.stats.tail_bytes = len(self._buf) - i
-        self.stats.tail_offset = self._base + i if self.stats.tail_bytes else None
+        tail_start = self._tail_start if self._tail_start is not None else i
+        self.stats.tail_bytes = len(self._buf) - tail_start
+        # The hunt counted the tail's bytes as discarded; they are the tail.
+        self.stats.discarded_bytes -= i - tail_start
+        self.stats.tail_offset = self._base + tail_start if self.stats.tail_bytes else None
         self._base += len(self._buf)
         del self._buf[:]
         return out
@@ -110,6 +122,7 @@ class FrameFinder:
         out.append(Frame(self._base + i, frame))
         self._last = frame
         self.stats.frames += 1
+        self._tail_start = None
 
     def _scan(self, out: list[Frame], final: bool) -> int:
         buf, rule = self._buf, self.rule
@@ -126,7 +139,13 @@ class FrameFinder:
                 return i
             n = rule.frame_len(buf, i) if rule.header_ok(buf, i) else 0
             if n and size - i < n:
-                return i
+                if not final:
+                    return i
+                if self._tail_start is None:
+                    self._tail_start = i
+                self._discard(1)
+                i += 1
+                continue
             good = n > 0 and rule.checksum_ok(buf, i, n)
             # A complete frame with a valid header whose checksum fails: counted
             # once, where the finder decides what to do with it.
@@ -200,6 +219,8 @@ class FrameFinder:
             return None
         if score == 0:
             between = self._between(i, n, final)
+            if between is False:
+                between = self._bridged(i, n, final)
             if not between:
                 return between
         buf, rule = self._buf, self.rule
@@ -229,6 +250,32 @@ class FrameFinder:
         """The frame right after j has the sync and the next counter."""
         buf, rule = self._buf, self.rule
         return buf[j + n] == rule.sync and rule.counter_gap(bytes(buf[j:j + n]), buf, j + n) == 1
+
+    def _bridged(self, i: int, n: int, final: bool) -> bool | None:
+        """Damage on both sides (e.g. truncated frames before and after it),
+        so no anchored frame is near: taken when its counter continues the
+        last accepted frame's (if any), a frame starts right after it, and a
+        valid frame ahead continues its counter. Garbage passes all three about once
+        in 256 * 256 * 256 / 7^2 sync bytes."""
+        buf, rule = self._buf, self.rule
+        if self._last is not None and not 2 <= rule.counter_gap(self._last, buf, i) <= MAX_GAP:
+            return False
+        if len(buf) <= i + n:
+            return False if final else None
+        if buf[i + n] != rule.sync:
+            return False
+        candidate = bytes(buf[i:i + n])
+        window_end = i + n + MAX_GAP * LOOKAHEAD_BYTES_PER_FRAME
+        j = i + n
+        while True:
+            j = buf.find(rule.sync, j, window_end)
+            if j < 0:
+                return False if final or len(buf) >= window_end + n else None
+            if j + n > len(buf):
+                return False if final else None
+            if rule.checksum_ok(buf, j, n) and 1 <= rule.counter_gap(candidate, buf, j) <= MAX_GAP:
+                return True
+            j += 1
 
     def _between(self, i: int, n: int, final: bool) -> bool | None:
         buf, rule = self._buf, self.rule

@@ -11,7 +11,10 @@ Layout of a session (spec/logfile.md):
 Every record is written whole with one write() on a file opened O_APPEND,
 so a crash can at worst truncate the last record; files are fsynced on a
 bounded period and at close. Disk errors are counted and reported, never
-raised into the caller's read loop.
+raised into the caller's read loop: a failed write is undone (a short write
+truncated away), counted, and the next write tries again, so logging resumes
+by itself when space returns. Only starting a session raises (StartupError),
+after removing what it created.
 """
 
 from __future__ import annotations
@@ -42,7 +45,9 @@ CLOCK_STEP_THRESHOLD_S = 0.05
 
 STAMP_MEANING = ("CLOCK_REALTIME seconds (IEEE double, little-endian) at which the frame's first byte "
                  "arrived, estimated as the return time of the read that delivered it minus the bytes "
-                 "after it at the line's byte time (10 bits per byte, 8N1)")
+                 "after it at the line's byte time (10 bits per byte, 8N1); kept strictly increasing per sensor "
+                 "on CLOCK_MONOTONIC (an estimate earlier than the previous stamp plus one byte time is moved "
+                 "there), so stamps run backwards only where the realtime clock was stepped back (clock.csv)")
 
 
 def clock_pair() -> dict[str, float]:
@@ -61,41 +66,117 @@ class FileCounts:
     frames_lost_to_disk_errors: int = 0
 
 
-class _AppendFile:
-    """An O_APPEND file written with one os.write per item."""
+class DiskHealth:
+    """Whether the session's writes are failing, told to the operator once
+    when they start failing, every REMINDER_S while they fail, and once when
+    they succeed again (with what was lost meanwhile)."""
 
-    def __init__(self, path: Path, counts: FileCounts):
+    REMINDER_S = 30.0
+    # Failing ends only after this long without a failure: on a nearly full
+    # disk small writes succeed between failures and would make it flap.
+    QUIET_S = 1.0
+
+    def __init__(self, directory: Path, lost_counts):
+        self.directory = directory
+        self._lost_counts = lost_counts  # () -> {sensor: frames lost so far}
+        self._lock = threading.Lock()
+        self.failing_since: float | None = None
+        self.episodes = 0
+        self.last_error = ""
+        self._lost_at_start: dict[str, int] = {}
+        self._last_reminder = 0.0
+        self._last_failure = 0.0
+
+    def failed(self, what: Path, err: OSError) -> None:
+        now = time.monotonic()
+        with self._lock:
+            self.last_error = f"{what.name}: {err.strerror or err}"
+            self._last_failure = now
+            if self.failing_since is None:
+                self.failing_since = now
+                self._last_reminder = now
+                self.episodes += 1
+                self._lost_at_start = self._lost_counts()
+                log.error("disk writes in %s are failing (%s: %s); frames are counted as lost until "
+                          "writing works again", self.directory, what.name, err.strerror or err)
+            elif now - self._last_reminder >= self.REMINDER_S:
+                self._last_reminder = now
+                log.error("disk writes still failing for %.0f s (%s); lost so far: %s", now - self.failing_since,
+                          self.last_error, self._lost_text())
+
+    def succeeded(self) -> None:
+        if self.failing_since is None:  # the common case, without the lock
+            return
+        now = time.monotonic()
+        with self._lock:
+            if self.failing_since is None or now - self._last_failure < self.QUIET_S:
+                return
+            log.warning("disk writes in %s work again after failing for %.1f s; lost meanwhile: %s",
+                        self.directory, self._last_failure - self.failing_since, self._lost_text())
+            self.failing_since = None
+
+    def _lost_text(self) -> str:
+        now = self._lost_counts()
+        return ", ".join(f"{k} {now[k] - self._lost_at_start.get(k, 0)} frames" for k in now)
+
+    def as_dict(self) -> dict:
+        return {"state": "failing" if self.failing_since is not None else "ok", "failing_episodes": self.episodes,
+                "last_error": self.last_error}
+
+
+class _AppendFile:
+    """An O_APPEND file written with one os.write per item. A write that
+    fails is counted and undone (a short write is truncated away, so a full
+    disk never leaves half a record); the next write simply tries again."""
+
+    def __init__(self, path: Path, counts: FileCounts, health: DiskHealth | None = None):
         self.path = path
         self.counts = counts
+        self.health = health
         self._fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
-        self._last_error_log = 0.0
 
     def write(self, data: bytes) -> bool:
         try:
             n = os.write(self._fd, data)
             if n != len(data):  # a short write on a regular file means the disk is full
-                raise OSError(errno.ENOSPC, f"short write ({n} of {len(data)} bytes)")
+                self._undo(n)
+                raise OSError(errno.ENOSPC, f"No space left on device (short write, {n} of {len(data)} bytes)")
         except OSError as e:
+            if self.health is not None:  # first: it notes the counts before this loss
+                self.health.failed(self.path, e)
             self.counts.write_errors += 1
             self.counts.frames_lost_to_disk_errors += 1
-            now = time.monotonic()
-            if now - self._last_error_log > 10.0:  # one line per 10 s, the count says the rest
-                log.error("write to %s failed: %s (%d errors so far)", self.path, e, self.counts.write_errors)
-                self._last_error_log = now
             return False
         self.counts.bytes_written += n
+        if self.health is not None:
+            self.health.succeeded()
         return True
+
+    def _undo(self, n: int) -> None:
+        try:
+            end = os.lseek(self._fd, 0, os.SEEK_END)
+            os.ftruncate(self._fd, end - n)
+        except OSError:
+            pass  # the reader skips a torn record anyway
 
     def sync(self) -> None:
         try:
             os.fsync(self._fd)
         except OSError as e:
             self.counts.write_errors += 1
-            log.error("fsync of %s failed: %s", self.path, e)
+            if self.health is not None:
+                self.health.failed(self.path, e)
 
     def close(self) -> None:
         self.sync()
-        os.close(self._fd)
+        try:
+            os.close(self._fd)
+        except OSError:
+            pass
+
+
+class StartupError(RuntimeError):
+    """The session cannot be started (unwritable, read-only or full disk)."""
 
 
 @dataclass
@@ -110,16 +191,25 @@ class SensorInfo:
 
 class Session:
     def __init__(self, directory: Path, sensors: dict[str, SensorInfo], config: dict | None = None,
-                 fsync_interval_s: float = 1.0):
+                 fsync_interval_s: float = 1.0, raw_reserve_bytes: int = 0):
         self.directory = Path(directory)
-        self.directory.mkdir(parents=True, exist_ok=False)
         self.sensors = sensors
         self.config = config or {}
         self.fsync_interval_s = fsync_interval_s
+        # Below this much free space the raw capture pauses, so the records last longer.
+        self.raw_reserve_bytes = raw_reserve_bytes
+        self.raw_paused = False
         self.part = 0
         self.counts = {name: FileCounts() for name in sensors}
         self.raw_counts = {name: FileCounts() for name in sensors}
+        self.raw_bytes_skipped = {name: 0 for name in sensors}
         self.extra_counts: dict[str, dict[str, int]] = {name: {} for name in sensors}
+        # Each sensor thread's port state: open, absent, unopenable (with the reason), gave_up.
+        self.port_state: dict[str, dict] = {name: {"state": "starting", "reason": "", "since": None}
+                                            for name in sensors}
+        self.health = DiskHealth(self.directory, self._lost)
+        self.clock_counts = FileCounts()
+        self.sidecar_write_errors = 0
         self.clock_steps = 0
         self._locks = {name: threading.Lock() for name in sensors}
         self._records: dict[str, _AppendFile] = {}
@@ -128,19 +218,55 @@ class Session:
         self.start = clock_pair()
         self.stop: dict[str, float] | None = None
         self._last_offset: float | None = None
-        self._clock = open(self.directory / CLOCK_FILE, "a", encoding="ascii")
-        self._clock.write("realtime,monotonic\n")
-        self._open_part()
-        self.clock_pair()
-        self.write_sidecar()
+        created = _make_dirs(self.directory)
+        try:
+            self._clock = _AppendFile(self.directory / CLOCK_FILE, self.clock_counts)
+            self._must(self._clock.write(b"realtime,monotonic\n"), CLOCK_FILE)
+            self._open_part()
+            self._must(self.clock_pair(), CLOCK_FILE)
+            self.write_sidecar(strict=True)
+            self.sync()
+            self._must(self.clock_counts.write_errors == 0, CLOCK_FILE)
+        except OSError as e:
+            self._abandon(created)
+            raise StartupError(f"cannot write the session in {self.directory}: "
+                               f"{e.strerror or e}{' (' + e.filename + ')' if e.filename else ''}") from None
+        self._clock.health = self.health
+
+    def _must(self, ok: bool, what: str) -> None:
+        if not ok:
+            raise OSError(errno.ENOSPC, "No space left on device", str(self.directory / what))
+
+    def _abandon(self, created: list[Path]) -> None:
+        """Undo a failed start: close and remove what this session created."""
+        for f in (getattr(self, "_clock", None), *self._records.values(), *self._raws.values()):
+            if f is not None:
+                try:
+                    os.close(f._fd)
+                except OSError:
+                    pass
+        for p in sorted(self.directory.glob("*")):
+            try:
+                p.unlink()
+            except OSError:
+                pass
+        for d in reversed(created):
+            try:
+                d.rmdir()
+            except OSError:
+                pass
+
+    def _lost(self) -> dict[str, int]:
+        return {name: c.frames_lost_to_disk_errors for name, c in self.counts.items()}
 
     def _open_part(self) -> None:
         self._parts.append({"index": self.part, "start": clock_pair()})
         for name, info in self.sensors.items():
-            self._records[name] = _AppendFile(self.directory / part_name(name, self.part, "bin"), self.counts[name])
+            self._records[name] = _AppendFile(self.directory / part_name(name, self.part, "bin"), self.counts[name],
+                                              self.health)
             if info.raw_capture:
                 self._raws[name] = _AppendFile(self.directory / part_name(name, self.part, "raw"),
-                                               self.raw_counts[name])
+                                               self.raw_counts[name], self.health)
 
     def record(self, sensor: str, frame: bytes, stamp: float) -> bool:
         h = self.sensors[sensor].header_len
@@ -154,18 +280,39 @@ class Session:
     def raw(self, sensor: str, data: bytes, monotonic: float, realtime: float) -> None:
         with self._locks[sensor]:
             f = self._raws.get(sensor)
-            if f is not None:
-                f.write(RAW_HEADER.pack(len(data), monotonic, realtime) + data)
+            if f is None:
+                return
+            if self.raw_paused:
+                self.raw_bytes_skipped[sensor] += len(data)
+                return
+            f.write(RAW_HEADER.pack(len(data), monotonic, realtime) + data)
 
-    def clock_pair(self) -> None:
+    def check_free_space(self) -> None:
+        """Pause the raw capture while free space is below the reserve."""
+        if not self.raw_reserve_bytes:
+            return
+        try:
+            st = os.statvfs(self.directory)
+        except OSError:
+            return
+        free = st.f_bavail * st.f_frsize
+        paused = free < self.raw_reserve_bytes
+        if paused != self.raw_paused:
+            self.raw_paused = paused
+            if paused:
+                log.warning("free space %.1f MB is below the reserve of %.1f MB: raw capture paused, records go on",
+                            free / 1e6, self.raw_reserve_bytes / 1e6)
+            else:
+                log.info("free space %.1f MB is above the reserve again: raw capture resumed", free / 1e6)
+
+    def clock_pair(self) -> bool:
         pair = clock_pair()
         offset = pair["realtime"] - pair["monotonic"]
         if self._last_offset is not None and abs(offset - self._last_offset) > CLOCK_STEP_THRESHOLD_S:
             self.clock_steps += 1
             log.warning("realtime clock stepped by %+.3f s", offset - self._last_offset)
         self._last_offset = offset
-        self._clock.write(f"{pair['realtime']:.6f},{pair['monotonic']:.6f}\n")
-        self._clock.flush()
+        return self._clock.write(f"{pair['realtime']:.6f},{pair['monotonic']:.6f}\n".encode("ascii"))
 
     def sync(self) -> None:
         for name in self.sensors:
@@ -173,7 +320,7 @@ class Session:
                 for files in (self._records, self._raws):
                     if name in files:
                         files[name].sync()
-        os.fsync(self._clock.fileno())
+        self._clock.sync()
 
     def rotate(self) -> None:
         """Close this part's files and start the next part (SIGHUP). All
@@ -186,12 +333,31 @@ class Session:
                     f.close()
             self._raws.clear()
             self.part += 1
-            self._open_part()
+            try:
+                self._open_part()
+            except OSError as e:  # the new part cannot be created: keep writing the old one
+                log.error("cannot start part %d in %s (%s); staying on part %d", self.part, self.directory,
+                          e.strerror or e, self.part - 1)
+                self._parts.pop()
+                self.part -= 1
+                self._reopen_part()
         finally:
             for name in self.sensors:
                 self._locks[name].release()
         self.write_sidecar()
         log.info("rotated to part %d", self.part)
+
+    def _reopen_part(self) -> None:
+        for name, info in self.sensors.items():
+            for files, ext, counts in ((self._records, "bin", self.counts), (self._raws, "raw", self.raw_counts)):
+                if ext == "raw" and not info.raw_capture:
+                    continue
+                try:
+                    files[name] = _AppendFile(self.directory / part_name(name, self.part, ext), counts[name],
+                                              self.health)
+                except OSError as e:
+                    log.error("cannot reopen %s: %s", part_name(name, self.part, ext), e.strerror or e)
+                    files[name] = _DeadFile(counts[name], self.health, self.directory / part_name(name, self.part, ext))
 
     def sidecar(self) -> dict:
         sensors = {}
@@ -199,11 +365,12 @@ class Session:
             parts = [part_name(name, p["index"], "bin") for p in self._parts]
             raw = [part_name(name, p["index"], "raw") for p in self._parts] if info.raw_capture else []
             sensors[name] = {"device": info.device, "header_len": info.header_len, **info.settings,
-                             "files": parts, "raw_files": raw}
+                             "files": parts, "raw_files": raw, "port_state": dict(self.port_state[name])}
         counts = {}
         for name in self.sensors:
             c = dict(self.counts[name].__dict__)
             c["raw_write_errors"] = self.raw_counts[name].write_errors
+            c["raw_bytes_skipped_for_reserve"] = self.raw_bytes_skipped[name]
             c.update(self.extra_counts[name])
             counts[name] = c
         return {
@@ -221,18 +388,33 @@ class Session:
             "parts": self._parts,
             "counts": counts,
             "clock_steps": self.clock_steps,
+            "disk": {**self.health.as_dict(), "clock_write_errors": self.clock_counts.write_errors,
+                     "sidecar_write_errors": self.sidecar_write_errors, "raw_paused_for_reserve": self.raw_paused},
             "config": self.config,
         }
 
-    def write_sidecar(self) -> None:
-        # Write-then-rename: a crash leaves the old or the new sidecar, never half of one.
+    def write_sidecar(self, strict: bool = False) -> bool:
+        """Write-then-rename: a crash leaves the old or the new sidecar, never
+        half of one. A failure is counted (and raised only when strict)."""
         tmp = self.directory / (SIDECAR + ".tmp")
-        with open(tmp, "w", encoding="utf-8") as f:
-            json.dump(self.sidecar(), f, indent=2)
-            f.write("\n")
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, self.directory / SIDECAR)
+        try:
+            with open(tmp, "w", encoding="utf-8") as f:
+                json.dump(self.sidecar(), f, indent=2)
+                f.write("\n")
+                f.flush()
+                os.fsync(f.fileno())
+            os.replace(tmp, self.directory / SIDECAR)
+        except OSError as e:
+            if strict:
+                raise
+            self.sidecar_write_errors += 1
+            self.health.failed(Path(SIDECAR), e)
+            try:
+                tmp.unlink()
+            except OSError:
+                pass
+            return False
+        return True
 
     def close(self) -> None:
         self.clock_pair()
@@ -244,6 +426,53 @@ class Session:
         self._clock.close()
         self.stop = clock_pair()
         self.write_sidecar()
+
+
+class _DeadFile(_AppendFile):
+    """A part file that could not be opened: every write counts as lost."""
+
+    def __init__(self, counts: FileCounts, health: DiskHealth, path: Path):
+        self.path, self.counts, self.health, self._fd = path, counts, health, -1
+
+    def write(self, data: bytes) -> bool:
+        self.health.failed(self.path, OSError(errno.EBADF, "part file not open"))
+        self.counts.write_errors += 1
+        self.counts.frames_lost_to_disk_errors += 1
+        return False
+
+    def sync(self) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+
+def _make_dirs(directory: Path) -> list[Path]:
+    """mkdir -p that returns what it created (outermost first); the session
+    directory itself must be new."""
+    missing = []
+    p = directory
+    while not p.exists():
+        missing.append(p)
+        if p.parent == p:
+            break
+        p = p.parent
+    if not missing:
+        raise FileExistsError(errno.EEXIST, "File exists", str(directory))
+    created = []
+    try:
+        for d in reversed(missing):
+            d.mkdir()
+            created.append(d)
+    except OSError as e:
+        for d in reversed(created):
+            try:
+                d.rmdir()
+            except OSError:
+                pass
+        raise StartupError(f"cannot create the session directory {directory}: {e.strerror or e}"
+                           f"{' (' + e.filename + ')' if e.filename else ''}") from None
+    return created
 
 
 def new_session_dir(root: Path) -> Path:

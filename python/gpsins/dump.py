@@ -61,7 +61,8 @@ def session_summary(directory: str | Path) -> dict:
     for name, files in session.sensors.items():
         entry = {"device": files.device, **files.stats(), **_span(files.stamps),
                  "damage": [{"file": Path(s.path).name, "first_discarded_offset": s.stats.get("first_discarded_offset"),
-                             "truncated_tail_offset": s.stats.get("truncated_tail_offset")}
+                             "truncated_tail_offset": s.stats.get("truncated_tail_offset"),
+                             "first_bad_stamp_offset": s.stats.get("first_bad_stamp_offset")}
                             for s in files.scans if s.stats.get("discarded_bytes") or s.stats.get("truncated_tail_bytes")]}
         if files.device == "superstar2":
             entry["messages"] = _gps_by_id(files.scans)
@@ -87,10 +88,11 @@ def raw_summary(path: str | Path, device: str) -> dict:
         from gpsins_logger.framing import FrameFinder
 
         finder = FrameFinder(bp3010.FRAMING)
-        frames = finder.feed(stream)
+        frames = finder.feed(stream) + finder.flush()
         st = finder.stats
         return {"file": str(path), "device": device, "frames": len(frames), "bytes": len(stream),
-                "discarded_bytes": st.discarded_bytes, "checksum_failures": st.checksum_failures}
+                "discarded_bytes": st.discarded_bytes, "checksum_failures": st.checksum_failures,
+                "truncated_tail_bytes": st.tail_bytes, "truncated_tail_offset": st.tail_offset}
     raise logs.LogError(f"{path}: unknown device {device!r} (superstar2 or bp3010)")
 
 

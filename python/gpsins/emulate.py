@@ -14,8 +14,11 @@ injected with exact bookkeeping: every frame's fate is in ``sent``.
 from __future__ import annotations
 
 import errno
+import fcntl
 import os
 import select
+import struct
+import termios
 import threading
 import time
 import tty
@@ -49,7 +52,8 @@ class Faults:
 @dataclass
 class SentFrame:
     frame: bytes  # the frame as the device produced it
-    fate: str  # "ok", "flipped", "dropped", "truncated", "offline", "interrupted"
+    fate: str  # "ok", "flipped", "dropped", "truncated", "offline", "interrupted",
+    # or "unread": still in the host's input buffer, unread, when the device was unplugged
     first_byte_realtime: float  # when its first byte was on the line (time.time())
     garbage_before: int = 0
     wire_bytes: int = 0  # bytes of the frame put on the line (less when truncated)
@@ -82,6 +86,15 @@ class PtyLink:
             if fd >= 0:
                 os.close(fd)
         self.master = self.slave = -1
+
+    def unread_bytes(self) -> int:
+        """Bytes written that the host has not read yet (its tty input queue)."""
+        if self.slave < 0:
+            return 0
+        try:
+            return struct.unpack("i", fcntl.ioctl(self.slave, termios.FIONREAD, b"\0\0\0\0"))[0]
+        except OSError:
+            return 0
 
     def remove(self) -> None:
         self.close()
@@ -134,6 +147,8 @@ class DeviceEmulator(threading.Thread):
         self.sent: list[SentFrame] = []
         self.garbage_bytes = 0
         self.disconnect_count = 0
+        self.replugged_realtime: list[float] = []  # when the device came back after each disconnect
+        self._inflight: tuple[SentFrame, int] | None = None  # the frame being written, bytes written so far
         self._stop_event = threading.Event()
         self._line_free = 0.0
         self._start_mono = 0.0
@@ -179,13 +194,34 @@ class DeviceEmulator(threading.Thread):
             time.sleep(max(timeout, 0.0))
 
     def _disconnect(self, down_s: float) -> None:
+        # An unplug as udev shows it: the device node and its stable name vanish.
         self.disconnect_count += 1
         self._online = False
-        self.pty.close()
+        # Bytes written a moment ago may still be on their way through the
+        # kernel (a busy CPU delays it): let them land before counting what
+        # the host has not read.
+        self._stop_event.wait(0.1)
+        self._mark_unread(self.pty.unread_bytes())
+        self.pty.remove()
         self.on_disconnect()
         self._stop_event.wait(down_s / self.speed)
         self.pty.open()
+        self.replugged_realtime.append(time.time())
         self._online = True
+
+    def _mark_unread(self, pending: int) -> None:
+        """Frames whose bytes the host had not read when the cable was pulled
+        are lost with the device (a busy host reads late); they are not 'ok'."""
+        inflight = self._inflight
+        for sent in reversed(self.sent):
+            if pending <= 0:
+                break
+            on_line = sent.wire_bytes + sent.garbage_before
+            if inflight is not None and sent is inflight[0]:
+                on_line = inflight[1]  # a frame being sent: only its bytes written so far
+            if on_line and sent.fate == "ok":
+                sent.fate = "unread"
+            pending -= on_line
 
     # -- sending ------------------------------------------------------------------
     def send_frame(self, frame: bytes, t: float) -> None:
@@ -219,6 +255,7 @@ class DeviceEmulator(threading.Thread):
         record = SentFrame(frame, fate, first_byte + self._mono_to_real, len(garbage), len(wire))
         self.sent.append(record)
         generation = self.pty.generation
+        self._inflight = (record, 0)
         for k in range(0, len(data), self.chunk_bytes):
             chunk = data[k:k + self.chunk_bytes]
             if not self._wait_until(start + (k + len(chunk)) * self.byte_time_s):
@@ -227,6 +264,8 @@ class DeviceEmulator(threading.Thread):
                     chunk, time.monotonic() + 1.0):
                 record.fate = "interrupted"  # the cable was pulled mid-frame
                 return
+            self._inflight = (record, k + len(chunk))
+        self._inflight = None
         self._line_free = start + len(data) * self.byte_time_s
 
     # -- hooks --------------------------------------------------------------------

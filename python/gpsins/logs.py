@@ -7,6 +7,9 @@ then follows the chain of records from the start, resynchronising at the
 next valid candidate after damage, exactly as the logger's streaming finder
 does on a byte stream. Python loops only over damaged places, never over
 records. A truncated last record is accepted as the file's tail and reported.
+Stamps are checked against the session (see :func:`reject_bad_stamps`).
+Damaged input of any kind reads as records plus counted damage; only a file
+that cannot be read at all raises :class:`LogError`.
 """
 
 from __future__ import annotations
@@ -19,11 +22,13 @@ import numpy as np
 
 from gpsins_logger import bp3010
 from gpsins_logger import superstar2 as ss2
-from gpsins_logger.recorder import RAW_HEADER
+from gpsins_logger.recorder import CLOCK_STEP_THRESHOLD_S, RAW_HEADER
 
 STAMP_BYTES = 8
 # A stamp outside (1970, 2286) cannot be system time: the candidate is not a record.
 STAMP_MIN, STAMP_MAX = 0.0, 1e10
+# Stamps may lie this far outside the session's recorded span (start/stop, clock pairs).
+SPAN_MARGIN_S = 2.0
 
 
 class LogError(ValueError):
@@ -86,8 +91,10 @@ def _gather(buf: np.ndarray, offsets: np.ndarray, width: int) -> np.ndarray:
     return np.lib.stride_tricks.sliding_window_view(buf, width)[offsets]
 
 
-def _candidates(buf: np.ndarray, lay: Layout) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """All header-valid candidates: positions, lengths, and checksum/stamp validity."""
+def _candidates(buf: np.ndarray, lay: Layout, lo: float = STAMP_MIN, hi: float = STAMP_MAX
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """All header-valid candidates: positions, lengths, checksum/stamp validity,
+    and which pass the checksum but carry an impossible stamp."""
     size = len(buf)
     sl = lay.stamp_len
     if lay.device == "superstar2":
@@ -100,6 +107,7 @@ def _candidates(buf: np.ndarray, lay: Layout) -> tuple[np.ndarray, np.ndarray, n
         length = np.full(len(p), bp3010.FRAME_LEN + sl, dtype=np.int64)
     complete = p + length <= size
     ok = np.zeros(len(p), dtype=bool)
+    bad_stamp = np.zeros(len(p), dtype=bool)
     pc, lc = p[complete], length[complete]
     if len(pc):
         # Running sums modulo the checksum's width: unsigned wrap-around is exact
@@ -120,15 +128,23 @@ def _candidates(buf: np.ndarray, lay: Layout) -> tuple[np.ndarray, np.ndarray, n
         if lay.stamped:
             st = _gather(buf, pc + lay.header_len, STAMP_BYTES).view("<f8").reshape(-1)
             with np.errstate(invalid="ignore"):
-                good &= np.isfinite(st) & (st > STAMP_MIN) & (st < STAMP_MAX)
+                plausible = np.isfinite(st) & (st > lo) & (st < hi)
+            bad_stamp[complete] = good & ~plausible
+            good &= plausible
         ok[complete] = good
-    return p, length, ok
+    return p, length, ok, bad_stamp
 
 
-def scan(buf: np.ndarray | bytes, layout: Layout, path: str = "<bytes>") -> Scan:
+def scan(buf: np.ndarray | bytes, layout: Layout, path: str = "<bytes>", limits: "StampLimits | None" = None
+         ) -> Scan:
+    """Accepted records of buf. With limits (the session's span), a candidate
+    whose stamp lies outside the span is not a record: random bytes that pass
+    an 8-bit sum then almost never pass as a record, so they cannot swallow
+    an intact record that overlaps them."""
     buf = np.frombuffer(buf, dtype=np.uint8) if isinstance(buf, (bytes, bytearray, memoryview)) else buf
     size = len(buf)
-    p, length, ok = _candidates(buf, layout)
+    lo, hi = (limits.lo, limits.hi) if limits is not None else (STAMP_MIN, STAMP_MAX)
+    p, length, ok, bad_stamp = _candidates(buf, layout, lo, hi)
     vp, vl = p[ok], length[ok]
     # Greedy chain from the start: after a record ending at e, the next record is
     # the first valid candidate at or after e. succ[k] is that candidate's index.
@@ -146,27 +162,36 @@ def scan(buf: np.ndarray | bytes, layout: Layout, path: str = "<bytes>") -> Scan
         chosen[k:stop + 1] = True
         k = succ[stop]
     starts, lengths = vp[chosen], vl[chosen]
-    # The tail: the first incomplete header-valid candidate not inside an accepted
-    # record. The streaming finder stops there and waits, so records after it
-    # (possible only inside its declared span) are not accepted either.
+    # The tail: the first incomplete header-valid candidate after the last
+    # accepted record. An incomplete candidate earlier than that was a false
+    # header (whole records follow it), as the streaming finder decides at flush.
     tail_offset = None
-    inc = p[p + length > size]
+    last_end = int(starts[-1] + lengths[-1]) if len(starts) else 0
+    inc = p[(p + length > size) & (p >= last_end)]
     if len(inc):
-        k = np.searchsorted(starts, inc, side="right") - 1
-        inside = (k >= 0) & (inc < np.where(k >= 0, starts[np.maximum(k, 0)] + lengths[np.maximum(k, 0)], 0))
-        reached = inc[~inside]
-        if len(reached):
-            tail_offset = int(reached[0])
-            keep = starts < tail_offset
-            starts, lengths = starts[keep], lengths[keep]
+        tail_offset = int(inc[0])
     tail = size - tail_offset if tail_offset is not None else 0
     covered = int(lengths.sum())
     # Where each covered stretch ends vs where the next begins: the first mismatch is the first discarded byte.
     prev_end = np.concatenate(([0], starts + lengths))
     gaps = np.flatnonzero(prev_end != np.concatenate((starts, [size - tail])))
     first_discarded = int(prev_end[gaps[0]]) if len(gaps) else None
+    # A record with a good checksum but a stamp no clock can give (non-finite,
+    # <= 0, beyond 2286) that sits where the chain of records resumes.
+    # Several in a row each start where the one before ends.
+    resume = np.concatenate(([0], starts + lengths))  # sorted
+    bp_, bl_ = p[bad_stamp], length[bad_stamp]
+    k = np.minimum(np.searchsorted(resume, bp_), len(resume) - 1)
+    hit = resume[k] == bp_
+    more = hit
+    while more.any():
+        more = ~hit & np.isin(bp_, bp_[more] + bl_[more])  # small arrays: the broken ones only
+        hit |= more
+    broken = bp_[hit]
     stats = {
         "records": int(len(starts)),
+        "bad_stamps": int(len(broken)),
+        "first_bad_stamp_offset": int(broken[0]) if len(broken) else None,
         "bytes": int(size),
         "discarded_bytes": int(size - covered - tail),
         "truncated_tail_bytes": int(tail),
@@ -177,7 +202,100 @@ def scan(buf: np.ndarray | bytes, layout: Layout, path: str = "<bytes>") -> Scan
     return Scan(path, layout, buf, starts, lengths, stats)
 
 
-def read_record_file(path: str | Path, device: str) -> Scan:
+@dataclass(frozen=True)
+class StampLimits:
+    """What a plausible stamp is for one session: inside [lo, hi], and never
+    earlier than a neighbouring record's stamp by more than back_s (a clock
+    step the clock pairs saw, or the logger's clamp tolerance)."""
+
+    lo: float = STAMP_MIN
+    hi: float = STAMP_MAX
+    back_s: float = CLOCK_STEP_THRESHOLD_S
+
+
+def stamp_limits(directory: Path, sidecar: dict) -> StampLimits:
+    """The session's span from the sidecar's start/stop and the clock pairs,
+    widened by a margin; a session without a stop (the logger was killed) may
+    have records up to a clock-pair interval after the last pair."""
+    real, offsets = [], []
+    for key in ("start", "stop"):
+        pair = sidecar.get(key)
+        if isinstance(pair, dict) and _finite(pair.get("realtime")):
+            real.append(float(pair["realtime"]))
+    try:
+        with open(directory / "clock.csv", encoding="ascii", errors="replace") as f:
+            next(f, None)
+            for line in f:
+                try:
+                    r, m = (float(v) for v in line.split(","))
+                except ValueError:
+                    continue  # a torn last line
+                if np.isfinite(r) and np.isfinite(m):
+                    real.append(r)
+                    offsets.append(r - m)
+    except OSError:
+        pass
+    if not real:
+        return StampLimits()
+    back = CLOCK_STEP_THRESHOLD_S
+    if len(offsets) > 1:
+        back = max(back, -float(np.min(np.diff(offsets))) + CLOCK_STEP_THRESHOLD_S)
+    interval = 0.0
+    if not isinstance(sidecar.get("stop"), dict):
+        cfg = sidecar.get("config", {}).get("session", {}) if isinstance(sidecar.get("config"), dict) else {}
+        interval = float(cfg.get("clock_pair_interval_s", 10.0)) if _finite(cfg.get("clock_pair_interval_s", 10.0)) \
+            else 10.0
+    return StampLimits(min(real) - SPAN_MARGIN_S, max(real) + interval + SPAN_MARGIN_S, back)
+
+
+def _finite(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and bool(np.isfinite(v))
+
+
+def reject_bad_stamps(s: Scan, limits: StampLimits) -> Scan:
+    """Drop records whose stamp is impossible (outside the session, or out of
+    line with both its neighbours), count them, keep their neighbours."""
+    if not s.layout.stamped or not s.count:
+        return s
+    st = s.stamps
+    bad = ~((st >= limits.lo) & (st <= limits.hi))
+    # Neighbour test on the records left: a stamp is damaged when it runs back
+    # from the previous record or ahead of the next by more than a clock step,
+    # while those two agree with each other. Repeat so a damaged record does
+    # not hide its neighbour's damage; each pass only removes records.
+    for _ in range(8):
+        keep = np.flatnonzero(~bad)
+        if len(keep) < 2:
+            break
+        t = st[keep]
+        prev = np.concatenate(([-np.inf], t[:-1]))
+        nxt = np.concatenate((t[1:], [np.inf]))
+        back_from_prev = t < prev - limits.back_s
+        ahead_of_next = t > nxt + limits.back_s
+        agree = nxt >= prev - limits.back_s
+        # The ends have one neighbour: it must agree with its own other neighbour.
+        if len(t) >= 3:
+            agree[0] = t[2] >= t[1] - limits.back_s
+            agree[-1] = t[-2] >= t[-3] - limits.back_s
+        else:
+            agree[:] = False
+        out = (back_from_prev | ahead_of_next) & agree
+        if not out.any():
+            break
+        bad[keep[out]] = True
+    n_bad = int(np.count_nonzero(bad))
+    if n_bad:
+        s.stats["bad_stamps"] += n_bad
+        first = int(s.starts[np.argmax(bad)])
+        old = s.stats["first_bad_stamp_offset"]
+        s.stats["first_bad_stamp_offset"] = first if old is None else min(old, first)
+        s.stats["discarded_bytes"] += int(s.lengths[bad].sum())
+        s.stats["records"] -= n_bad
+        s.starts, s.lengths = s.starts[~bad], s.lengths[~bad]
+    return s
+
+
+def read_record_file(path: str | Path, device: str, limits: StampLimits | None = None) -> Scan:
     path = Path(path)
     if device not in LAYOUTS:
         raise LogError(f"{path}: unknown device {device!r} (known: {', '.join(LAYOUTS)})")
@@ -185,7 +303,8 @@ def read_record_file(path: str | Path, device: str) -> Scan:
         buf = np.fromfile(path, dtype=np.uint8)
     except OSError as e:
         raise LogError(f"{path}: cannot read: {e.strerror}") from None
-    out = scan(buf, LAYOUTS[device], str(path))
+    limits = limits or StampLimits()
+    out = reject_bad_stamps(scan(buf, LAYOUTS[device], str(path), limits), limits)
     st = out.stamps
     back = np.flatnonzero(np.diff(st) < 0)
     out.stats["stamps_backwards"] = int(len(back))
@@ -243,7 +362,8 @@ class SensorFiles:
         return [f for s in self.scans for f in s.frames()]
 
     def stats(self) -> dict:
-        keys = ("records", "bytes", "discarded_bytes", "truncated_tail_bytes", "resyncs", "stamps_backwards")
+        keys = ("records", "bytes", "discarded_bytes", "truncated_tail_bytes", "resyncs", "bad_stamps",
+                "stamps_backwards")
         return {k: sum(s.stats[k] for s in self.scans) for k in keys}
 
 
@@ -270,13 +390,16 @@ def read_session(directory: str | Path) -> SessionLog:
         raise LogError(f"{side}: missing; not a gpsins session directory") from None
     except json.JSONDecodeError as e:
         raise LogError(f"{side}: not valid JSON ({e})") from None
+    if not isinstance(sidecar, dict) or not isinstance(sidecar.get("sensors", {}), dict):
+        raise LogError(f"{side}: not a gpsins sidecar (no sensors table)")
+    limits = stamp_limits(directory, sidecar)
     sensors = {}
     for name, info in sidecar.get("sensors", {}).items():
         scans = []
         for fname in info.get("files", []):
             path = directory / fname
             if path.exists():
-                scans.append(read_record_file(path, info["device"]))
+                scans.append(read_record_file(path, info["device"], limits))
         sensors[name] = SensorFiles(name, info["device"], scans)
     return SessionLog(directory, sidecar, sensors)
 
