@@ -27,19 +27,19 @@ def session(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def stepped_session(session, tmp_path_factory):
-    """The same session with every IMU stamp moved an hour back, so that no GPS stamp shares its clock:
-    the two files cannot be aligned."""
+    """The same session with every GPS stamp frozen at the first one (a stuck clock): no map from
+    system time to GPS time exists, so it cannot be aligned."""
     d = tmp_path_factory.mktemp("cli") / "stepped"
     d.mkdir()
     for f in session.iterdir():
         (d / f.name).write_bytes(f.read_bytes())
-    scan = logs.read_record_file(d / "imu-000.bin", "bp3010")
-    data = bytearray((d / "imu-000.bin").read_bytes())
+    scan = logs.read_record_file(d / "gps-000.bin", "superstar2")
+    data = bytearray((d / "gps-000.bin").read_bytes())
+    first = scan.stamps[0]
     for start in scan.starts:
         at = int(start) + scan.layout.header_len
-        stamp = np.frombuffer(bytes(data[at:at + 8]), "<f8")[0] - 3600.0
-        data[at:at + 8] = np.float64(stamp).tobytes()
-    (d / "imu-000.bin").write_bytes(bytes(data))
+        data[at:at + 8] = np.float64(first).tobytes()
+    (d / "gps-000.bin").write_bytes(bytes(data))
     return d
 
 
@@ -137,7 +137,7 @@ def test_config_file_missing_or_broken(capsys, session, tmp_path):
 
 def test_alignment_error_names_the_session(capsys, stepped_session, tmp_path):
     _one_line(capsys, ["replay", stepped_session, "--out", tmp_path / "o"],
-              f"{stepped_session}: ", "do not overlap", "gpsins dump")
+              f"{stepped_session}: ", "do not advance", "gpsins dump")
 
 
 def test_debug_shows_the_traceback(stepped_session, tmp_path):

@@ -112,3 +112,12 @@ def test_steps_ignore_a_rate_and_lone_damaged_values():
     assert clock.damaged.sum() == 1 and clock.damaged[300]
     assert abs(clock.steps_s[0] + 4.0) < 0.01
     assert list(timing._steps(np.delete(y, 300), 0.01)[0]) == [449]
+
+
+def test_imu_stamps_that_share_no_span_with_the_gps_stamps_are_refused():
+    k = np.arange(600)
+    gps_tow, gps_stamps = 100.0 + 0.1 * k, 1.7e9 + 0.1 * k
+    n = np.arange(3840)
+    imu_stamps = 1.7e9 - 3600.0 + n / 64.0
+    with pytest.raises(timing.AlignmentError, match="do not overlap"):
+        timing.align(gps_tow, gps_stamps, 1590, imu_stamps, n % 256, 64.0)
