@@ -7,6 +7,13 @@ stamp = realtime(first byte) + constant latency per device + non-negative
 (+ an optional step). GPS frames sent at the same moment leave the port one
 after another at the line's byte time. The model's parameters are recorded in
 the sidecar's ``simulation`` block.
+
+The IMU file holds BP3010 frames at the scenario's rate: the sidecar's
+``sensors.imu.rate_hz`` gives the rate, which sets the frames' LSBs (64 / rate
+times the 64 Hz ones, spec/bp3010.md) and the counter's period (256 samples).
+Rates the real unit does not have (50, 100, 200, 400 Hz) keep that layout and
+say so in the ``simulation`` block (``imu_frame``); the readers need nothing
+else.
 """
 
 from __future__ import annotations
@@ -46,6 +53,39 @@ def _records(frames: list[bytes], stamps: np.ndarray, header_len: int) -> bytes:
     return b"".join(f[:header_len] + STAMP.pack(s) + f[header_len:] for f, s in zip(frames, stamps))
 
 
+def imu_frames(dtheta: np.ndarray, dv: np.ndarray, counter: np.ndarray, rate_hz: int) -> np.ndarray:
+    """(n, 16) uint8 BP3010 frames of valid samples, as ``bp3010.ImuSample.encode`` makes them one
+    by one (round half to even, saturation flagged), built for the whole run at once."""
+    n = len(dtheta)
+    status = np.full(n, bp3010.STATUS_VALID, dtype=np.int64)
+    counts = np.empty((n, 6), dtype=np.int64)
+    for cols, values, lsb, flag in (((0, 3), dtheta, bp3010.dtheta_lsb_rad(rate_hz), bp3010.STATUS_GYRO_OVERRANGE),
+                                    ((3, 6), dv, bp3010.dv_lsb_mps(rate_hz), bp3010.STATUS_ACCEL_OVERRANGE)):
+        c = np.rint(np.where(np.isfinite(values), values / lsb, 0.0))
+        over = np.any((c < -32768) | (c > 32767), axis=1)
+        status[over] |= flag
+        counts[:, cols[0]:cols[1]] = np.clip(c, -32768, 32767)
+    body = np.zeros((n, bp3010.FRAME_LEN - 2), dtype=np.uint8)
+    body[:, :12] = counts.astype("<i2").view(np.uint8).reshape(n, 12)
+    body[:, 12] = status & 0xFF
+    body[:, 13] = np.asarray(counter, dtype=np.int64) & 0xFF
+    frames = np.empty((n, bp3010.FRAME_LEN), dtype=np.uint8)
+    frames[:, 0] = bp3010.SYNC
+    frames[:, 1:bp3010.CHECKSUM_OFFSET] = body
+    frames[:, bp3010.CHECKSUM_OFFSET] = body.sum(axis=1, dtype=np.int64) & 0xFF
+    return frames
+
+
+def imu_records(frames: np.ndarray, stamps: np.ndarray) -> bytes:
+    """Record bytes `sync | f8 stamp | frame bytes 1..15` for (n, 16) frames."""
+    n = len(frames)
+    rec = np.empty((n, bp3010.FRAME_LEN + STAMP.size), dtype=np.uint8)
+    rec[:, 0] = frames[:, 0]
+    rec[:, 1:1 + STAMP.size] = np.asarray(stamps, dtype="<f8").reshape(n, 1).view(np.uint8)
+    rec[:, 1 + STAMP.size:] = frames[:, 1:]
+    return rec.tobytes()
+
+
 def write_session(sim: Simulation, directory: str | Path) -> Path:
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=False)
@@ -63,16 +103,12 @@ def write_session(sim: Simulation, directory: str | Path) -> Path:
     gps_stamps = realtime(sim, first) + tm.gps_latency_s + _jitter(rng, len(msgs), tm.jitter_mean_s)
     (directory / "gps-000.bin").write_bytes(_records([m.frame for m in msgs], gps_stamps, ss2.HEADER_LEN))
     # IMU: one frame per sample, some dropped if configured; the counter counts every sample.
-    samples = list(src.imu_samples(sim.imu_rate_hz))
-    keep = rng.random(len(samples)) >= tm.imu_drop_probability
-    frames = []
-    for k, s in enumerate(samples):
-        s.sample.counter = (k + 1) & 0xFF
-        frames.append(s.sample.encode(sim.imu_rate_hz))
-    t_imu = np.array([s.t for s in samples])
-    imu_stamps = realtime(sim, t_imu) + tm.imu_latency_s + _jitter(rng, len(samples), tm.jitter_mean_s)
+    n_imu = len(sim.imu_t)
+    keep = rng.random(n_imu) >= tm.imu_drop_probability
+    frames = imu_frames(sim.imu_dtheta, sim.imu_dv, np.arange(1, n_imu + 1), sim.imu_rate_hz)
+    imu_stamps = realtime(sim, sim.imu_t) + tm.imu_latency_s + _jitter(rng, n_imu, tm.jitter_mean_s)
     kept = np.flatnonzero(keep)
-    (directory / "imu-000.bin").write_bytes(_records([frames[k] for k in kept], imu_stamps[kept], 1))
+    (directory / "imu-000.bin").write_bytes(imu_records(frames[kept], imu_stamps[kept]))
     start = float(realtime(sim, 0.0))
     stop = float(realtime(sim, sc.duration_s))
     # Clock pairs: the simulated host's monotonic clock starts at 1000 s.
@@ -106,6 +142,9 @@ def write_session(sim: Simulation, directory: str | Path) -> Path:
             "leap_seconds": sc.gnss.leap_seconds, "truth": "truth.npz",
         },
     }
+    if sim.imu_rate_hz not in bp3010.RATES_HZ:
+        sidecar["simulation"]["imu_frame"] = (f"BP3010 frame layout at {sim.imu_rate_hz} Hz, not a BP3010 rate: "
+                                              f"LSBs scaled by {bp3010.NOMINAL_RATE_HZ} / rate_hz, counter +1 per sample")
     (directory / "session.json").write_text(json.dumps(sidecar, indent=2) + "\n", encoding="utf-8")
     write_truth(sim, directory / "truth.npz")
     return directory
