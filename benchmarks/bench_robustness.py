@@ -126,14 +126,20 @@ HEADER = (f"{'rate':>4} {'profile':<14}{'seed':>4} {'mode':<6}{'fin_h':>8}{'fin_
           f"{'max_h':>9}{'rejected':>11}{'div':>5}{'rst':>4}{'nees':>9}{'nees_hk':>9}{'conv':>5}{'s':>6}")
 
 
+def _num(x: float, width: int, digits: int) -> str:
+    """Fixed point while it fits, else two significant digits (diverged runs reach 1e6 m)."""
+    text = f"{x:.{digits}f}"
+    return f"{text if len(text) < width else f'{x:.2g}':>{width}}"
+
+
 def fmt(r: dict) -> str:
     head = f"{r['rate_hz']:>4} {r['profile']:<14}{r['seed']:>4} {r['mode']:<6}"
     if "error" in r:
         return head + f" FAILED: {r['error']}"
-    return head + (f"{r['final_h_m']:>8.2f}{r['final_v_m']:>8.2f}{r['rms_h_m']:>8.2f}{r['rms_v_m']:>8.2f}"
-                   f"{r['max_h_m']:>9.1f}{r['rejected']:>11}{'yes' if r['diverged'] else '-':>5}{r['resets']:>4}"
-                   f"{r['nees_all']:>9.1f}{r['nees_heading']:>9.1f}{'ok' if r['converged'] else 'NO':>5}"
-                   f"{r['simulate_s'] + r['replay_s']:>6.0f}")
+    return head + ("".join(_num(r[k], 8, 2) for k in ("final_h_m", "final_v_m", "rms_h_m", "rms_v_m"))
+                   + _num(r["max_h_m"], 9, 1) + f"{r['rejected']:>11}{'yes' if r['diverged'] else '-':>5}"
+                   f"{r['resets']:>4}" + _num(r["nees_all"], 9, 1) + _num(r["nees_heading"], 9, 1)
+                   + f"{'ok' if r['converged'] else 'NO':>5}{r['simulate_s'] + r['replay_s']:>6.0f}")
 
 
 def summary(rows: list[dict]) -> list[str]:
@@ -148,9 +154,9 @@ def summary(rows: list[dict]) -> list[str]:
         conv = sum(bool(r.get("converged")) for r in rs)
         if good:
             worst = max(r["final_h_m"] for r in good)
-            line = (f"{worst:>12.2f}{np.mean([r['rms_h_m'] for r in good]):>11.2f}"
-                    f"{np.mean([r['nees_all'] for r in good]):>10.1f}{sum(r['diverged'] for r in good):>9}"
-                    f"{sum(r['resets'] for r in good):>7}")
+            line = (_num(worst, 12, 2) + _num(float(np.mean([r["rms_h_m"] for r in good])), 11, 2)
+                    + _num(float(np.mean([r["nees_all"] for r in good])), 10, 1)
+                    + f"{sum(r['diverged'] for r in good):>9}{sum(r['resets'] for r in good):>7}")
         else:
             line = f"{'-':>12}{'-':>11}{'-':>10}{'-':>9}{'-':>7}"
         out.append(f"{key[0]:>4} {key[1]:<14}{key[2]:<6}{conv:>4}/{len(rs):<2}" + line)

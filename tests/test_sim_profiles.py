@@ -219,3 +219,12 @@ def test_frames_built_at_once_equal_the_codec(tmp_path):
         for k in range(500):
             ref = bp3010.ImuSample(tuple(dth[k]), tuple(dv[k]), counter=(k + 250) & 0xFF).encode(rate)
             assert frames[k].tobytes() == ref, (rate, k)
+
+
+def test_emulator_source_serves_only_rates_that_divide_the_simulation():
+    sc = parse({"segment": [{"label": "a", "duration_s": 2.0}], "imu": {"rate_hz": 128}})
+    src = messages.SimSource(sim.simulate(sc, 1))
+    served = list(src.imu_samples(64))
+    assert len(served) == len(src.sim.imu_t) // 2 and served[0].t == src.sim.imu_t[1]
+    with pytest.raises(ValueError, match="cannot be served at 100 Hz"):
+        next(iter(src.imu_samples(100)))
