@@ -21,8 +21,10 @@ filter), and whether it converged: not diverged and a final horizontal error
 under 5 m. A summary per rate, profile and mode follows.
 
 Runs go to worker processes (``--jobs``, default 2), one process per run, so
-each run's peak RSS is its own. The 1-hour profile at 400 Hz needs several GB
-per run (the replay keeps every epoch's covariance).
+each run's peak RSS is its own. A run needs about 6.5 kB per IMU sample (the
+replay keeps every epoch's state and covariance): 1.6 GB for the 1-hour profile
+at 64 Hz, about 9 GB at 400 Hz. Another run starts only while the estimated
+peaks of the running ones fit ``--memory-gb``.
 """
 
 from __future__ import annotations
@@ -163,6 +165,14 @@ def summary(rows: list[dict]) -> list[str]:
     return out
 
 
+def estimate_mb(rate: int, profile: str) -> float:
+    """A run's peak RSS, from measured ones: about 6.5 kB per IMU sample (the replay keeps every
+    epoch's state and covariance) plus the interpreter."""
+    from gpsins import sim
+
+    return 300.0 + 6.5e-3 * rate * sim.load(profile).duration_s
+
+
 def _list(text: str, kind=str) -> list:
     return [kind(x) for x in text.split(",") if x.strip()]
 
@@ -177,6 +187,8 @@ def main() -> int:
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="filter configuration override")
     ap.add_argument("--preset-rate", action="store_true", help="keep the preset's imu_rate_hz")
     ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--memory-gb", type=float, default=8.0,
+                    help="start another run only while the runs' estimated peaks fit (default 8)")
     ap.add_argument("--json", help="write every run's figures here")
     ap.add_argument("--keep", help="keep sessions and results under this directory")
     a = ap.parse_args()
@@ -202,19 +214,29 @@ def main() -> int:
     rows: list[dict] = []
     t0 = time.perf_counter()
     ctx = mp.get_context("spawn")
+    budget = a.memory_gb * 1024
+    todo = list(cases)
+    running: dict[cf.Future, tuple] = {}
     with cf.ProcessPoolExecutor(max_workers=a.jobs, mp_context=ctx, max_tasks_per_child=1) as pool:
-        futs = {pool.submit(run_case, r, p, s, modes, a.preset, overrides, a.preset_rate, a.keep): (r, p, s)
-                for r, p, s in cases}
-        for fut in cf.as_completed(futs):
-            r, p, s = futs[fut]
-            try:
-                got = fut.result()
-            except Exception as e:  # the worker itself died (memory, a crash in the core)
-                got = [{"rate_hz": r, "profile": p, "seed": s, "mode": m, "error": f"worker: {e}",
-                        "converged": False} for m in modes]
-            for row in got:
-                rows.append(row)
-                print(fmt(row), flush=True)
+        while todo or running:
+            # Start cases while processes are free and their estimated memory fits (one always may run).
+            while todo and len(running) < a.jobs:
+                case = todo[0]
+                if running and sum(estimate_mb(*c[:2]) for c in running.values()) + estimate_mb(*case[:2]) > budget:
+                    break
+                todo.pop(0)
+                running[pool.submit(run_case, *case, modes, a.preset, overrides, a.preset_rate, a.keep)] = case
+            done, _ = cf.wait(running, return_when=cf.FIRST_COMPLETED)
+            for fut in done:
+                r, p, s = running.pop(fut)
+                try:
+                    got = fut.result()
+                except Exception as e:  # the worker itself died (memory, a crash in the core)
+                    got = [{"rate_hz": r, "profile": p, "seed": s, "mode": m, "error": f"worker: {e}",
+                            "converged": False} for m in modes]
+                for row in got:
+                    rows.append(row)
+                    print(fmt(row), flush=True)
     print("\n".join(summary(rows)))
     peak = max((r.get("peak_mb", 0) for r in rows), default=0)
     print(f"\n{len(rows)} runs in {time.perf_counter() - t0:.0f} s; largest worker peak RSS {peak:.0f} MB; "
