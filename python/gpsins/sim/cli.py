@@ -38,7 +38,8 @@ def run_sim(args) -> int:
     t = time.perf_counter()
     sim = simulate(sc, args.seed)
     write_session(sim, out)
-    print(f"simulated {sc.name} ({sc.duration_s:.0f} s, IMU at {sc.imu.rate_hz} Hz, seed {args.seed}) in {time.perf_counter() - t:.1f} s: {out}")
+    print(f"simulated {sc.name} ({sc.duration_s:.0f} s, IMU at {sc.imu.rate_hz} Hz, seed {args.seed}) in "
+          f"{time.perf_counter() - t:.1f} s: {out}")
     return 0
 
 

@@ -143,8 +143,9 @@ def write_session(sim: Simulation, directory: str | Path) -> Path:
         },
     }
     if sim.imu_rate_hz not in bp3010.RATES_HZ:
-        sidecar["simulation"]["imu_frame"] = (f"BP3010 frame layout at {sim.imu_rate_hz} Hz, not a BP3010 rate: "
-                                              f"LSBs scaled by {bp3010.NOMINAL_RATE_HZ} / rate_hz, counter +1 per sample")
+        sidecar["simulation"]["imu_frame"] = (
+            f"BP3010 frame layout at {sim.imu_rate_hz} Hz, not a BP3010 rate: LSBs scaled by "
+            f"{bp3010.NOMINAL_RATE_HZ} / rate_hz, counter +1 per sample")
     (directory / "session.json").write_text(json.dumps(sidecar, indent=2) + "\n", encoding="utf-8")
     write_truth(sim, directory / "truth.npz")
     return directory

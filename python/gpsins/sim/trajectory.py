@@ -202,7 +202,8 @@ def _pointwise(sc: Scenario, out: Truth, dlat: np.ndarray, dlon: np.ndarray, k: 
     f_e = a_e + 2.0 * np.cross(earth.OMEGA_VEC, v_e) - earth.gravity_ecef(r)
     # Euler-rate part of the body rate (roll held at zero, so its rate is zero too)
     sr, cr, sp, cp = np.sin(roll), np.cos(roll), np.sin(p.pitch), np.cos(p.pitch)
-    w_nb = np.stack([-p.yaw_dot * sp, p.pitch_dot * cr + p.yaw_dot * sr * cp, -p.pitch_dot * sr + p.yaw_dot * cr * cp], -1)
+    w_nb = np.stack([-p.yaw_dot * sp, p.pitch_dot * cr + p.yaw_dot * sr * cp,
+                     -p.pitch_dot * sr + p.yaw_dot * cr * cp], -1)
     out.r_ecef[k], out.v_ecef[k], out.a_ecef[k], out.c_eb[k] = r, v_e, a_e, c_eb
     out.q_eb[k] = earth.dcm_to_quat(c_eb)
     out.ypr[k] = np.stack([p.yaw, p.pitch, roll], -1)
