@@ -142,6 +142,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--scenario", default="default", help="built-in name or a TOML file (default: default)")
     p.add_argument("--out", required=True, help="session directory to create")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--imu-rate", type=int, help="IMU rate in Hz instead of the scenario's (BP3010 frame layout)")
     p.set_defaults(func=_cmd_sim)
 
     p = sub.add_parser("emulate", help="serve a scenario or a recorded session on pty serial devices")

@@ -216,12 +216,15 @@ class StampLimits:
 def stamp_limits(directory: Path, sidecar: dict) -> StampLimits:
     """The session's span from the sidecar's start/stop and the clock pairs,
     widened by a margin; a session without a stop (the logger was killed) may
-    have records up to a clock-pair interval after the last pair."""
-    real, offsets = [], []
+    have records up to a clock-pair interval after the last pair. Between two
+    pairs the realtime clock may have stepped at any moment, so each interval
+    spans its monotonic length under either pair's offset."""
+    pairs = []
     for key in ("start", "stop"):
         pair = sidecar.get(key)
         if isinstance(pair, dict) and _finite(pair.get("realtime")):
-            real.append(float(pair["realtime"]))
+            m = pair.get("monotonic")
+            pairs.append((float(pair["realtime"]), float(m) if _finite(m) else np.nan))
     try:
         with open(directory / "clock.csv", encoding="ascii", errors="replace") as f:
             next(f, None)
@@ -231,21 +234,26 @@ def stamp_limits(directory: Path, sidecar: dict) -> StampLimits:
                 except ValueError:
                     continue  # a torn last line
                 if np.isfinite(r) and np.isfinite(m):
-                    real.append(r)
-                    offsets.append(r - m)
+                    pairs.append((r, m))
     except OSError:
         pass
-    if not real:
+    if not pairs:
         return StampLimits()
+    real = np.array([r for r, _ in pairs])
+    lo, hi = float(real.min()), float(real.max())
+    timed = np.array(sorted((m, r - m) for r, m in pairs if np.isfinite(m)))
     back = CLOCK_STEP_THRESHOLD_S
-    if len(offsets) > 1:
-        back = max(back, -float(np.min(np.diff(offsets))) + CLOCK_STEP_THRESHOLD_S)
+    if len(timed) > 1:
+        mono, off = timed[:, 0], timed[:, 1]
+        lo = min(lo, float(np.min(mono[:-1] + np.minimum(off[:-1], off[1:]))))
+        hi = max(hi, float(np.max(mono[1:] + np.maximum(off[:-1], off[1:]))))
+        back = max(back, -float(np.min(np.diff(off))) + CLOCK_STEP_THRESHOLD_S)
     interval = 0.0
     if not isinstance(sidecar.get("stop"), dict):
         cfg = sidecar.get("config", {}).get("session", {}) if isinstance(sidecar.get("config"), dict) else {}
         interval = float(cfg.get("clock_pair_interval_s", 10.0)) if _finite(cfg.get("clock_pair_interval_s", 10.0)) \
             else 10.0
-    return StampLimits(min(real) - SPAN_MARGIN_S, max(real) + interval + SPAN_MARGIN_S, back)
+    return StampLimits(lo - SPAN_MARGIN_S, hi + interval + SPAN_MARGIN_S, back)
 
 
 def _finite(v) -> bool:

@@ -174,6 +174,8 @@ def decode_session(directory: str | Path) -> Decoded:
         st = sensor.stats()
         if st["discarded_bytes"]:
             skipped[f"{name}: bytes between frames (garbage or damaged frames)"] += st["discarded_bytes"]
+        if st.get("bad_stamps"):
+            skipped[f"{name}: records with impossible stamps (their bytes are counted above)"] += st["bad_stamps"]
         if st["truncated_tail_bytes"]:
             skipped[f"{name}: truncated last record, bytes"] += st["truncated_tail_bytes"]
     if "gps" not in session.sensors or not session.sensors["gps"].count:

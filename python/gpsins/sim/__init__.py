@@ -24,7 +24,7 @@ __all__ = ["Simulation", "simulate", "load", "Scenario"]
 class Simulation:
     scenario: Scenario
     seed: int
-    truth: trajectory.Truth  # internal rate (SUBSTEPS per IMU interval)
+    truth: trajectory.Truth  # internal rate (truth.substeps per IMU interval)
     imu_rate_hz: int
     imu_t: np.ndarray  # (n,) true run time of each IMU sampling instant
     ideal_dtheta: np.ndarray  # (n, 3) error-free increments
@@ -37,7 +37,8 @@ class Simulation:
     @property
     def truth_at_imu(self) -> np.ndarray:
         """Indices of the internal truth samples at the IMU's sampling instants."""
-        return np.arange(trajectory.SUBSTEPS, len(self.truth.t), trajectory.SUBSTEPS)
+        sub = self.truth.substeps
+        return np.arange(sub, len(self.truth.t), sub)
 
 
 def simulate(sc: Scenario, seed: int = 0) -> Simulation:
@@ -53,8 +54,7 @@ def simulate(sc: Scenario, seed: int = 0) -> Simulation:
     errors = imu.draw_errors(sc.imu, n, imu_rng)
     mth, mdv = imu.measure(dtheta, dv, sc.imu, errors, imu_rng)
     g = gnss.simulate(sc, tr, np.random.default_rng([seed, 2]))
-    return Simulation(sc, seed, tr, rate, tr.t[trajectory.SUBSTEPS::trajectory.SUBSTEPS], dtheta, dv, mth, mdv,
-                      errors, g)
+    return Simulation(sc, seed, tr, rate, tr.t[tr.substeps::tr.substeps], dtheta, dv, mth, mdv, errors, g)
 
 
 def imu_table(s: Simulation) -> np.ndarray:

@@ -7,15 +7,27 @@ import sys
 import time
 from pathlib import Path
 
+from gpsins_logger import bp3010
+
 from . import load, simulate
-from .scenario import ScenarioError
+from .scenario import ScenarioError, with_imu_rate
+
+
+def _scenario(args, command: str):
+    """The scenario of the command line, at --imu-rate when given; None after printing the error."""
+    try:
+        sc = load(args.scenario)
+        if getattr(args, "imu_rate", None):
+            sc = with_imu_rate(sc, args.imu_rate)
+        return sc
+    except ScenarioError as e:
+        print(f"gpsins {command}: {e}", file=sys.stderr)
+        return None
 
 
 def run_sim(args) -> int:
-    try:
-        sc = load(args.scenario)
-    except ScenarioError as e:
-        print(f"gpsins sim: {e}", file=sys.stderr)
+    sc = _scenario(args, "sim")
+    if sc is None:
         return 2
     out = Path(args.out)
     if out.exists():
@@ -26,7 +38,8 @@ def run_sim(args) -> int:
     t = time.perf_counter()
     sim = simulate(sc, args.seed)
     write_session(sim, out)
-    print(f"simulated {sc.name} ({sc.duration_s:.0f} s, seed {args.seed}) in {time.perf_counter() - t:.1f} s: {out}")
+    print(f"simulated {sc.name} ({sc.duration_s:.0f} s, IMU at {sc.imu.rate_hz} Hz, seed {args.seed}) in "
+          f"{time.perf_counter() - t:.1f} s: {out}")
     return 0
 
 
@@ -39,10 +52,13 @@ def run_emulate(args) -> int:
         source = SessionSource(args.session)
         what = f"session {args.session}"
     else:
-        try:
-            sc = load(args.scenario)
-        except ScenarioError as e:
-            print(f"gpsins emulate: {e}", file=sys.stderr)
+        sc = _scenario(args, "emulate")
+        if sc is None:
+            return 2
+        if not any(sc.imu.rate_hz % r == 0 for r in bp3010.RATES_HZ):
+            print(f"gpsins emulate: a {sc.imu.rate_hz} Hz IMU cannot be served as a BP3010 (it must be a multiple "
+                  f"of one of its rates {bp3010.RATES_HZ}); `gpsins sim` writes such sessions directly",
+                  file=sys.stderr)
             return 2
         from .messages import SimSource
 

@@ -110,7 +110,10 @@ class SimSource:
 
     def imu_samples(self, rate_hz: int, t0: float = 0.0) -> Iterator[TimedSample]:
         base = self.sim.imu_rate_hz
-        m = max(1, int(round(base / rate_hz)))
+        if base % rate_hz:
+            raise ValueError(f"the simulation's IMU samples at {base} Hz: it cannot be served at {rate_hz} Hz "
+                             f"(the rate must divide {base})")
+        m = base // rate_hz
         dth, dv = self.sim.imu_dtheta, self.sim.imu_dv
         t = self.sim.imu_t[m - 1::m]
         if m > 1:

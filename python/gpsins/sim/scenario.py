@@ -4,14 +4,39 @@ device models' parameters. Unknown keys are errors that name the file and key.
 Each segment ramps speed, heading and grade from their values at its start
 to its targets with a quintic smoothstep (zero first and second derivative
 at both ends), so acceleration and angular rate are continuous everywhere.
+
+Two keys build long drives from short ones:
+
+- ``base = "NAME"`` (a built-in scenario or a TOML path relative to this
+  file) starts from that scenario: its segments and obstructions, and its
+  ``[start]``, ``[imu]``, ``[gnss]``, ``[timing]`` tables, which this file's
+  tables override key by key. A file with a base has no ``[[segment]]`` of
+  its own.
+- ``[[repeat]]`` with ``first``, ``last`` (segment labels) and ``count``
+  drives the segments from ``first`` to ``last`` ``count`` times in a row;
+  the obstructions inside that span come back with every pass, later ones
+  move on. Copies are labelled ``LABEL #2``, ``LABEL #3``, ...
+
+The IMU's ``rate_hz`` may be any positive integer: 64, 32, 16 and 8 Hz are
+the BP3010's own rates; other rates keep its frame layout (LSBs scaled by
+64 / rate, as the frame specification defines) and suit the robustness
+benchmarks. ``timing.imu_baud`` must carry the frames (16 bytes of 10 bits
+each per sample); ``with_imu_rate`` raises it to the lowest standard baud
+that does.
 """
 
 from __future__ import annotations
 
+import copy
 import tomllib
 from dataclasses import dataclass, field, fields
 from importlib import resources
 from pathlib import Path
+
+from gpsins_logger import bp3010
+from gpsins_logger.config import STANDARD_BAUDS
+
+LINE_BITS_PER_BYTE = 10  # 8N1
 
 
 class ScenarioError(ValueError):
@@ -158,11 +183,118 @@ def _build(cls, table: dict, where: str):
         raise ScenarioError(f"{where}: {e}") from None
 
 
-def parse(data: dict, source: str = "<scenario>") -> Scenario:
-    top = {"name", "description", "start", "segment", "obstruction", "imu", "gnss", "timing"}
-    unknown = set(data) - top
+TOP_KEYS = {"name", "description", "base", "start", "segment", "obstruction", "repeat", "imu", "gnss", "timing"}
+TABLE_KEYS = ("start", "imu", "gnss", "timing")
+
+
+def _with_base(data: dict, source: str, here: Path | None, seen: tuple[str, ...]) -> tuple[dict, str]:
+    """The file's data on top of its base's (recursively); segment sources are named for errors."""
+    base = data["base"]
+    if data.get("segment") or data.get("obstruction"):
+        raise ScenarioError(f"{source}: a scenario with a base takes its segments and obstructions from it; "
+                            f"remove [[segment]] and [[obstruction]] or the base")
+    if not isinstance(base, str):
+        raise ScenarioError(f"{source}: base must be a scenario name or a TOML path")
+    path = Path(base)
+    if path.suffix == ".toml" and not path.is_absolute() and here is not None:
+        path = here / path
+    bdata, bsource = _read(str(path) if path.suffix == ".toml" else base)
+    if bsource in seen:
+        raise ScenarioError(f"{source}: base cycle through {bsource}")
+    if "base" in bdata:
+        bdata, bsource = _with_base(bdata, bsource, _dir_of(bsource), seen + (bsource,))
+    merged = dict(bdata)
+    merged.pop("base", None)
+    merged["name"] = data.get("name", _stem(source))
+    if "description" in data:
+        merged["description"] = data["description"]
+    for k in TABLE_KEYS:
+        table = dict(bdata.get(k, {}))
+        for key, value in data.get(k, {}).items():
+            if k == "imu" and key == "terms":
+                value = {**table.get("terms", {}), **value}
+            table[key] = value
+        if table:
+            merged[k] = table
+    merged["repeat"] = list(bdata.get("repeat", [])) + list(data.get("repeat", []))
+    return merged, f"{source} (base {bsource})"
+
+
+def _repeat(segs: list[Segment], obs: list[Obstruction], spec: dict, where: str):
+    """Segments first..last driven count times; the obstructions inside come back every pass."""
+    unknown = set(spec) - {"first", "last", "count"}
+    if unknown or not {"first", "last", "count"} <= set(spec):
+        raise ScenarioError(f"{where}: needs exactly first, last and count")
+    count = spec["count"]
+    if not isinstance(count, int) or count < 1:
+        raise ScenarioError(f"{where}: count must be an integer >= 1, got {count!r}")
+    labels = [s.label for s in segs]
+    idx = []
+    for key in ("first", "last"):
+        hits = [i for i, label in enumerate(labels) if label == spec[key]]
+        if len(hits) != 1:
+            raise ScenarioError(f"{where}: {key} = {spec[key]!r} names {len(hits)} segments (needs exactly one)")
+        idx.append(hits[0])
+    i0, i1 = idx
+    if i1 < i0:
+        raise ScenarioError(f"{where}: segment {spec['last']!r} comes before {spec['first']!r}")
+    t0 = sum(s.duration_s for s in segs[:i0])
+    span = sum(s.duration_s for s in segs[i0:i1 + 1])
+    t1 = t0 + span
+    block = segs[i0:i1 + 1]
+    copies = [Segment(**{**s.__dict__, "label": f"{s.label} #{k + 1}"}) for k in range(1, count) for s in block]
+    out_obs = []
+    for j, o in enumerate(obs):
+        if o.t1_s <= t0:
+            out_obs.append(o)
+        elif o.t0_s >= t1:
+            out_obs.append(Obstruction(**{**o.__dict__, "t0_s": o.t0_s + (count - 1) * span,
+                                          "t1_s": o.t1_s + (count - 1) * span}))
+        elif o.t0_s >= t0 and o.t1_s <= t1:
+            out_obs.extend(Obstruction(**{**o.__dict__, "t0_s": o.t0_s + k * span, "t1_s": o.t1_s + k * span})
+                           for k in range(count))
+        else:
+            raise ScenarioError(f"{where}: obstruction {j + 1} ({o.t0_s:g}-{o.t1_s:g} s) straddles the repeated "
+                                f"span {t0:g}-{t1:g} s")
+    return segs[:i1 + 1] + copies + segs[i1 + 1:], out_obs
+
+
+def check_imu_line(imu: ImuModel, timing: Timing, where: str = "<scenario>") -> None:
+    """The IMU rate is a positive integer and the IMU's line carries its frames."""
+    if isinstance(imu.rate_hz, bool) or not isinstance(imu.rate_hz, int) or imu.rate_hz <= 0:
+        raise ScenarioError(f"{where}: [imu] rate_hz must be a positive integer, got {imu.rate_hz!r}")
+    need = bp3010.FRAME_LEN * LINE_BITS_PER_BYTE * imu.rate_hz
+    if timing.imu_baud < need:
+        raise ScenarioError(f"{where}: [timing] imu_baud = {timing.imu_baud} cannot carry {imu.rate_hz} Hz frames "
+                            f"({need} bit/s); use at least {line_baud(imu.rate_hz)}")
+
+
+def line_baud(rate_hz: int) -> int:
+    """The lowest standard baud that carries the IMU's frames at rate_hz."""
+    need = bp3010.FRAME_LEN * LINE_BITS_PER_BYTE * rate_hz
+    for b in STANDARD_BAUDS:
+        if b >= need:
+            return b
+    raise ScenarioError(f"no standard baud carries {rate_hz} Hz IMU frames ({need} bit/s)")
+
+
+def with_imu_rate(sc: Scenario, rate_hz: int) -> Scenario:
+    """A copy of the scenario with the IMU at rate_hz (and its line's baud raised if it must be)."""
+    out = copy.deepcopy(sc)
+    out.imu.rate_hz = int(rate_hz)
+    if out.timing.imu_baud < bp3010.FRAME_LEN * LINE_BITS_PER_BYTE * out.imu.rate_hz:
+        out.timing.imu_baud = line_baud(out.imu.rate_hz)
+    check_imu_line(out.imu, out.timing, f"scenario {sc.name}")
+    return out
+
+
+def parse(data: dict, source: str = "<scenario>", here: Path | None = None) -> Scenario:
+    """A scenario from its TOML data; `here` is the directory relative base paths start from."""
+    unknown = set(data) - TOP_KEYS
     if unknown:
         raise ScenarioError(f"{source}: unknown key(s) {', '.join(sorted(unknown))}")
+    if "base" in data:
+        data, source = _with_base(data, source, here, (source,))
     segs = [_build(Segment, s, f"{source}: segment {i + 1}") for i, s in enumerate(data.get("segment", []))]
     if not segs:
         raise ScenarioError(f"{source}: no [[segment]]")
@@ -187,10 +319,17 @@ def parse(data: dict, source: str = "<scenario>") -> Scenario:
     if bad:
         raise ScenarioError(f"{source}: [imu.terms]: unknown term(s) {', '.join(sorted(bad))}")
     imu.terms.update(terms)
-    return Scenario(name=data.get("name", Path(source).stem), description=data.get("description", ""),
+    timing = _build(Timing, data.get("timing", {}), f"{source}: [timing]")
+    check_imu_line(imu, timing, source)
+    repeats = data.get("repeat", [])
+    for i, spec in enumerate([repeats] if isinstance(repeats, dict) else repeats):
+        if not isinstance(spec, dict):
+            raise ScenarioError(f"{source}: repeat {i + 1}: must be a table")
+        segs, obs = _repeat(segs, obs, spec, f"{source}: repeat {i + 1}")  # in order: a later one sees the copies
+    return Scenario(name=data.get("name", _stem(source)), description=data.get("description", ""),
                     segments=segs, obstructions=obs, start=_build(Start, data.get("start", {}), f"{source}: [start]"),
                     imu=imu, gnss=_build(GnssModel, data.get("gnss", {}), f"{source}: [gnss]"),
-                    timing=_build(Timing, data.get("timing", {}), f"{source}: [timing]"), source=source)
+                    timing=timing, source=source)
 
 
 def builtin_names() -> list[str]:
@@ -198,8 +337,16 @@ def builtin_names() -> list[str]:
                   if p.name.endswith(".toml"))
 
 
-def load(name_or_path: str | Path) -> Scenario:
-    """A built-in scenario by name (`default`, ...) or a TOML file."""
+def _stem(source: str) -> str:
+    return source[len("scenario "):] if source.startswith("scenario ") else Path(source).stem
+
+
+def _dir_of(source: str) -> Path | None:
+    return None if source.startswith("scenario ") else Path(source).parent
+
+
+def _read(name_or_path: str | Path) -> tuple[dict, str]:
+    """The TOML data of a built-in scenario or a file, and its name for messages."""
     p = Path(name_or_path)
     if p.suffix != ".toml" and str(name_or_path) in builtin_names():
         text = resources.files(__package__).joinpath("scenarios", f"{name_or_path}.toml").read_text("utf-8")
@@ -212,7 +359,12 @@ def load(name_or_path: str | Path) -> Scenario:
                                 f"{', '.join(builtin_names())}") from None
         source = str(p)
     try:
-        data = tomllib.loads(text)
+        return tomllib.loads(text), source
     except tomllib.TOMLDecodeError as e:
         raise ScenarioError(f"{source}: {e}") from None
-    return parse(data, source)
+
+
+def load(name_or_path: str | Path) -> Scenario:
+    """A built-in scenario by name (`default`, ...) or a TOML file."""
+    data, source = _read(name_or_path)
+    return parse(data, source, _dir_of(source))

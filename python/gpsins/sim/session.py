@@ -6,8 +6,17 @@ stamp = realtime(first byte) + constant latency per device + non-negative
 (exponential) jitter + the wait to the end of a host stall (optional,
 heavy-tailed), where realtime = true UTC + the system clock's offset (+ an
 optional step). GPS frames sent at the same moment leave the port one
-after another at the line's byte time. The model's parameters are recorded in
+after another at the line's byte time. As the logger reads a port in order
+and never lets a sensor's stamps run backwards, a delayed frame holds back the
+frames behind it (each stamp at least a byte time after the last). The model's parameters are recorded in
 the sidecar's ``simulation`` block.
+
+The IMU file holds BP3010 frames at the scenario's rate: the sidecar's
+``sensors.imu.rate_hz`` gives the rate, which sets the frames' LSBs (64 / rate
+times the 64 Hz ones, spec/bp3010.md) and the counter's period (256 samples).
+Rates the real unit does not have (50, 100, 200, 400 Hz) keep that layout and
+say so in the ``simulation`` block (``imu_frame``); the readers need nothing
+else.
 """
 
 from __future__ import annotations
@@ -67,8 +76,49 @@ def _stall_delay(x: np.ndarray, stalls: tuple[np.ndarray, np.ndarray]) -> np.nda
     return np.where((k >= 0) & (x < reach), reach - x, 0.0)
 
 
+def _in_order(t: np.ndarray, step_s: float) -> np.ndarray:
+    """Stamps as the logger gives them: a port is read in order and a sensor's stamps never run
+    backwards (each at least one byte time after the one before), so a frame delayed by the host
+    holds back the frames queued behind it."""
+    k = np.arange(len(t)) * step_s
+    return np.maximum.accumulate(t - k) + k
+
+
 def _records(frames: list[bytes], stamps: np.ndarray, header_len: int) -> bytes:
     return b"".join(f[:header_len] + STAMP.pack(s) + f[header_len:] for f, s in zip(frames, stamps))
+
+
+def imu_frames(dtheta: np.ndarray, dv: np.ndarray, counter: np.ndarray, rate_hz: int) -> np.ndarray:
+    """(n, 16) uint8 BP3010 frames of valid samples, as ``bp3010.ImuSample.encode`` makes them one
+    by one (round half to even, saturation flagged), built for the whole run at once."""
+    n = len(dtheta)
+    status = np.full(n, bp3010.STATUS_VALID, dtype=np.int64)
+    counts = np.empty((n, 6), dtype=np.int64)
+    for cols, values, lsb, flag in (((0, 3), dtheta, bp3010.dtheta_lsb_rad(rate_hz), bp3010.STATUS_GYRO_OVERRANGE),
+                                    ((3, 6), dv, bp3010.dv_lsb_mps(rate_hz), bp3010.STATUS_ACCEL_OVERRANGE)):
+        c = np.rint(np.where(np.isfinite(values), values / lsb, 0.0))
+        over = np.any((c < -32768) | (c > 32767), axis=1)
+        status[over] |= flag
+        counts[:, cols[0]:cols[1]] = np.clip(c, -32768, 32767)
+    body = np.zeros((n, bp3010.FRAME_LEN - 2), dtype=np.uint8)
+    body[:, :12] = counts.astype("<i2").view(np.uint8).reshape(n, 12)
+    body[:, 12] = status & 0xFF
+    body[:, 13] = np.asarray(counter, dtype=np.int64) & 0xFF
+    frames = np.empty((n, bp3010.FRAME_LEN), dtype=np.uint8)
+    frames[:, 0] = bp3010.SYNC
+    frames[:, 1:bp3010.CHECKSUM_OFFSET] = body
+    frames[:, bp3010.CHECKSUM_OFFSET] = body.sum(axis=1, dtype=np.int64) & 0xFF
+    return frames
+
+
+def imu_records(frames: np.ndarray, stamps: np.ndarray) -> bytes:
+    """Record bytes `sync | f8 stamp | frame bytes 1..15` for (n, 16) frames."""
+    n = len(frames)
+    rec = np.empty((n, bp3010.FRAME_LEN + STAMP.size), dtype=np.uint8)
+    rec[:, 0] = frames[:, 0]
+    rec[:, 1:1 + STAMP.size] = np.asarray(stamps, dtype="<f8").reshape(n, 1).view(np.uint8)
+    rec[:, 1 + STAMP.size:] = frames[:, 1:]
+    return rec.tobytes()
 
 
 def write_session(sim: Simulation, directory: str | Path) -> Path:
@@ -87,20 +137,19 @@ def write_session(sim: Simulation, directory: str | Path) -> Path:
         free = first[k] + len(m.frame) * byte_s
     stalls = _load_stalls(sim)
     gps_delay = tm.gps_latency_s + _jitter(rng, len(msgs), tm.jitter_mean_s)
-    gps_stamps = realtime(sim, first) + gps_delay + _stall_delay(first + gps_delay, stalls)
+    gps_read = _in_order(first + gps_delay + _stall_delay(first + gps_delay, stalls), byte_s)
+    gps_stamps = realtime(sim, first) + (gps_read - first)
     (directory / "gps-000.bin").write_bytes(_records([m.frame for m in msgs], gps_stamps, ss2.HEADER_LEN))
     # IMU: one frame per sample, some dropped if configured; the counter counts every sample.
-    samples = list(src.imu_samples(sim.imu_rate_hz))
-    keep = rng.random(len(samples)) >= tm.imu_drop_probability
-    frames = []
-    for k, s in enumerate(samples):
-        s.sample.counter = (k + 1) & 0xFF
-        frames.append(s.sample.encode(sim.imu_rate_hz))
-    t_imu = np.array([s.t for s in samples])
-    imu_delay = tm.imu_latency_s + _jitter(rng, len(samples), tm.jitter_mean_s)
-    imu_stamps = realtime(sim, t_imu) + imu_delay + _stall_delay(t_imu + imu_delay, stalls)
+    n_imu = len(sim.imu_t)
+    keep = rng.random(n_imu) >= tm.imu_drop_probability
+    frames = imu_frames(sim.imu_dtheta, sim.imu_dv, np.arange(1, n_imu + 1), sim.imu_rate_hz)
+    arrival = sim.imu_t + tm.imu_latency_s + _jitter(rng, n_imu, tm.jitter_mean_s)
+    arrival = arrival + _stall_delay(arrival, stalls)
     kept = np.flatnonzero(keep)
-    (directory / "imu-000.bin").write_bytes(_records([frames[k] for k in kept], imu_stamps[kept], 1))
+    read = _in_order(arrival[kept], 10.0 / tm.imu_baud)  # dropped frames are never read
+    imu_stamps = realtime(sim, sim.imu_t[kept]) + (read - sim.imu_t[kept])
+    (directory / "imu-000.bin").write_bytes(imu_records(frames[kept], imu_stamps))
     start = float(realtime(sim, 0.0))
     stop = float(realtime(sim, sc.duration_s))
     # Clock pairs: the simulated host's monotonic clock starts at 1000 s.
@@ -108,7 +157,7 @@ def write_session(sim: Simulation, directory: str | Path) -> Path:
     with open(directory / "clock.csv", "w", encoding="ascii") as f:
         f.write("realtime,monotonic\n")
         for t in pairs:
-            f.write(f"{float(realtime(sim, t))!r},{1000.0 + t!r}\n")
+            f.write(f"{float(realtime(sim, t))!r},{float(1000.0 + t)!r}\n")
     sidecar = {
         "format": "gpsins-session",
         "format_version": 1,
@@ -117,7 +166,8 @@ def write_session(sim: Simulation, directory: str | Path) -> Path:
         "state": "stopped",
         "start": {"realtime": start, "monotonic": 1000.0},
         "stop": {"realtime": stop, "monotonic": 1000.0 + sc.duration_s},
-        "stamp": "simulated: realtime of the frame's first byte + latency + exponential jitter + host stalls if any",
+        "stamp": "simulated: realtime of the frame's first byte + latency + exponential jitter + host stalls "
+                 "if any, in read order (never backwards per sensor)",
         "sensors": {
             "gps": {"device": "superstar2", "header_len": ss2.HEADER_LEN, "baud": tm.gps_baud,
                     "files": ["gps-000.bin"], "raw_files": []},
@@ -134,6 +184,10 @@ def write_session(sim: Simulation, directory: str | Path) -> Path:
             "leap_seconds": sc.gnss.leap_seconds, "truth": "truth.npz",
         },
     }
+    if sim.imu_rate_hz not in bp3010.RATES_HZ:
+        sidecar["simulation"]["imu_frame"] = (
+            f"BP3010 frame layout at {sim.imu_rate_hz} Hz, not a BP3010 rate: LSBs scaled by "
+            f"{bp3010.NOMINAL_RATE_HZ} / rate_hz, counter +1 per sample")
     (directory / "session.json").write_text(json.dumps(sidecar, indent=2) + "\n", encoding="utf-8")
     write_truth(sim, directory / "truth.npz")
     return directory

@@ -14,6 +14,11 @@ the rotation vector of the body's inertial attitude change over the interval
 (coning included), delta-v the integral of specific force taken in inertial
 space and expressed in the start-of-interval body frame (sculling included),
 by composite Simpson over the internal samples of the interval.
+
+The internal grid is an even number of steps per IMU interval chosen so the
+internal rate stays near 1 kHz whatever the IMU's rate (16 steps at 64 Hz,
+10 at 100 Hz, 6 at 200 Hz, 2 at 400 Hz): the IMU's sampling instants are
+always grid points, and the cost per second of drive hardly depends on the rate.
 """
 
 from __future__ import annotations
@@ -25,7 +30,14 @@ import numpy as np
 from . import earth
 from .scenario import Scenario
 
-SUBSTEPS = 16  # internal samples per IMU interval (1024 Hz at 64 Hz)
+INTERNAL_RATE_HZ = 1024.0  # target rate of the internal grid
+
+
+def substeps_for(imu_rate_hz: float) -> int:
+    """Internal steps per IMU interval: even (composite Simpson), at least 2, rate near 1 kHz."""
+    if not imu_rate_hz > 0:
+        raise ValueError(f"IMU rate must be > 0 Hz, got {imu_rate_hz}")
+    return max(2, 2 * int(round(INTERNAL_RATE_HZ / (2.0 * imu_rate_hz))))
 
 
 def _smoothstep(tau):
@@ -44,24 +56,30 @@ class Profiles:
 
 def profiles(sc: Scenario, t: np.ndarray) -> Profiles:
     """Speed, yaw (heading) and pitch (grade) with their time derivatives at times t."""
-    out = [np.zeros_like(t) for _ in range(6)]
-    s0, y0, p0 = 0.0, np.radians(sc.start.heading_deg), 0.0
-    t0 = 0.0
-    for seg in sc.segments:
-        t1 = t0 + seg.duration_s
+    t = np.asarray(t, dtype=np.float64)
+    n_seg = len(sc.segments)
+    t0, dur = np.empty(n_seg), np.empty(n_seg)
+    ends = np.empty((n_seg, 2, 3))  # per segment: (start, target) of speed, yaw, pitch
+    s0, y0, p0, a = 0.0, np.radians(sc.start.heading_deg), 0.0, 0.0
+    for k, seg in enumerate(sc.segments):
         s1 = s0 if seg.speed_mps is None else float(seg.speed_mps)
         y1 = y0 + np.radians(seg.turn_deg)
         p1 = p0 if seg.grade_deg is None else np.radians(seg.grade_deg)
-        last = seg is sc.segments[-1]
-        m = (t >= t0) & ((t < t1) | last)
-        tau = np.clip((t[m] - t0) / seg.duration_s, 0.0, 1.0)
-        s, ds = _smoothstep(tau)
-        for k, (a, b) in enumerate(((s0, s1), (y0, y1), (p0, p1))):
-            out[2 * k][m] = a + (b - a) * s
-            out[2 * k + 1][m] = (b - a) * ds / seg.duration_s * (tau < 1.0)
-        s0, y0, p0, t0 = s1, y1, p1, t1
+        t0[k], dur[k], ends[k] = a, seg.duration_s, ((s0, y0, p0), (s1, y1, p1))
+        s0, y0, p0, a = s1, y1, p1, a + seg.duration_s
+    # Each time's segment: the one it starts in; past the end, the last one (held at its target).
+    k = np.minimum(np.searchsorted(t0 + dur, t, side="right"), n_seg - 1)
+    tau = np.clip((t - t0[k]) / dur[k], 0.0, 1.0)
+    s, ds = _smoothstep(tau)
+    moving, d = tau < 1.0, dur[k]
+    out = []
+    for j in range(3):
+        a, b = ends[k, 0, j], ends[k, 1, j]
+        out += [a + (b - a) * s, (b - a) * ds / d * moving]
     before = t < 0.0
     if np.any(before):  # before the run: standing as at the start
+        for x in out:
+            x[before] = 0.0
         out[2][before] = np.radians(sc.start.heading_deg)
     return Profiles(*out)
 
@@ -90,6 +108,7 @@ class Truth:
     f_body: np.ndarray  # specific force, m/s^2
     w_ib_body: np.ndarray  # inertial angular rate, rad/s
     c_eb: np.ndarray  # (n, 3, 3)
+    substeps: int  # internal steps per IMU interval
 
     def __len__(self) -> int:
         return len(self.t)
@@ -141,15 +160,37 @@ def _integrate_position(sc: Scenario, t: np.ndarray, v: np.ndarray, vm: np.ndarr
     return lat, lon, h, dlat, dlon
 
 
-def truth(sc: Scenario, t_first_sample: float, imu_rate_hz: float, n_samples: int) -> Truth:
-    """Truth on the internal grid: SUBSTEPS points per IMU interval, from t_first_sample - 1/rate."""
-    step = 1.0 / (imu_rate_hz * SUBSTEPS)
-    t = t_first_sample - 1.0 / imu_rate_hz + step * np.arange(n_samples * SUBSTEPS + 1)
-    p = profiles(sc, t)
-    v, dv = _ned_velocity(p)
+CHUNK = 1 << 16  # grid points per pass of the pointwise stages (bounds their temporaries)
+
+
+def truth(sc: Scenario, t_first_sample: float, imu_rate_hz: float, n_samples: int,
+          substeps: int | None = None) -> Truth:
+    """Truth on the internal grid: `substeps` points per IMU interval (default: substeps_for the
+    rate), from t_first_sample - 1/rate; the IMU's sampling instants are every substeps-th point."""
+    substeps = substeps_for(imu_rate_hz) if substeps is None else int(substeps)
+    if substeps < 2 or substeps % 2:
+        raise ValueError(f"substeps must be even and >= 2, got {substeps}")
+    step = 1.0 / (imu_rate_hz * substeps)
+    t = t_first_sample - 1.0 / imu_rate_hz + step * np.arange(n_samples * substeps + 1)
+    v, _ = _ned_velocity(profiles(sc, t))
     vm, _ = _ned_velocity(profiles(sc, t[:-1] + 0.5 * step))
     lat, lon, h, dlat, dlon = _integrate_position(sc, t, v, vm)
-    r = earth.geodetic_to_ecef(lat, lon, h)
+    del vm
+    n = len(t)
+    out = Truth(t, lat, lon, h, np.empty((n, 3)), np.empty((n, 3)), v, np.empty((n, 3)), np.empty((n, 4)),
+                np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3, 3)), substeps)
+    # Everything else is pointwise: in chunks, so the temporaries stay small on long drives.
+    for a in range(0, n, CHUNK):
+        _pointwise(sc, out, dlat[a:a + CHUNK], dlon[a:a + CHUNK], slice(a, a + CHUNK))
+    return out
+
+
+def _pointwise(sc: Scenario, out: Truth, dlat: np.ndarray, dlon: np.ndarray, k: slice) -> None:
+    """ECEF state, attitude, specific force and body rate on the grid points k of `out`."""
+    t, lat, lon, v = out.t[k], out.lat[k], out.lon[k], out.v_ned[k]
+    p = profiles(sc, t)
+    _, dv = _ned_velocity(p)
+    r = earth.geodetic_to_ecef(lat, lon, out.h[k])
     c_en = earth.ecef_to_ned_matrix(lat, lon)
     w_en = np.stack([dlon * np.cos(lat), -dlat, -dlon * np.sin(lat)], -1)
     w_ie = np.stack([earth.OMEGA_E * np.cos(lat), np.zeros_like(lat), -earth.OMEGA_E * np.sin(lat)], -1)
@@ -159,26 +200,36 @@ def truth(sc: Scenario, t_first_sample: float, imu_rate_hz: float, n_samples: in
     c_nb = earth.euler_to_dcm(p.yaw, p.pitch, roll)
     c_eb = c_en @ c_nb
     f_e = a_e + 2.0 * np.cross(earth.OMEGA_VEC, v_e) - earth.gravity_ecef(r)
-    f_b = np.einsum("nji,nj->ni", c_eb, f_e)
     # Euler-rate part of the body rate (roll held at zero, so its rate is zero too)
     sr, cr, sp, cp = np.sin(roll), np.cos(roll), np.sin(p.pitch), np.cos(p.pitch)
-    w_nb = np.stack([-p.yaw_dot * sp, p.pitch_dot * cr + p.yaw_dot * sr * cp, -p.pitch_dot * sr + p.yaw_dot * cr * cp], -1)
-    w_ib = np.einsum("nji,nj->ni", c_nb, w_ie + w_en) + w_nb
-    return Truth(t, lat, lon, h, r, v_e, v, a_e, earth.dcm_to_quat(c_eb), np.stack([p.yaw, p.pitch, roll], -1),
-                 f_b, w_ib, c_eb)
+    w_nb = np.stack([-p.yaw_dot * sp, p.pitch_dot * cr + p.yaw_dot * sr * cp,
+                     -p.pitch_dot * sr + p.yaw_dot * cr * cp], -1)
+    out.r_ecef[k], out.v_ecef[k], out.a_ecef[k], out.c_eb[k] = r, v_e, a_e, c_eb
+    out.q_eb[k] = earth.dcm_to_quat(c_eb)
+    out.ypr[k] = np.stack([p.yaw, p.pitch, roll], -1)
+    out.f_body[k] = np.einsum("nji,nj->ni", c_eb, f_e)
+    out.w_ib_body[k] = np.einsum("nji,nj->ni", c_nb, w_ie + w_en) + w_nb
 
 
 def ideal_increments(tr: Truth) -> tuple[np.ndarray, np.ndarray]:
     """Exact (delta-theta, delta-v) for each IMU interval of the truth grid."""
-    c_ib = earth.rot_z(earth.OMEGA_E * tr.t) @ tr.c_eb  # inertial frame = ECEF at t = 0
-    ends = np.arange(0, len(tr.t), SUBSTEPS)
-    c0, c1 = c_ib[ends[:-1]], c_ib[ends[1:]]
+    sub = tr.substeps
+    ends = np.arange(0, len(tr.t), sub)
+    c_ib_ends = earth.rot_z(earth.OMEGA_E * tr.t[ends]) @ tr.c_eb[ends]  # inertial frame = ECEF at t = 0
+    c0, c1 = c_ib_ends[:-1], c_ib_ends[1:]
     dtheta = earth.dcm_to_rotvec(np.swapaxes(c0, -1, -2) @ c1)
-    f_i = np.einsum("nij,nj->ni", c_ib, tr.f_body)
     h = tr.t[1] - tr.t[0]
-    w = np.ones(SUBSTEPS + 1)
+    w = np.ones(sub + 1)
     w[1:-1:2], w[2:-1:2] = 4.0, 2.0
-    idx = ends[:-1, None] + np.arange(SUBSTEPS + 1)
-    integral = np.einsum("k,nkj->nj", w * h / 3.0, f_i[idx])
+    w = w * h / 3.0
+    # Composite Simpson of the inertial specific force over each interval, a chunk of intervals at a time.
+    integral = np.empty((len(ends) - 1, 3))
+    per = max(1, CHUNK // sub)
+    for a in range(0, len(ends) - 1, per):
+        b = min(a + per, len(ends) - 1)
+        g = slice(ends[a], ends[b] + 1)
+        f_i = np.einsum("nij,nj->ni", earth.rot_z(earth.OMEGA_E * tr.t[g]) @ tr.c_eb[g], tr.f_body[g])
+        idx = (ends[a:b] - ends[a])[:, None] + np.arange(sub + 1)
+        integral[a:b] = np.einsum("k,nkj->nj", w, f_i[idx])
     dv = np.einsum("nji,nj->ni", c0, integral)
     return dtheta, dv
