@@ -183,16 +183,17 @@ def test_calibrate_missing_table(capsys, tmp_path):
     _one_line(capsys, ["calibrate", "accel-updown", tmp_path / "t.csv"], "t.csv: no such file")
 
 
-def test_dump_explains_stamps_going_backwards(capsys, stepped_session, tmp_path):
+def test_dump_explains_stamps_going_backwards(capsys, session, tmp_path):
     d = tmp_path / "back"
     d.mkdir()
-    for f in stepped_session.iterdir():
+    for f in session.iterdir():
         (d / f.name).write_bytes(f.read_bytes())
     scan = logs.read_record_file(d / "gps-000.bin", "superstar2")
     data = bytearray((d / "gps-000.bin").read_bytes())
-    at = int(scan.starts[5]) + scan.layout.header_len
-    earlier = np.frombuffer(bytes(data[at:at + 8]), "<f8")[0] - 0.5  # the clock stepped back by 0.5 s
-    data[at:at + 8] = np.float64(earlier).tobytes()
+    for start in scan.starts[5:]:  # the clock stepped back by 0.5 s before record 5
+        at = int(start) + scan.layout.header_len
+        earlier = np.frombuffer(bytes(data[at:at + 8]), "<f8")[0] - 0.5
+        data[at:at + 8] = np.float64(earlier).tobytes()
     (d / "gps-000.bin").write_bytes(bytes(data))
     assert cli.main(["dump", str(d)]) == 0
     out = capsys.readouterr().out
