@@ -94,9 +94,9 @@ def _cmd_replay(args: argparse.Namespace) -> int:
         e = res.summary["errors"]
         if e:
             print(f"  vs truth: horizontal RMS {e['horizontal_rms_m']:.2f} m, vertical RMS {e['vertical_rms_m']:.2f} m")
-        if res.summary.get("scoring"):
-            from . import report
+        from . import report
 
+        if report.shows_outage_table(res.summary):
             report.print_outage_table(res.summary)
     return 0
 

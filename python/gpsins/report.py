@@ -648,7 +648,14 @@ def _fig_skyplot(sky: SkyData):
 
 
 def _has_drift(r: Result) -> bool:
-    return "ref_t" in r.a and bool(r.run.get("scoring"))
+    return len(r.a.get("drift_t_s", ())) > 0 and bool(r.run.get("scoring"))
+
+
+def shows_outage_table(run: dict) -> bool:
+    """Worth a table of its own: outages were scored, or the reference is a file (not the session's truth,
+    whose errors the truth tables already give)."""
+    sc = run.get("scoring") or {}
+    return bool(sc) and (sc.get("n_outages", 0) > 0 or sc.get("point") == "antenna")
 
 
 def _fig_outage_drift(results, t0):
@@ -763,7 +770,7 @@ def page_tables(results: list[Result]) -> list[tuple[str, list[str], list[list[s
 def outage_page_table(results: list[Result], t0: float):
     """Per outage the maximum horizontal and vertical drift of each run, then mean, worst and RMS of the
     per-outage maxima and the RMS outside outages: (title, header, rows) or None."""
-    scored = [r for r in results if r.run.get("scoring")]
+    scored = [r for r in results if shows_outage_table(r.run)]
     if not scored:
         return None
     t0 = scored[0].run.get("outages", {}).get("gnss_first_t", t0)  # times from the first GNSS epoch, as --outages
@@ -796,17 +803,18 @@ def _run_lines(r: Result) -> list[str]:
                      f"{al['imu_frames_missing']} frames missing, clock steps {al['clock_steps_s']}")
     lines += ["counters: " + ", ".join(f"{k} {v}" for k, v in run["counters"].items() if v),
               "skipped: " + (", ".join(f"{k}: {v}" for k, v in run["skipped"].items()) or "nothing")]
-    sc = run.get("scoring") or {}
-    if sc:
-        lines.append(f"against {Path(sc['reference']).name} ({sc['point']} point): RMS of per-outage max horizontal "
-                     f"drift {sc['horizontal_m']['rms']:.2f} m over {sc['n_scored']} outages, outside outages "
-                     f"horizontal RMS {sc['outside']['rms_h_m']:.3f} m, vertical {sc['outside']['rms_v_m']:.3f} m")
     e = run.get("errors") or {}
     if e:
         lines.append(f"errors vs truth: horizontal RMS {e['horizontal_rms_m']:.2f} m "
                      f"(max {e['horizontal_max_m']:.2f}), "
                      f"vertical RMS {e['vertical_rms_m']:.2f} m (max {e['vertical_max_m']:.2f}), mean NEES "
                      f"{e['nees9_mean']:.2f} (9 dof), inside 3 sigma {100 * e['inside_3_sigma']:.1f} %")
+    sc = run.get("scoring") or {}
+    if shows_outage_table(run):
+        lines.append(f"against {Path(sc['reference']).name} ({sc['point']} point): RMS of the per-outage maximum "
+                     f"horizontal drift {sc['horizontal_m']['rms']:.2f} m over {sc['n_scored']} outages; outside "
+                     f"outages RMS {sc['outside']['rms_h_m']:.3f} m horizontal, {sc['outside']['rms_v_m']:.3f} m "
+                     "vertical")
     return lines
 
 
