@@ -389,7 +389,8 @@ def replay(source: str | Path, out: str | Path, *, mode: str = "loose", config=N
                       nees9=full(nees), **extra)
         hk = sol.heading_known[inside]
         h = np.hypot(err.r_ned[hk, 0], err.r_ned[hk, 1])
-        stats = {} if not hk.any() else {"horizontal_rms_m": float(np.sqrt(np.mean(h ** 2))), "horizontal_max_m": float(h.max()),
+        stats = {} if not hk.any() else {
+                 "horizontal_rms_m": float(np.sqrt(np.mean(h ** 2))), "horizontal_max_m": float(h.max()),
                  "vertical_rms_m": float(np.sqrt(np.mean(err.r_ned[hk, 2] ** 2))),
                  "vertical_max_m": float(np.abs(err.r_ned[hk, 2]).max()),
                  "nees9_mean": float(nees[hk].mean()),

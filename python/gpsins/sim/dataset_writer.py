@@ -158,8 +158,8 @@ def write_dataset(sim: Simulation, directory: str | Path, *, imu_to_body_ypr_deg
 
     noise = imu_noise_truth(sc.imu)
     lines = [f'name = "{sc.name}_seed{sim.seed}"',
-             f'description = "gpsins sim --dataset: {sc.name}, seed {sim.seed}, IMU {sim.imu_rate_hz} Hz ({imu_format}),'
-             f' fixes {gnss_rate_hz:g} Hz"', "",
+             f'description = "gpsins sim --dataset: {sc.name}, seed {sim.seed}, '
+             f'IMU {sim.imu_rate_hz} Hz ({imu_format}), fixes {gnss_rate_hz:g} Hz"', "",
              "[imu]", 'file = "imu.csv"', 'format = "csv"', 'columns = ["t", "ax", "ay", "az", "gx", "gy", "gz"]',
              'time = "gpst_unix"', f'accel_unit = "{units[0]}"', f'gyro_unit = "{units[1]}"', "skip_rows = 1",
              f"time_offset_s = {imu_time_offset_s!r}",
