@@ -264,3 +264,75 @@ def test_ins_mode_navigates_freely_after_the_initialisation(sim_set, right_run, 
     loose = right_run[0]
     assert s["scoring"]["horizontal_m"]["worst"] > 10 * loose["scoring"]["horizontal_m"]["worst"]
     print(f"\nins: free from {t_free:.1f}, worst horizontal drift {s['scoring']['horizontal_m']['worst']:.1f} m")
+
+
+def test_a_session_with_truth_is_scored_against_the_truth_at_the_imu(sim_set, tmp_path):
+    from gpsins.sim.session import write_session
+
+    sim, _ = sim_set
+    write_session(sim, tmp_path / "session")
+    res = replay.replay(tmp_path / "session", tmp_path / "out", outages="40:10:25")
+    sc = res.summary["scoring"]
+    assert sc["reference"] == "truth.npz" and sc["point"] == "imu" and sc["n_outages"] == 4
+    z = np.load(tmp_path / "out" / "results.npz")
+    sched = np.array(res.summary["outages"]["schedule"])
+    gnss = np.isin(z["upd_kind"], (1, 2, 3))
+    assert not np.any((z["upd_t"][gnss][:, None] >= sched[:, 0]) & (z["upd_t"][gnss][:, None] < sched[:, 1]))
+    # Recomputed from the truth file (IMU point) and the written solution, every 10th truth epoch.
+    t_week = sim.scenario.start.gps_week * 604800.0
+    with np.load(tmp_path / "session" / "truth.npz") as tz:
+        t_ref, r_ref = tz["tow_s"][::10], tz["r_ecef"][::10]
+    np.testing.assert_allclose(z["r_point_ecef"], z["r_ecef"])
+    use, e = _ned_errors(z["t"], z["r_ecef"], t_ref + t_week - int(z["week"]) * 604800.0, r_ref)
+    tr = (t_ref + t_week - int(z["week"]) * 604800.0)[use]
+    for (a, b), o in zip(sched, sc["per_outage"]):
+        m = (tr >= a) & (tr < b)
+        assert o["max_h_m"] == pytest.approx(np.hypot(e[m, 0], e[m, 1]).max(), rel=0.02)
+
+
+def test_a_rinex_data_set_replays_loose_from_single_point_fixes_and_tight(shared_data, tmp_path):
+    """GEONET 0759 (observations every 30 s) with a synthetic IMU standing level and facing north at the
+    station for the first 20 minutes: both modes stay near the station's surveyed position."""
+    import os
+
+    r0 = np.array([-3976219.5082, 3382372.5671, 3652512.9849])  # the file's APPROX POSITION XYZ
+    lat, lon, _ = earth.ecef_to_geodetic(r0)
+    c_en = earth.ecef_to_ned_matrix(lat, lon)
+    g_ned = c_en.T @ earth.gravity_ecef(r0)  # gravity incl. centrifugal, NED
+    w_ned = c_en.T @ np.array([0.0, 0.0, 7.292115e-5])
+    t0 = 1316 * 604800.0 + 6 * 86400.0  # 2005-04-02 00:00 GPST: Saturday of week 1316
+    t = t0 - 5.0 + np.arange(0.0, 1200.0, 0.05)  # 20 Hz, starting 5 s before the first epoch
+    rows = np.column_stack([t, np.tile(-g_ned, (len(t), 1)), np.tile(w_ned, (len(t), 1))])
+    np.savetxt(tmp_path / "imu.csv", rows, delimiter=",", fmt="%.3f,%.9f,%.9f,%.9f,%.12e,%.12e,%.12e")
+    rel = Path(os.path.relpath(shared_data, tmp_path)).as_posix()
+    (tmp_path / "set.toml").write_text(f"""
+[imu]
+file = "imu.csv"
+columns = ["t", "ax", "ay", "az", "gx", "gy", "gz"]
+time = "gps_abs"
+[gnss]
+file = "{rel}/07590920.05o"
+format = "rinex"
+nav = "{rel}/07590920.05n"
+[filter]
+preset = "default"
+initial_yaw_deg = 0.0
+gyro_bias_cal_rad_per_s = [0.0, 0.0, 0.0]
+accel_bias_cal_mps2 = [0.0, 0.0, 0.0]
+gyro_scale_factor_cal = [0.0, 0.0, 0.0]
+accel_scale_factor_cal = [0.0, 0.0, 0.0]
+""")
+    for mode in ("loose", "tight"):
+        res = replay.replay(tmp_path / "set.toml", tmp_path / mode, mode=mode)
+        z = np.load(tmp_path / mode / "results.npz")
+        e = np.array([c_en.T @ (x - r0) for x in z["r_ecef"][::200]])
+        h = np.hypot(e[:, 0], e[:, 1])
+        print(f"\nRINEX {mode}: horizontal RMS {np.sqrt(np.mean(h ** 2)):.2f} m, max {h.max():.2f} m, "
+              f"vertical RMS {np.sqrt(np.mean(e[:, 2] ** 2)):.2f} m; {res.summary['counters']}")
+        assert np.sqrt(np.mean(h ** 2)) < 5.0 and np.abs(e[:, 2]).max() < 20.0
+    c = res.summary["counters"]
+    # Unknown C/N0 (no S1 in the file) is not masked as weak: only the elevation mask removes some. (The
+    # core then rejects most of them: the receiver clock drifts 1.4 us/s, 12.5 km between the 30 s epochs,
+    # while its drift state starts at zero and the gate locks it out; reported, not asserted.)
+    assert c["pseudorange_epochs"] == 40 and c["pseudoranges_masked"] < 0.2 * (
+        c["pseudoranges_used"] + c["pseudoranges_rejected"] + c["pseudoranges_masked"])

@@ -72,6 +72,7 @@ RESULT_ARRAYS = {
     "drift_v_m": "vertical drift", "drift_outage": "outage index of each drift row",
 }
 MODES = ("loose", "tight", "ins")
+UNKNOWN_CN0_DBHZ = 99.0  # what the tight filter is given for a pseudorange whose C/N0 the file does not state
 POINTS = ("antenna", "imu")
 
 
@@ -233,6 +234,8 @@ def _dataset_inputs(path: Path, config, overrides: dict) -> Inputs:
                  explicit_keys=explicit, outage_spec=ds.outages)
     if ds.pseudoranges is not None and len(ds.pseudoranges):
         inp.pseudoranges = ds.pseudoranges.table(t_week)
+        # C/N0 unknown (RINEX without S1): not a weak signal, so not masked by pseudorange_min_cn0_dbhz.
+        inp.pseudoranges[~np.isfinite(ds.pseudoranges.cn0_dbhz), 3] = UNKNOWN_CN0_DBHZ
         inp.ephemerides = list(ds.navigation.ephemerides)
         inp.klobuchar = (ds.navigation.alpha, ds.navigation.beta) if len(ds.navigation.alpha) == 4 else None
         ep = np.unique(ds.pseudoranges.t_abs)
