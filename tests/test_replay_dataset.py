@@ -336,3 +336,27 @@ accel_scale_factor_cal = [0.0, 0.0, 0.0]
     # while its drift state starts at zero and the gate locks it out; reported, not asserted.)
     assert c["pseudorange_epochs"] == 40 and c["pseudoranges_masked"] < 0.2 * (
         c["pseudoranges_used"] + c["pseudoranges_rejected"] + c["pseudoranges_masked"])
+
+
+def test_report_of_a_data_set_has_the_drift_figure_and_table(walk_runs, tmp_path):
+    import matplotlib.pyplot as plt
+
+    from gpsins import report
+
+    (_, d_loose), (_, d_tight) = walk_runs[("walk_0827_ubx.toml", "loose")], walk_runs[("walk_0827_ubx.toml", "tight")]
+    page = report.make_report([d_loose, d_tight], tmp_path / "rep")
+    assert (tmp_path / "rep" / "outage_drift.png").exists()
+    text = page.read_text()
+    assert "## Drift per outage against gnss_1730_sf.pos (antenna point)" in text
+    s = json.loads((d_loose / "run.json").read_text())["scoring"]
+    row = next(x for x in text.splitlines() if x.startswith("| rms |"))
+    assert f"| {s['horizontal_m']['rms']:.2f} |" in row
+    figs = report.build_figures([d_loose, d_tight])
+    fig = figs["outage_drift.png"]
+    ax = fig.axes[0]
+    z = np.load(d_loose / "results.npz")
+    shown = np.concatenate([ln.get_ydata() for ln in ax.get_lines() if ln.get_color() == "tab:blue"
+                            and ln.get_linestyle() == "-"])
+    np.testing.assert_allclose(np.sort(shown), np.sort(z["drift_h_m"]))  # every drift epoch of the loose run
+    for f in figs.values():
+        plt.close(f)

@@ -761,18 +761,18 @@ def page_tables(results: list[Result]) -> list[tuple[str, list[str], list[list[s
     rows = [[x["mode"], x["kind"], "-" if x["prn"] is None else str(x["prn"]), f"{x['t_start'] - t0:.1f}",
              f"{x['t_end'] - t0:.1f}", str(x["updates"]), f"{x['max_ratio']:.1f}", str(x["rejected"])] for x in iv]
     tables.append(("Intervals with innovations outside 3 sigma (Table 7.4)", head, rows))
-    drift = outage_page_table(results, t0)
-    if drift:
-        tables.append(drift)
+    groups: dict = {}  # runs with the same outages share a table (an ins run's free stretch is its own)
+    for r in results:
+        if shows_outage_table(r.run):
+            key = tuple((o["start"], o["end"]) for o in r.run["scoring"]["per_outage"])
+            groups.setdefault(key, []).append(r)
+    tables += [outage_page_table(g, t0) for g in groups.values()]
     return tables
 
 
-def outage_page_table(results: list[Result], t0: float):
-    """Per outage the maximum horizontal and vertical drift of each run, then mean, worst and RMS of the
-    per-outage maxima and the RMS outside outages: (title, header, rows) or None."""
-    scored = [r for r in results if shows_outage_table(r.run)]
-    if not scored:
-        return None
+def outage_page_table(scored: list[Result], t0: float):
+    """Per outage the maximum horizontal and vertical drift of each run (runs with the same outages), then
+    mean, worst and RMS of the per-outage maxima and the RMS outside outages: (title, header, rows)."""
     t0 = scored[0].run.get("outages", {}).get("gnss_first_t", t0)  # times from the first GNSS epoch, as --outages
     head = ["outage", "from (s)", "to (s)", "ref epochs"] + [f"{r.name} {c} (m)" for r in scored for c in ("H", "V")]
     rows = []
@@ -790,7 +790,8 @@ def outage_page_table(results: list[Result], t0: float):
     rows.append(["outside RMS", "", "", str(scored[0].run["scoring"]["outside"]["n"])] +
                 [_fmt(r.run["scoring"]["outside"][f"rms_{c}_m"], 3) for r in scored for c in ("h", "v")])
     ref = scored[0].run["scoring"]
-    return (f"Drift per outage against {Path(ref['reference']).name} ({ref['point']} point)", head, rows)
+    what = "free navigation (--mode ins)" if "ins_free_from" in ref else "per outage"
+    return (f"Drift {what} against {Path(ref['reference']).name} ({ref['point']} point)", head, rows)
 
 
 def _run_lines(r: Result) -> list[str]:
