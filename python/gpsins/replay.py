@@ -186,7 +186,7 @@ def _session_inputs(session: Path, mode: str, config, timing_method: str, gps_la
     return inp
 
 
-def _spp_fixes(pr, nav, t0: float, uere_m: float) -> tuple[np.ndarray, np.ndarray]:
+def _spp_fixes(pr, nav, t0: float) -> tuple[np.ndarray, np.ndarray]:
     """Single-point fixes from pseudoranges (a RINEX data set has no receiver fixes): they start the tight
     filter and aid the loose one; hdop/vdop are the solution's DOPs."""
     from . import _core
@@ -227,7 +227,7 @@ def _dataset_inputs(path: Path, config, overrides: dict) -> Inputs:
         if vs is not None:
             derived.update(use_fix_velocity=True, fix_velocity_sigma_mps=vs)
     elif ds.pseudoranges is not None:
-        fixes, sats = _spp_fixes(ds.pseudoranges, ds.navigation, t_week, uere)
+        fixes, sats = _spp_fixes(ds.pseudoranges, ds.navigation, t_week)
     else:
         fixes, sats = np.zeros((0, 10)), np.zeros(0, int)
     inp = Inputs(path, "dataset", week, imu, fixes, sats, (first - t_week, last - t_week), base_config=base,
