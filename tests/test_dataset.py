@@ -247,3 +247,41 @@ def test_a_damaged_ubx_stream_is_one_note_and_the_rest_is_kept(tmp_path):
         f"damaged.ubx: skipped 1 damaged stretch(es), {frame_len} bytes; "
         f"first at offset {at} (bad checksum of class 0x02 id 0x15)"]
     assert len(ds.fixes) == 536 and len(np.unique(ds.pseudoranges.t_abs)) == 535
+
+
+# --- fix noise keys -------------------------------------------------------------------------------------------
+
+def _kfgins_set(tmp_path, extra: str = "") -> Path:
+    _write(tmp_path, "imu.csv", "0,0,0,0,0,0,0\n0.01,0,0,0,0,0,0\n")
+    _write(tmp_path, "gnss.txt", "1000.0 59.3 18.1 30.0 0 0 0\n1001.0 59.3 18.1 30.0 0.5 0.5 1.0\n")
+    return _write(tmp_path, "set.toml", f"""
+[imu]
+file = "imu.csv"
+columns = ["t", "ax", "ay", "az", "gx", "gy", "gz"]
+time = "gps_abs"
+[gnss]
+file = "gnss.txt"
+format = "kf-gins"
+week = 1653
+{extra}
+""")
+
+
+def test_sigma_floor_table_reaches_the_fix_table(tmp_path):
+    ds = dataset.load(_kfgins_set(tmp_path, "[gnss.sigma_floor_m]\nunknown = [0.1, 0.2]\n"))
+    assert ds.sigma_floor_m == {"unknown": (0.1, 0.2)}
+    h, v = dataset.fix_sigmas(ds.fixes, ds.sigma_floor_m, ds.sigma_default_m)
+    np.testing.assert_allclose(h, [0.1, 0.5])  # a stated zero takes the floor; 0.5 is above it
+    np.testing.assert_allclose(v, [0.2, 1.0])
+    assert dataset.velocity_sigma(ds.fixes) is None  # kf-gins fixes have no velocity
+
+
+@pytest.mark.parametrize("extra, match", [
+    ("[gnss.sigma_floor_m]\nrtk = [0.1, 0.2]\n", "unknown quality 'rtk'"),
+    ("[gnss.sigma_floor_m]\nfix = [0.1]\n", r"sigma_floor_m\] fix: must be two positive numbers"),
+    ("[gnss.sigma_default_m]\nfix = [0.1, -1]\n", r"sigma_default_m\] fix: must be two positive"),
+    ("velocity_sigma_floor_mps = 0\n", "velocity_sigma_floor_mps: must be positive"),
+])
+def test_bad_sigma_keys_name_the_field(tmp_path, extra, match):
+    with pytest.raises(DatasetError, match=match):
+        dataset.load(_kfgins_set(tmp_path, extra))

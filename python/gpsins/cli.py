@@ -67,14 +67,25 @@ def _cmd_replay(args: argparse.Namespace) -> int:
         return 0
     overrides = flt.parse_overrides(args.set or [])
     flt.load_config(args.config, overrides)  # a bad key or value fails here, before any decoding
-    _session_dir(args.session)
+    if replay.is_dataset(args.session):
+        if not Path(args.session).is_file():
+            raise CommandError(f"{args.session}: no such data-set file")
+    else:
+        _session_dir(args.session)
+    if args.outages:
+        from . import outages
+
+        outages.parse(args.outages)
+    if args.reference and not Path(args.reference).is_file():
+        raise CommandError(f"{args.reference}: no such reference file (--reference takes an RTKLIB .pos)")
 
     modes = ["loose", "tight"] if args.mode == "both" else [args.mode]
     for mode in modes:
         res = replay.replay(args.session, Path(args.out) / mode if len(modes) > 1 else args.out, mode=mode,
                             config=args.config, overrides=overrides, timing_method=args.timing,
                             gps_latency_s=args.gps_latency, imu_latency_s=args.imu_latency, truth=not args.no_truth,
-                            nav=args.nav)
+                            nav=args.nav, outages=args.outages, reference=args.reference,
+                            reference_q=args.reference_q, point=args.point)
         c = res.summary["counters"]
         print(f"{mode}: {res.summary['imu_samples']} IMU samples, {c['fixes_accepted']} fixes used, "
               f"{c['updates_rejected']} updates rejected; results in {res.out}")
@@ -83,6 +94,10 @@ def _cmd_replay(args: argparse.Namespace) -> int:
         e = res.summary["errors"]
         if e:
             print(f"  vs truth: horizontal RMS {e['horizontal_rms_m']:.2f} m, vertical RMS {e['vertical_rms_m']:.2f} m")
+        from . import report
+
+        if report.shows_outage_table(res.summary):
+            report.print_outage_table(res.summary)
     return 0
 
 
@@ -143,6 +158,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="session directory to create")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--imu-rate", type=int, help="IMU rate in Hz instead of the scenario's (BP3010 frame layout)")
+    p.add_argument("--dataset", action="store_true",
+                   help="also write a data set (IMU CSV, receiver .pos, truth .pos, dataset.toml) in OUT/dataset")
     p.set_defaults(func=_cmd_sim)
 
     p = sub.add_parser("emulate", help="serve a scenario or a recorded session on pty serial devices")
@@ -154,11 +171,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--speed", type=float, default=1.0, help="time scale (2 = twice real time)")
     p.set_defaults(func=_cmd_emulate)
 
-    p = sub.add_parser("replay", help="replay a logger session through the filter")
-    p.add_argument("session", help="session directory")
+    p = sub.add_parser("replay", help="replay a logger session or a data set through the filter")
+    p.add_argument("session", help="session directory, or a data-set file (DATASET.toml)")
     p.add_argument("--out", required=True, help="results directory")
-    p.add_argument("--mode", choices=("loose", "tight", "both"), default="loose",
-                   help="loosely coupled (receiver fixes), tightly coupled (pseudoranges) or both")
+    p.add_argument("--mode", choices=("loose", "tight", "both", "ins"), default="loose",
+                   help="loosely coupled (fixes), tightly coupled (pseudoranges), both, or ins: free inertial "
+                        "navigation after the initialisation")
+    p.add_argument("--outages", metavar="FIRST:LENGTH:PERIOD[:END]",
+                   help="simulated GNSS outages, seconds from the first GNSS epoch (no GNSS inside them)")
+    p.add_argument("--reference", metavar="FILE.pos",
+                   help="reference trajectory (RTKLIB .pos) at the antenna point: errors and drift per outage")
+    p.add_argument("--reference-q", type=int, nargs="+", default=[1], metavar="Q",
+                   help="the reference's Q values that count (default: 1, fixed)")
+    p.add_argument("--point", choices=("antenna", "imu"), default="antenna",
+                   help="the point solution.pos gives (default: antenna)")
     p.add_argument("--nav", help="RINEX 2 navigation file: ephemerides and Klobuchar when the log lacks them")
     p.add_argument("--config", help="filter configuration: TOML file or preset name (default, report2005)")
     p.add_argument("--set", action="append", metavar="KEY=VALUE",

@@ -23,6 +23,10 @@ Extensions (all optional):
   heights above the geoid, the geoid's height above the ellipsoid (added to them).
 - ``[gnss] nav`` may be a list of RINEX navigation files; with ``format = "ubx"`` they add to
   the ephemerides decoded from the stream's SFRBX.
+- ``[gnss.sigma_floor_m]`` ``fix``, ``float``, ``sbas``, ``dgps``, ``single``, ``ppp``, ``unknown`` =
+  ``[horizontal, vertical]``: the smallest 1-sigma a fix of that quality is given (``SIGMA_FLOOR_M``);
+  ``[gnss.sigma_default_m]`` the same keys: the sigma of a fix whose file states none
+  (``SIGMA_DEFAULT_M``); ``[gnss] velocity_sigma_floor_mps``.
 - ``[scoring] reference = "FILE.pos"``, ``reference_q = [1]`` (the Q values that count),
   ``outages = "FIRST:LENGTH:PERIOD[:END]"``: defaults for ``--reference`` and ``--outages``.
 
@@ -52,14 +56,70 @@ _KNOWN = {
     "": {"name", "imu", "gnss", "vehicle", "filter", "scoring", "description"},
     "imu": {"file", "format", "columns", "time", "week", "accel_unit", "gyro_unit", "time_offset_s", "imu_to_body",
             "imu_to_body_ypr_deg", "delimiter", "skip_rows"},
-    "gnss": {"file", "format", "nav", "antenna_m", "week", "geoid_height_m"},
+    "gnss": {"file", "format", "nav", "antenna_m", "week", "geoid_height_m", "sigma_floor_m", "sigma_default_m",
+             "velocity_sigma_floor_mps"},
     "vehicle": {"kind"},
     "scoring": {"reference", "reference_q", "reference_geoid_height_m", "outages"},
 }
 
 
+# Fix quality (RTKLIB's Q) -> name, and the 1-sigma (horizontal per axis, vertical) a fix of that quality gets
+# at least: stated sigmas are formal and ignore what the filter cannot see (antenna offsets of a few cm,
+# multipath, a float ambiguity's bias), and a zero must not make a fix absolute. Then the sigma used when the
+# file states none.
+Q_NAMES = {1: "fix", 2: "float", 3: "sbas", 4: "dgps", 5: "single", 6: "ppp", 0: "unknown"}
+SIGMA_FLOOR_M = {"fix": (0.02, 0.03), "float": (0.15, 0.3), "sbas": (0.7, 1.4), "dgps": (0.5, 1.0),
+                 "single": (1.5, 3.0), "ppp": (0.05, 0.1), "unknown": (0.02, 0.03)}
+SIGMA_DEFAULT_M = {"fix": (0.05, 0.1), "float": (0.5, 1.0), "sbas": (1.5, 3.0), "dgps": (1.0, 2.0),
+                   "single": (3.0, 6.0), "ppp": (0.2, 0.4), "unknown": (3.0, 6.0)}
+VELOCITY_SIGMA_FLOOR_MPS = 0.02
+
+
 class DatasetError(ReaderError):
     pass
+
+
+def fix_sigmas(fixes: Fixes, floor_m: dict | None = None, default_m: dict | None = None
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """Horizontal (per axis) and vertical 1-sigma of every fix: the stated sigmas (north and east pooled)
+    where finite, else the default for its quality, never below the floor for its quality."""
+    floor_m, default_m = {**SIGMA_FLOOR_M, **(floor_m or {})}, {**SIGMA_DEFAULT_M, **(default_m or {})}
+    names = [Q_NAMES.get(int(q), "unknown") for q in fixes.q]
+    fl = np.array([floor_m[n] for n in names], float).reshape(-1, 2)
+    de = np.array([default_m[n] for n in names], float).reshape(-1, 2)
+    s = np.asarray(fixes.sigma_ned_m, float).reshape(-1, 3)
+    h = np.sqrt((s[:, 0] ** 2 + s[:, 1] ** 2) / 2.0)
+    v = np.abs(s[:, 2])
+    h = np.where(np.isfinite(h), h, de[:, 0])
+    v = np.where(np.isfinite(v), v, de[:, 1])
+    return np.maximum(h, fl[:, 0]), np.maximum(v, fl[:, 1])
+
+
+def fix_table(fixes: Fixes, t0: float, fix_uere_m: float, floor_m: dict | None = None,
+              default_m: dict | None = None) -> np.ndarray:
+    """The filter's (m, 10) fixes [t - t0, r xyz, v xyz (NaN: none), hdop, vdop, 2 (3D)].
+
+    The core weighs a fix with sigma_h = fix_uere_m hdop / sqrt(2) per horizontal axis and
+    sigma_v = fix_uere_m vdop, so the per-fix sigmas travel as hdop = sqrt(2) sigma_h / uere and
+    vdop = sigma_v / uere (exact for equal north and east sigmas; the north-east difference
+    and the covariance terms are lost)."""
+    h, v = fix_sigmas(fixes, floor_m, default_m)
+    n = len(fixes)
+    return np.column_stack([fixes.t_abs - t0, fixes.r_ecef, fixes.v_ecef(), np.sqrt(2.0) * h / fix_uere_m,
+                            v / fix_uere_m, np.full(n, 2.0)]).reshape(-1, 10)
+
+
+def velocity_sigma(fixes: Fixes, floor_mps: float = VELOCITY_SIGMA_FLOOR_MPS) -> float | None:
+    """One velocity sigma for all fixes (the core takes one): the median of the stated per-axis sigmas of the
+    fixes with a velocity, floored; None when no fix has a velocity."""
+    if fixes.v_ned_mps is None:
+        return None
+    has = np.isfinite(fixes.v_ned_mps).all(1)
+    if not has.any():
+        return None
+    s = fixes.sigma_v_ned_mps[has] if fixes.sigma_v_ned_mps is not None else np.full((has.sum(), 3), np.nan)
+    s = s[np.isfinite(s)]
+    return float(max(np.median(s), floor_mps)) if len(s) else 0.1
 
 
 @dataclass
@@ -80,6 +140,9 @@ class Dataset:
     outages: outages_mod.OutageSpec | None = None  # [scoring] outages
     skipped: Counter = field(default_factory=Counter)  # what the readers left out, and why
     notes: list[str] = field(default_factory=list)  # one line per damaged input
+    sigma_floor_m: dict = field(default_factory=dict)  # [gnss.sigma_floor_m]: quality name -> (h, v)
+    sigma_default_m: dict = field(default_factory=dict)  # [gnss.sigma_default_m]
+    velocity_sigma_floor_mps: float = VELOCITY_SIGMA_FLOOR_MPS
 
     def gnss_span(self) -> tuple[float, float]:
         """First and last GNSS epoch (fixes or pseudoranges): the origin of the outage schedule."""
@@ -263,11 +326,36 @@ def load(path: str | Path) -> Dataset:
             skipped["ubx: NAV-PVT without a valid fix"] = dropped
 
     ds.vehicle_kind, ds.filter_table, ds.outages = kind, ft, spec
+    ds.sigma_floor_m = _quality_table(tg, "sigma_floor_m", path)
+    ds.sigma_default_m = _quality_table(tg, "sigma_default_m", path)
+    ds.velocity_sigma_floor_mps = float(tg.get("velocity_sigma_floor_mps", VELOCITY_SIGMA_FLOOR_MPS))
+    if not ds.velocity_sigma_floor_mps > 0:
+        raise DatasetError(path, "must be positive", field="[gnss] velocity_sigma_floor_mps")
 
     if "reference" in ts:
         ds.reference = load_reference(_file(base, ts["reference"], path, "[scoring] reference"),
                                       ts.get("reference_q", [1]), ts.get("reference_geoid_height_m"))
     return ds
+
+
+def _quality_table(tg: dict, key: str, path: Path) -> dict:
+    t = tg.get(key, {})
+    where = f"[gnss.{key}]"
+    if not isinstance(t, dict):
+        raise DatasetError(path, "must be a table (quality = [horizontal, vertical])", field=where)
+    out = {}
+    for name, value in t.items():
+        if name not in SIGMA_FLOOR_M:
+            raise DatasetError(path, f"unknown quality {name!r} ({', '.join(SIGMA_FLOOR_M)})", field=where)
+        try:
+            hv = tuple(float(x) for x in value)
+        except (TypeError, ValueError):
+            hv = ()
+        if len(hv) != 2 or not all(np.isfinite(hv)) or min(hv) <= 0:
+            raise DatasetError(path, "must be two positive numbers [horizontal, vertical] (m)",
+                               field=f"{where} {name}")
+        out[name] = hv
+    return out
 
 
 def load_reference(path: str | Path, q=(1,), geoid_height_m: float | None = None) -> Fixes:

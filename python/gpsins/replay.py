@@ -1,6 +1,7 @@
-"""Replay a logger session through the filter.
+"""Replay a logger session or a data set through the filter.
 
-session directory -> decoded measurements -> time alignment -> filter -> results directory:
+session directory -> decoded measurements -> time alignment -> filter -> results directory;
+data-set TOML (``gpsins.dataset``) -> decoded files -> filter -> the same results directory:
 
 - ``results.npz``: the solution (see ``RESULT_ARRAYS``), the receiver's fixes,
   every update, and, when the session has a truth file, the errors;
@@ -8,19 +9,41 @@ session directory -> decoded measurements -> time alignment -> filter -> results
   standard deviations), for RTKLIB's plot tools and comparisons;
 - ``config.toml``: the exact filter configuration used;
 - ``run.json``: counters, what was skipped and why, the alignment's summary,
-  timings and summary statistics.
+  timings and summary statistics; with a reference (``--reference``, a data set's
+  ``[scoring]``, or a session's simulated truth) the errors against it and, with
+  ``--outages``, the per-outage drift (``outages.Score.summary``).
+
+What a data set gives the filter (each only where neither the data set's ``[filter]``
+table nor ``--set`` names the key itself): ``lever_arm_body_m`` from ``[gnss] antenna_m``;
+``imu_rate_hz`` from the median IMU interval (the core's gap bridging and standstill
+window use it); ``use_fix_velocity`` when the fixes carry velocities and
+``fix_velocity_sigma_mps`` from their stated sigmas (``dataset.velocity_sigma``: the core
+has one velocity sigma, not one per fix); ``pseudorange_decimation`` so that the tight
+filter uses about one epoch per second whatever the receiver's rate. Fix sigmas travel
+per fix through the hdop/vdop columns (``dataset.fix_table``). The mounting rotation and
+the IMU time offset are applied by ``dataset.load``.
+
+Modes: ``loose`` (fixes), ``tight`` (pseudoranges; fixes only start the filter and give
+the heading) and ``ins``: free inertial navigation after the initialisation. ``ins`` is
+the loose filter fed the fixes only up to the one at which the heading became known
+(levelling, position and heading done), with zero-velocity and zero-rate updates off
+for the whole run; everything after that fix is the IMU alone. Its drift is scored over
+that whole free stretch as one outage.
+
+Outages (``--outages``): every fix and pseudorange whose time falls in an outage is
+removed before the filter sees anything.
 """
 
 from __future__ import annotations
 
 import json
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from . import evaluate, filter as flt, measurements, timing
+from . import dataset as dataset_mod, evaluate, filter as flt, measurements, outages as outages_mod, timing
 from .readers import rinex
 
 DEFAULT_GPS_LATENCY_S = 0.0205  # receiver's epoch-to-first-byte delay (assumed 20 ms) + the logger's
@@ -40,7 +63,17 @@ RESULT_ARRAYS = {
     "seg_labels": "truth segment labels", "seg_t": "truth segments' start and end times",
     "sigma_v_ned_mps": "velocity sigma north, east, down",
     "clock": "tight mode: receiver clock bias (m) and drift (m/s); their sigmas are the last two of `sigma`",
+    "r_point_ecef": "position of the scored point (antenna unless --point imu; a session's truth: IMU), m",
+    "lever_arm_body_m": "antenna relative to the IMU, body axes (the configuration's lever arm)",
+    "outages": "outage schedule [start, end), same time base as t",
+    "ref_t": "reference epochs used for scoring", "ref_r_ecef": "reference positions",
+    "ref_err_ned_m": "solution minus reference at ref_t, NED", "ref_outage": "outage index of each ref_t (-1 outside)",
+    "drift_t_s": "time since the outage began, per reference epoch inside one", "drift_h_m": "horizontal drift",
+    "drift_v_m": "vertical drift", "drift_outage": "outage index of each drift row",
 }
+MODES = ("loose", "tight", "ins")
+UNKNOWN_CN0_DBHZ = 99.0  # what the tight filter is given for a pseudorange whose C/N0 the file does not state
+POINTS = ("antenna", "imu")
 
 
 @dataclass
@@ -92,21 +125,48 @@ def load_session_truth(directory: Path, t_offset: float) -> tuple[evaluate.Truth
     return None
 
 
-def replay(session: str | Path, out: str | Path, *, mode: str = "loose", config=None, overrides: dict | None = None,
-           timing_method: str = "robust", gps_latency_s: float = DEFAULT_GPS_LATENCY_S,
-           imu_latency_s: float = DEFAULT_IMU_LATENCY_S, truth: bool = True,
-           nav: str | Path | None = None) -> ReplayResult:
-    session, out = Path(session), Path(out)
-    clock = {"start": time.perf_counter()}
+@dataclass
+class Inputs:
+    """What a replay feeds the filter, on one time base: GPS seconds since the start of ``week``."""
+
+    source: Path
+    kind: str  # "session" | "dataset"
+    week: int
+    imu: np.ndarray  # (n, 7)
+    fixes: np.ndarray  # (m, 10) every fix the receiver (or file) gave
+    fix_sats: np.ndarray  # (m,)
+    gnss_span: tuple[float, float]  # first and last GNSS epoch: the outage schedule's origin
+    pseudoranges: np.ndarray | None = None  # (k, 5) tight
+    ephemerides: list = field(default_factory=list)
+    klobuchar: tuple | None = None
+    base_config: object = None  # load_config's source
+    explicit_keys: set = field(default_factory=set)  # keys the user gave: data-derived values do not replace them
+    data_config: dict = field(default_factory=dict)  # configuration derived from the data
+    truth: tuple | None = None  # (evaluate.Truth, extra arrays) of a simulated session
+    reference: tuple | None = None  # (t, r_ecef, name) at the antenna point
+    outage_spec: outages_mod.OutageSpec | None = None  # a data set's [scoring] outages
+    info: dict = field(default_factory=dict)  # run.json entries
+
+
+def is_dataset(source: str | Path) -> bool:
+    """A data-set file (TOML) rather than a session directory."""
+    p = Path(source)
+    return p.suffix.lower() == ".toml" and not p.is_dir()
+
+
+def _session_inputs(session: Path, mode: str, config, timing_method: str, gps_latency_s: float,
+                    imu_latency_s: float, truth: bool, nav, overrides: dict) -> Inputs:
+    t0 = time.perf_counter()
     dec = measurements.decode_session(session)
-    clock["decode_s"] = time.perf_counter() - clock.pop("start")
+    decode_s = time.perf_counter() - t0
     t1 = time.perf_counter()
     al = timing.align(dec.gps.tow, dec.gps.stamps, dec.gps.week, dec.imu.stamps, dec.imu.counter, dec.imu.rate_hz,
                       method=timing_method, gps_latency_s=gps_latency_s, imu_latency_s=imu_latency_s)
-    clock["align_s"] = time.perf_counter() - t1
+    align_s = time.perf_counter() - t1
     imu = np.column_stack([al.imu_t, dec.imu.dtheta_rad, dec.imu.dv_mps])
-    cfg = flt.load_config(config, {**(overrides or {}), "mode": mode})
-    tight = {}
+    fixes = dec.gps.fixes
+    span = (float(fixes[0, 0]), float(fixes[-1, 0])) if len(fixes) else (float(imu[0, 0]), float(imu[-1, 0]))
+    inp = Inputs(session, "session", int(dec.gps.week), imu, fixes, dec.gps.fix_sats, span, base_config=config)
     if mode == "tight":
         klob = None
         if dec.gps.iono is not None:
@@ -117,31 +177,198 @@ def replay(session: str | Path, out: str | Path, *, mode: str = "loose", config=
         ephs = dec.gps.decoded_ephemerides(dec.skipped)
         if nav is not None:
             ephs += rinex.read_nav(nav).ephemerides
-        tight = dict(pseudoranges=dec.gps.pseudorange_table(), ephemerides=ephs, klobuchar=klob,
-                     gps_time_offset_s=dec.gps.week * measurements.SECONDS_PER_WEEK)
-    t2 = time.perf_counter()
-    max_gap = float(cfg.get("max_gap_s", 0.5))
+        inp.pseudoranges, inp.ephemerides, inp.klobuchar = dec.gps.pseudorange_table(), ephs, klob
+    inp.truth = load_session_truth(session, dec.gps.week * measurements.SECONDS_PER_WEEK) if truth else None
+    max_gap = float(flt.load_config(config, overrides).get("max_gap_s", 0.5))
+    inp.info = {"session": str(session), "alignment": al.summary(), "decode_s": decode_s, "align_s": align_s,
+                "imu_gaps_longer_than_max_gap": al.gap_list(min_s=max_gap) if timing_method == "robust" else [],
+                "warnings": al.warnings if timing_method == "robust" else [], "skipped": dict(dec.skipped)}
+    return inp
+
+
+def _spp_fixes(pr, nav, t0: float) -> tuple[np.ndarray, np.ndarray]:
+    """Single-point fixes from pseudoranges (a RINEX data set has no receiver fixes): they start the tight
+    filter and aid the loose one; hdop/vdop are the solution's DOPs."""
+    from . import _core
+    store = nav.store()
+    rows, sats = [], []
+    guess = np.zeros(3)
+    for t, prns, prs in pr.epochs():
+        r = _core.gnss.spp(store, t, prns, prs, nav.alpha, nav.beta, 10.0, True, True, True, True, guess)
+        if r["ok"]:
+            guess = r["r_ecef"]
+            rows.append([t - t0, *r["r_ecef"], np.nan, np.nan, np.nan, r["hdop"], r["vdop"], 2.0])
+            sats.append(r["n_used"])
+    return np.array(rows, float).reshape(-1, 10), np.array(sats, int)
+
+
+def _dataset_inputs(path: Path, config, overrides: dict) -> Inputs:
+    t0 = time.perf_counter()
+    ds = dataset_mod.load(path)
+    decode_s = time.perf_counter() - t0
+    first, last = ds.gnss_span()
+    week = int(min(first, ds.imu.t_abs[0]) // measurements.SECONDS_PER_WEEK)
+    t_week = week * measurements.SECONDS_PER_WEEK
+    imu = np.column_stack([ds.imu.t_abs - t_week, ds.imu.dtheta_rad, ds.imu.dv_mps])
+    explicit = set(ds.filter_table) if config is None else set(_config_keys(config))
+    explicit |= set(overrides)
+    base = config if config is not None else (dict(ds.filter_table) or None)
+    cfg0 = flt.load_config(base, overrides)
+    derived: dict = {"lever_arm_body_m": ds.antenna_m.tolist()}
+    dt = np.diff(imu[:, 0])
+    dt = dt[dt > 0]
+    if len(dt):
+        derived["imu_rate_hz"] = float(1.0 / np.median(dt))
+    uere = float(cfg0["fix_uere_m"])
+    if ds.fixes is not None and len(ds.fixes):
+        fixes = dataset_mod.fix_table(ds.fixes, t_week, uere, ds.sigma_floor_m, ds.sigma_default_m)
+        sats = ds.fixes.ns.astype(int)
+        vs = dataset_mod.velocity_sigma(ds.fixes, ds.velocity_sigma_floor_mps)
+        if vs is not None:
+            derived.update(use_fix_velocity=True, fix_velocity_sigma_mps=vs)
+    elif ds.pseudoranges is not None:
+        fixes, sats = _spp_fixes(ds.pseudoranges, ds.navigation, t_week)
+    else:
+        fixes, sats = np.zeros((0, 10)), np.zeros(0, int)
+    inp = Inputs(path, "dataset", week, imu, fixes, sats, (first - t_week, last - t_week), base_config=base,
+                 explicit_keys=explicit, outage_spec=ds.outages)
+    if ds.pseudoranges is not None and len(ds.pseudoranges):
+        inp.pseudoranges = ds.pseudoranges.table(t_week)
+        # C/N0 unknown (RINEX without S1): not a weak signal, so not masked by pseudorange_min_cn0_dbhz.
+        inp.pseudoranges[~np.isfinite(ds.pseudoranges.cn0_dbhz), 3] = UNKNOWN_CN0_DBHZ
+        inp.ephemerides = list(ds.navigation.ephemerides)
+        inp.klobuchar = (ds.navigation.alpha, ds.navigation.beta) if len(ds.navigation.alpha) == 4 else None
+        ep = np.unique(ds.pseudoranges.t_abs)
+        if len(ep) > 1:
+            rate = 1.0 / float(np.median(np.diff(ep)))
+            derived["pseudorange_decimation"] = max(1, int(round(rate)))  # about one epoch per second
+    inp.data_config = {k: v for k, v in derived.items() if k not in explicit}
+    if ds.reference is not None:
+        inp.reference = (ds.reference.t_abs - t_week, ds.reference.r_ecef, ds.reference.source)
+    n_fix_q = {dataset_mod.Q_NAMES.get(int(q), str(q)): int(n) for q, n in
+               zip(*np.unique(ds.fixes.q, return_counts=True))} if ds.fixes is not None else {}
+    inp.info = {"dataset": str(path), "name": ds.name, "decode_s": decode_s, "skipped": dict(ds.skipped),
+                "warnings": list(ds.notes), "imu_to_body": ds.imu_to_body.tolist(),
+                "imu_time_offset_s": ds.imu_time_offset_s, "antenna_m": ds.antenna_m.tolist(),
+                "gnss_format": ds.gnss_format, "vehicle_kind": ds.vehicle_kind, "fix_quality": n_fix_q,
+                "from_data": inp.data_config,
+                "ephemerides_prn": ds.navigation.prns() if ds.navigation is not None else []}
+    if ds.vehicle_kind != "none":
+        inp.info["warnings"].append(f"[vehicle] kind = {ds.vehicle_kind!r}: the non-holonomic constraint is not in "
+                                    "the core yet; replayed without it")
+    return inp
+
+
+def _config_keys(config) -> list[str]:
+    """The keys a --config source names itself (a preset names none)."""
+    if isinstance(config, dict):
+        return list(config)
+    if str(config) in flt.PRESETS and not Path(str(config)).suffix:
+        return []
+    import tomllib
     try:
-        sol = flt.run(imu, dec.gps.fixes, cfg, mode=mode, covariance=True, **tight)
-        split = []
+        data = tomllib.loads(Path(config).read_text(encoding="utf-8"))
+    except (OSError, tomllib.TOMLDecodeError):
+        return []  # load_config reports it
+    return list(data.get("filter", data))
+
+
+def _filter(inp: Inputs, cfg: dict, mode: str, fixes: np.ndarray, prs: np.ndarray | None
+            ) -> tuple[flt.Solution, list[float]]:
+    tight = {}
+    if mode == "tight":
+        tight = dict(pseudoranges=prs if prs is not None else np.zeros((0, 5)), ephemerides=inp.ephemerides,
+                     klobuchar=inp.klobuchar, gps_time_offset_s=inp.week * measurements.SECONDS_PER_WEEK)
+    try:
+        return flt.run(inp.imu, fixes, cfg, mode=mode, covariance=True, **tight), []
     except ValueError as e:
         # Interim until the core re-initialises after long IMU gaps itself: run the filter
         # on each stretch between them, each starting afresh.
         if "gap longer than max_gap_s" not in str(e):
             raise
-        sol, split = _run_stretches(imu, dec.gps.fixes, cfg, mode, tight, max_gap)
+        return _run_stretches(inp.imu, fixes, cfg, mode, tight, float(cfg.get("max_gap_s", 0.5)))
+
+
+def _ins_aiding_end(sol: flt.Solution, fixes: np.ndarray) -> float | None:
+    """Time of the fix after which the filter was initialised (heading known): the last one an INS run gets."""
+    known = np.flatnonzero(sol.heading_known)
+    if not len(known):
+        return None
+    t_known = sol.t[known[0]]
+    used = fixes[(fixes[:, 0] <= t_known) & np.isin(fixes[:, 9], (2, 3))]
+    return float(used[-1, 0]) if len(used) else float(t_known)
+
+
+def antenna_positions(sol: flt.Solution, lever_arm_body_m) -> np.ndarray:
+    """ECEF position of the antenna: r + C_eb lever arm."""
+    lever = np.broadcast_to(np.asarray(lever_arm_body_m, float), (3,))
+    if not np.any(lever) or not len(sol.t):
+        return sol.r_ecef.copy()
+    return sol.r_ecef + flt._core.dcm_from_quat(sol.q_eb) @ lever
+
+
+def replay(source: str | Path, out: str | Path, *, mode: str = "loose", config=None, overrides: dict | None = None,
+           timing_method: str = "robust", gps_latency_s: float = DEFAULT_GPS_LATENCY_S,
+           imu_latency_s: float = DEFAULT_IMU_LATENCY_S, truth: bool = True,
+           nav: str | Path | None = None, outages: str | outages_mod.OutageSpec | None = None,
+           reference: str | Path | None = None, reference_q=(1,), point: str = "antenna") -> ReplayResult:
+    """Replay a session directory or a data-set TOML (see the module doc); ``outages``: FIRST:LENGTH:PERIOD[:END];
+    ``reference``: an RTKLIB .pos (its ``reference_q`` epochs) at the antenna point; ``point``: the point
+    solution.pos gives (antenna or imu)."""
+    if mode not in MODES:
+        raise ValueError(f"--mode {mode!r}: one of {', '.join(MODES)}")
+    if point not in POINTS:
+        raise ValueError(f"--point {point!r}: one of {', '.join(POINTS)}")
+    source, out = Path(source), Path(out)
+    overrides = dict(overrides or {})
+    spec = outages_mod.parse(outages) if isinstance(outages, str) else outages
+    clock = {}
+    filter_mode = "loose" if mode == "ins" else mode
+    if is_dataset(source):
+        inp = _dataset_inputs(source, config, overrides)
+    else:
+        inp = _session_inputs(source, filter_mode, config, timing_method, gps_latency_s, imu_latency_s, truth, nav,
+                              overrides)
+    clock["decode_s"] = inp.info.pop("decode_s")
+    if "align_s" in inp.info:
+        clock["align_s"] = inp.info.pop("align_s")
+    spec = spec if spec is not None else inp.outage_spec
+    schedule = outages_mod.schedule(spec, *inp.gnss_span) if spec is not None else np.zeros((0, 2))
+
+    ins_overrides = {"zero_velocity_updates": False} if mode == "ins" else {}
+    cfg = flt.load_config(inp.base_config, {**inp.data_config, **overrides, **ins_overrides, "mode": filter_mode})
+    fix_out = outages_mod.inside(inp.fixes[:, 0], schedule)
+    fixes = inp.fixes[~fix_out]
+    prs = inp.pseudoranges
+    if prs is not None:
+        prs = prs[~outages_mod.inside(prs[:, 0], schedule)]
+
+    t2 = time.perf_counter()
+    sol, split = _filter(inp, cfg, filter_mode, fixes, prs)
+    free_from = None
+    if mode == "ins":
+        free_from = _ins_aiding_end(sol, fixes) if len(sol.t) else None
+        if free_from is None:
+            raise ValueError(f"{source}: --mode ins: the heading never became known, so free navigation never "
+                             "started (set initial_yaw_deg, or use data that moves faster than heading_min_speed_mps)")
+        fixes = fixes[fixes[:, 0] <= free_from]
+        sol, split = _filter(inp, cfg, filter_mode, fixes, prs)
     clock["filter_s"] = time.perf_counter() - t2
     if len(sol.t) == 0:
-        raise measurements.logs.LogError(f"{session}: the filter never initialised (no usable fix after levelling)")
+        raise measurements.logs.LogError(f"{source}: the filter never initialised (no usable fix after levelling)")
+    t3 = time.perf_counter()
 
     sigma_ned, sigma_ypr = _nav_sigmas(sol)
-    fix_t = dec.gps.fixes[:, 0]
+    fix_t = inp.fixes[:, 0]
     k = np.clip(np.searchsorted(fix_t, sol.t, side="right") - 1, 0, max(len(fix_t) - 1, 0))
-    sats = dec.gps.fix_sats[k] if len(fix_t) else np.zeros(len(sol.t), int)
-    arrays = dict(t=sol.t, week=np.int64(dec.gps.week), r_ecef=sol.r_ecef, v_ecef=sol.v_ecef, q_eb=sol.q_eb,
+    sats = inp.fix_sats[k] if len(fix_t) else np.zeros(len(sol.t), int)
+    lever = np.broadcast_to(np.asarray(cfg.get("lever_arm_body_m", 0.0), float), (3,))
+    r_ant = antenna_positions(sol, lever)
+    arrays = dict(t=sol.t, week=np.int64(inp.week), r_ecef=sol.r_ecef, v_ecef=sol.v_ecef, q_eb=sol.q_eb,
                   llh=sol.llh(), ypr_deg=np.degrees(sol.ypr()), gyro_bias=sol.gyro_bias, accel_bias=sol.accel_bias,
                   sigma=sol.sigma, sigma_ned_m=sigma_ned, sigma_ypr_deg=sigma_ypr, standstill=sol.standstill,
-                  heading_known=sol.heading_known, fixes=dec.gps.fixes, fix_sats=dec.gps.fix_sats)
+                  heading_known=sol.heading_known, fixes=inp.fixes, fix_sats=inp.fix_sats,
+                  lever_arm_body_m=lever, outages=schedule)
     arrays.update({f"upd_{k}": v for k, v in sol.updates.items()})
     c_en_sol = evaluate.c_en(arrays["llh"][:, 0], arrays["llh"][:, 1])
     p_v_ned = np.swapaxes(c_en_sol, -1, -2) @ sol.covariance[:, 3:6, 3:6] @ c_en_sol
@@ -149,7 +376,7 @@ def replay(session: str | Path, out: str | Path, *, mode: str = "loose", config=
     if sol.clock is not None:
         arrays["clock"] = sol.clock
     stats = {}
-    found = load_session_truth(session, dec.gps.week * measurements.SECONDS_PER_WEEK) if truth else None
+    found = inp.truth
     if found:
         tr, extra = found
         inside = (sol.t >= tr.t[0]) & (sol.t <= tr.t[-1])
@@ -166,29 +393,82 @@ def replay(session: str | Path, out: str | Path, *, mode: str = "loose", config=
         hk = sol.heading_known[inside]
         h = np.hypot(err.r_ned[hk, 0], err.r_ned[hk, 1])
         # Errors count from the first known heading; a short or standing run may never get there.
-        stats = {} if not hk.any() else {"horizontal_rms_m": float(np.sqrt(np.mean(h ** 2))), "horizontal_max_m": float(h.max()),
+        stats = {} if not hk.any() else {
+                 "horizontal_rms_m": float(np.sqrt(np.mean(h ** 2))), "horizontal_max_m": float(h.max()),
                  "vertical_rms_m": float(np.sqrt(np.mean(err.r_ned[hk, 2] ** 2))),
                  "vertical_max_m": float(np.abs(err.r_ned[hk, 2]).max()),
                  "nees9_mean": float(nees[hk].mean()),
                  "inside_3_sigma": float(np.mean(np.abs(e9[hk]) <= 3 * sol.sigma[inside][hk, :9]))}
+
+    # Scoring against a reference: a .pos at the antenna point, else a session's truth at the IMU.
+    ref = inp.reference
+    if reference is not None:
+        f = dataset_mod.load_reference(reference, reference_q)
+        ref = (f.t_abs - inp.week * measurements.SECONDS_PER_WEEK, f.r_ecef, f.source)
+    scored_point = "antenna"
+    if ref is None and found:
+        ref, scored_point = (found[0].t, found[0].r_ecef, "truth.npz"), "imu"
+    scoring = {}
+    r_score = r_ant if scored_point == "antenna" else sol.r_ecef
+    if ref is not None and len(ref[0]):
+        score_sched = schedule
+        if mode == "ins":
+            score_sched = np.array([[free_from, max(float(sol.t[-1]), free_from) + 1e-6]])
+        sc = outages_mod.score(sol.t, r_score, ref[0], ref[1], score_sched)
+        use, e = outages_mod.errors_ned(sol.t, r_score, ref[0], ref[1])
+        arrays.update(ref_t=ref[0][use], ref_r_ecef=ref[1][use], ref_err_ned_m=e,
+                      ref_outage=outages_mod.outage_index(ref[0][use], score_sched), drift_t_s=sc.drift_t_s,
+                      drift_h_m=sc.drift_h_m, drift_v_m=sc.drift_v_m, drift_outage=sc.drift_outage)
+        h = np.hypot(e[:, 0], e[:, 1])
+        scoring = {"reference": str(ref[2]), "point": scored_point, "n_reference_epochs": int(use.sum()),
+                   "all": {"rms_h_m": float(np.sqrt(np.mean(h ** 2))) if len(h) else float("nan"),
+                           "rms_v_m": float(np.sqrt(np.mean(e[:, 2] ** 2))) if len(h) else float("nan"),
+                           "max_h_m": float(h.max()) if len(h) else float("nan")},
+                   **sc.summary()}
+        if mode == "ins":
+            scoring["ins_free_from"] = free_from
+    arrays["r_point_ecef"] = r_score if scored_point == "imu" else r_ant
+
     out.mkdir(parents=True, exist_ok=True)
     np.savez_compressed(out / "results.npz", **arrays)
-    write_pos(out / "solution.pos", dec.gps.week, sol, sigma_ned, sats, note=f"mode {mode}, session {session.name}")
+    pos_sol = sol if point == "imu" else _with_positions(sol, r_ant)
+    write_pos(out / "solution.pos", inp.week, pos_sol, sigma_ned, sats,
+              note=f"mode {mode}, {inp.kind} {source.name}, {point} point")
     (out / "config.toml").write_text(flt.to_toml(cfg), encoding="utf-8")
+    clock["write_s"] = time.perf_counter() - t3
     clock["total_s"] = sum(v for v in clock.values())
-    gaps = al.gap_list(min_s=max_gap) if timing_method == "robust" else []
-    summary = {"session": str(session), "mode": mode, "alignment": al.summary(), "counters": sol.counters,
-               "imu_gaps_longer_than_max_gap": gaps,
+    info = dict(inp.info)
+    summary = {"session": info.pop("session", str(source)), "kind": inp.kind, "mode": mode,
+               "alignment": info.pop("alignment", {}), "counters": sol.counters,
+               "imu_gaps_longer_than_max_gap": info.pop("imu_gaps_longer_than_max_gap", []),
                "reinitialisations": {"count": len(split), "at_t": split,
                                      "how": "interim: the filter restarted on each stretch between IMU gaps"
                                      if split else ""},
-               "warnings": al.warnings if timing_method == "robust" else [],
-               "skipped": dict(dec.skipped), "fixes_after_end": sol.extra["fixes_after_end"],
-               "wall_time_s": clock, "imu_samples": int(len(imu)), "errors": stats,
+               "warnings": info.pop("warnings", []),
+               "skipped": info.pop("skipped", {}), "fixes_after_end": sol.extra["fixes_after_end"],
+               "wall_time_s": clock, "imu_samples": int(len(inp.imu)), "errors": stats,
                "update_kinds": {flt.UPDATE_KINDS[int(k)]: int(np.sum(sol.updates["kind"] == k))
-                                for k in np.unique(sol.updates["kind"])}}
+                                for k in np.unique(sol.updates["kind"])},
+               "solution_point": point,
+               "outages": {"spec": spec.text() if spec is not None else None, "schedule": schedule.tolist(),
+                           "gnss_first_t": inp.gnss_span[0], "gnss_last_t": inp.gnss_span[1],
+                           "fixes_removed": int(fix_out.sum()),
+                           "pseudoranges_removed": 0 if inp.pseudoranges is None else
+                           int(len(inp.pseudoranges) - len(prs))},
+               "scoring": scoring}
+    if mode == "ins":
+        summary["ins"] = {"aiding_until_t": free_from, "fixes_used": int(len(fixes)),
+                          "how": "loose filter fed the fixes up to the one that completed the initialisation "
+                                 "(heading known); zero-velocity and zero-rate updates off"}
+    if info:
+        summary["dataset"] = info
     (out / "run.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
     return ReplayResult(out, mode, summary)
+
+
+def _with_positions(sol: flt.Solution, r_ecef: np.ndarray) -> flt.Solution:
+    import dataclasses
+    return dataclasses.replace(sol, r_ecef=r_ecef)
 
 
 def _run_stretches(imu: np.ndarray, fixes: np.ndarray, cfg: dict, mode: str, tight: dict, max_gap: float

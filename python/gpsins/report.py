@@ -33,7 +33,7 @@ from . import _core, evaluate  # noqa: E402
 KIND_FIX3, KIND_FIX2, KIND_PR = 1, 2, 6
 KIND_FIX = (KIND_FIX3, KIND_FIX2)
 KIND_NAMES = {KIND_FIX3: "3D fix", KIND_FIX2: "2D fix", KIND_PR: "pseudorange"}
-MODE_COLORS = {"loose": "tab:blue", "tight": "tab:orange"}
+MODE_COLORS = {"loose": "tab:blue", "tight": "tab:orange", "ins": "tab:red"}
 OTHER_COLORS = ("tab:purple", "tab:brown", "tab:pink")
 RECEIVER_COLOR = "tab:green"
 AXIS_STYLES = ("-", "--", ":")
@@ -647,6 +647,52 @@ def _fig_skyplot(sky: SkyData):
     return fig
 
 
+def _has_drift(r: Result) -> bool:
+    return len(r.a.get("drift_t_s", ())) > 0 and bool(r.run.get("scoring"))
+
+
+def shows_outage_table(run: dict) -> bool:
+    """Worth a table of its own: outages were scored, or the reference is a file (not the session's truth,
+    whose errors the truth tables already give)."""
+    sc = run.get("scoring") or {}
+    return bool(sc) and (sc.get("n_outages", 0) > 0 or sc.get("point") == "antenna")
+
+
+def _fig_outage_drift(results, t0):
+    """Drift vs time in outage (one line per outage and run), and the error against the reference over time
+    with the outages shaded."""
+    scored = [r for r in results if _has_drift(r)]
+    if not scored:
+        return None
+    fig, (ax, bx) = plt.subplots(2, 1, figsize=(10, 7))
+    for r in scored:
+        k = r.a["drift_outage"]
+        for j in np.unique(k):
+            m = k == j
+            ax.plot(r.a["drift_t_s"][m], r.a["drift_h_m"][m], "-", color=r.color, lw=1.0)
+            ax.plot(r.a["drift_t_s"][m], r.a["drift_v_m"][m], ":", color=r.color, lw=1.0)
+        e = r.a["ref_err_ned_m"]
+        bx.plot(*_gapped(r.a["ref_t"] - t0, np.hypot(e[:, 0], e[:, 1])), "-", color=r.color, lw=0.8)
+    sched = scored[0].a["outages"] if "outages" in scored[0].a else np.zeros((0, 2))
+    if scored[0].run.get("mode") == "ins" and scored[0].run["scoring"].get("ins_free_from") is not None:
+        sched = np.array([[scored[0].run["scoring"]["ins_free_from"], scored[0].a["t"][-1]]])
+    for a, b in np.asarray(sched).reshape(-1, 2):
+        bx.axvspan(a - t0, b - t0, color="0.85", zorder=0)
+    ax.set_xlabel("time since the outage began (s)")
+    ax.set_ylabel("drift (m)")
+    ax.legend(handles=_mode_handles(scored) + [Line2D([], [], color="k", ls="-", label="horizontal"),
+                                               Line2D([], [], color="k", ls=":", label="vertical")],
+              fontsize=8, loc="upper left")
+    ref = scored[0].run["scoring"]
+    ax.set_title(f"Drift vs time in outage, against {Path(ref['reference']).name} at the {ref['point']} point")
+    bx.set_yscale("log")
+    bx.set_xlabel("time (s)")
+    bx.set_ylabel("horizontal error (m)")
+    bx.legend(handles=_mode_handles(scored) + [Patch(color="0.85", label="outage")], fontsize=8, loc="upper left")
+    bx.set_title("Horizontal error against the reference")
+    return fig
+
+
 def build_figures(results: list[Result]) -> dict[str, plt.Figure]:
     """Every figure of the report, by file name; the caller saves or inspects and closes them."""
     results = _load_all(results)
@@ -665,6 +711,7 @@ def build_figures(results: list[Result]) -> dict[str, plt.Figure]:
     figs["gnss.png"] = _fig_gnss(results, base, t0)
     figs["consistency.png"] = _fig_consistency(results, base, t0)
     figs["clock.png"] = _fig_clock(results, base, t0, truth)
+    figs["outage_drift.png"] = _fig_outage_drift(results, t0)
     sky = sky_data(base)
     if sky is not None and len(sky.obs):
         figs["visibility.png"] = _fig_visibility(sky, base, t0)
@@ -714,24 +761,61 @@ def page_tables(results: list[Result]) -> list[tuple[str, list[str], list[list[s
     rows = [[x["mode"], x["kind"], "-" if x["prn"] is None else str(x["prn"]), f"{x['t_start'] - t0:.1f}",
              f"{x['t_end'] - t0:.1f}", str(x["updates"]), f"{x['max_ratio']:.1f}", str(x["rejected"])] for x in iv]
     tables.append(("Intervals with innovations outside 3 sigma (Table 7.4)", head, rows))
+    groups: dict = {}  # runs with the same outages share a table (an ins run's free stretch is its own)
+    for r in results:
+        if shows_outage_table(r.run):
+            key = tuple((o["start"], o["end"]) for o in r.run["scoring"]["per_outage"])
+            groups.setdefault(key, []).append(r)
+    tables += [outage_page_table(g, t0) for g in groups.values()]
     return tables
+
+
+def outage_page_table(scored: list[Result], t0: float):
+    """Per outage the maximum horizontal and vertical drift of each run (runs with the same outages), then
+    mean, worst and RMS of the per-outage maxima and the RMS outside outages: (title, header, rows)."""
+    t0 = scored[0].run.get("outages", {}).get("gnss_first_t", t0)  # times from the first GNSS epoch, as --outages
+    head = ["outage", "from (s)", "to (s)", "ref epochs"] + [f"{r.name} {c} (m)" for r in scored for c in ("H", "V")]
+    rows = []
+    first = scored[0].run["scoring"]["per_outage"]
+    for j, o in enumerate(first):
+        cells = [str(j + 1), f"{o['start'] - t0:.1f}", f"{o['end'] - t0:.1f}", str(o["n_ref"])]
+        for r in scored:
+            po = r.run["scoring"]["per_outage"]
+            oo = po[j] if j < len(po) else {}
+            cells += [_fmt(oo.get("max_h_m")), _fmt(oo.get("max_v_m"))]
+        rows.append(cells)
+    for stat in ("mean", "worst", "rms"):
+        rows.append([stat, "", "", ""] + [_fmt(r.run["scoring"][f"{c}_m"][stat])
+                                          for r in scored for c in ("horizontal", "vertical")])
+    rows.append(["outside RMS", "", "", str(scored[0].run["scoring"]["outside"]["n"])] +
+                [_fmt(r.run["scoring"]["outside"][f"rms_{c}_m"], 3) for r in scored for c in ("h", "v")])
+    ref = scored[0].run["scoring"]
+    what = "free navigation (--mode ins)" if "ins_free_from" in ref else "per outage"
+    return (f"Drift {what} against {Path(ref['reference']).name} ({ref['point']} point)", head, rows)
 
 
 def _run_lines(r: Result) -> list[str]:
     run = r.run
-    lines = [f"session: {Path(run['session']).name}; IMU samples {run['imu_samples']}; filter wall time "
-             f"{run['wall_time_s']['filter_s']:.2f} s (replay {run['wall_time_s']['total_s']:.2f} s)",
-             f"alignment: {run['alignment']['method']}, IMU clock {run['alignment']['imu_clock_ppm']:+.1f} ppm, "
-             f"{run['alignment']['imu_frames_missing']} frames missing, "
-             f"clock steps {run['alignment']['clock_steps_s']}",
-             "counters: " + ", ".join(f"{k} {v}" for k, v in run["counters"].items() if v),
-             "skipped: " + (", ".join(f"{k}: {v}" for k, v in run["skipped"].items()) or "nothing")]
+    al = run.get("alignment") or {}
+    lines = [f"{run.get('kind', 'session')}: {Path(run['session']).name}; IMU samples {run['imu_samples']}; "
+             f"filter wall time {run['wall_time_s']['filter_s']:.2f} s (replay {run['wall_time_s']['total_s']:.2f} s)"]
+    if al:
+        lines.append(f"alignment: {al['method']}, IMU clock {al['imu_clock_ppm']:+.1f} ppm, "
+                     f"{al['imu_frames_missing']} frames missing, clock steps {al['clock_steps_s']}")
+    lines += ["counters: " + ", ".join(f"{k} {v}" for k, v in run["counters"].items() if v),
+              "skipped: " + (", ".join(f"{k}: {v}" for k, v in run["skipped"].items()) or "nothing")]
     e = run.get("errors") or {}
     if e:
         lines.append(f"errors vs truth: horizontal RMS {e['horizontal_rms_m']:.2f} m "
                      f"(max {e['horizontal_max_m']:.2f}), "
                      f"vertical RMS {e['vertical_rms_m']:.2f} m (max {e['vertical_max_m']:.2f}), mean NEES "
                      f"{e['nees9_mean']:.2f} (9 dof), inside 3 sigma {100 * e['inside_3_sigma']:.1f} %")
+    sc = run.get("scoring") or {}
+    if shows_outage_table(run):
+        lines.append(f"against {Path(sc['reference']).name} ({sc['point']} point): RMS of the per-outage maximum "
+                     f"horizontal drift {sc['horizontal_m']['rms']:.2f} m over {sc['n_scored']} outages; outside "
+                     f"outages RMS {sc['outside']['rms_h_m']:.3f} m horizontal, {sc['outside']['rms_v_m']:.3f} m "
+                     "vertical")
     return lines
 
 
@@ -842,6 +926,32 @@ def comparison_tables(results: list[Result]) -> list:
             per.add_row(*cells)
         tables.append(per)
     return tables
+
+
+def outage_table(summary: dict, title: str | None = None):
+    """A rich table of one run's drift per outage and the statistics (from run.json's ``scoring``)."""
+    from rich.table import Table
+
+    sc = summary["scoring"]
+    t = Table(title=title or f"{summary.get('mode', '')}: drift against {Path(sc['reference']).name} "
+              f"({sc['point']} point), m", title_justify="left")
+    for name in ("outage", "from (s)", "to (s)", "ref epochs", "max H", "max V"):
+        t.add_column(name, justify="left" if name == "outage" else "right")
+    t0 = summary["outages"].get("gnss_first_t", 0.0)  # the schedule's origin: the first GNSS epoch
+    for j, o in enumerate(sc["per_outage"]):
+        t.add_row(str(j + 1), f"{o['start'] - t0:.1f}", f"{o['end'] - t0:.1f}", str(o["n_ref"]),
+                  _fmt(o["max_h_m"]), _fmt(o["max_v_m"]))
+    for stat in ("mean", "worst", "rms"):
+        t.add_row(stat, "", "", "", _fmt(sc["horizontal_m"][stat]), _fmt(sc["vertical_m"][stat]))
+    t.add_row("outside RMS", "", "", str(sc["outside"]["n"]), _fmt(sc["outside"]["rms_h_m"], 3),
+              _fmt(sc["outside"]["rms_v_m"], 3))
+    return t
+
+
+def print_outage_table(summary: dict, file=None) -> None:
+    from rich.console import Console
+
+    Console(file=file, width=None if file is None else 160).print(outage_table(summary))
 
 
 def print_comparison(paths: list[str | Path], file=None) -> None:

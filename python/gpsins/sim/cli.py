@@ -40,6 +40,10 @@ def run_sim(args) -> int:
     write_session(sim, out)
     print(f"simulated {sc.name} ({sc.duration_s:.0f} s, IMU at {sc.imu.rate_hz} Hz, seed {args.seed}) in "
           f"{time.perf_counter() - t:.1f} s: {out}")
+    if getattr(args, "dataset", False):
+        from .dataset_writer import write_dataset
+
+        print(f"data set (known mounting, lever arm, IMU time offset): {write_dataset(sim, out / 'dataset')}")
     return 0
 
 

@@ -1,0 +1,178 @@
+"""A simulation written as a data set (``gpsins sim --dataset``): the formats of outside recordings,
+with a known mounting rotation, antenna lever arm and IMU time offset, so that the data-set path of
+``gpsins replay DATASET.toml`` is tested against truth.
+
+Files (all in one directory):
+
+- ``imu.csv``: the unit's samples in IMU axes (v_imu = M^T v_body, M = ``imu_to_body``), times in
+  GPS seconds since 1970 (``gpst_unix``) stamped ``imu_time_offset_s`` early (the data set's
+  ``time_offset_s`` puts them back). ``increments``: velocity (m/s) and angle (rad) increments,
+  each ending at its stamp, as the simulator draws them. ``rates``: the same increments divided by
+  the interval (m/s^2, rad/s), stamped at the middle of their interval, where an interval's mean
+  rate belongs (the reader's trapezoid then recovers the increments to second order).
+- ``receiver.pos``: RTKLIB-style fixes of the antenna at ``gnss_rate_hz`` epochs off whole seconds,
+  with per-epoch standard deviations (some RTK-fixed, some float, some stated as zero) and
+  velocities; each fix's error is drawn with the sigma it states (a zero-sigma fix: 1 cm).
+- ``truth.pos``: the antenna's true trajectory (Q = 1) at 10 Hz, the reference for scoring.
+- ``dataset.toml``: the data set, with ``[filter]`` from the simulated unit's noise figures.
+
+It uses the simulator's own truth and NumPy only, never the filter.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from . import Simulation, imu_noise_truth
+from .earth import ecef_to_geodetic, ecef_to_ned_matrix
+
+GPS_UNIX_OFFSET_S = 315964800.0  # 1980-01-06 in Unix time (no leap seconds: gpst_unix)
+
+
+def ypr_matrix(yaw_deg: float, pitch_deg: float, roll_deg: float) -> np.ndarray:
+    """Rz(yaw) Ry(pitch) Rx(roll) (the data set's ``imu_to_body_ypr_deg``), written out here independently."""
+    y, p, r = np.radians([yaw_deg, pitch_deg, roll_deg])
+    cy, sy, cp, sp, cr, sr = np.cos(y), np.sin(y), np.cos(p), np.sin(p), np.cos(r), np.sin(r)
+    return np.array([[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+                     [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+                     [-sp, cp * sr, cp * cr]])
+
+
+def _gpst_text(t_abs: np.ndarray) -> list[str]:
+    """'YYYY/MM/DD hh:mm:ss.sss' GPST for seconds since the GPS epoch."""
+    base = np.datetime64("1980-01-06T00:00:00", "ms")
+    out = []
+    for x in np.atleast_1d(t_abs):
+        s = str(base + np.timedelta64(int(round(x * 1000)), "ms"))
+        out.append(s[:10].replace("-", "/") + " " + s[11:23])
+    return out
+
+
+def _llh_deg(r: np.ndarray) -> np.ndarray:
+    return np.array([[np.degrees(a), np.degrees(b), c] for a, b, c in (ecef_to_geodetic(x) for x in r)])
+
+
+def _c_eb_at(sim: Simulation, t: np.ndarray) -> np.ndarray:
+    """Body-to-ECEF rotation at run times t: the nearest internal truth sample (SUBSTEPS per IMU interval)."""
+    tr = sim.truth
+    k = np.clip(np.searchsorted(tr.t, t), 1, len(tr.t) - 1)
+    k = np.where(np.abs(tr.t[k - 1] - t) < np.abs(tr.t[k] - t), k - 1, k)
+    return tr.c_eb[k]
+
+
+def antenna_truth(sim: Simulation, t: np.ndarray, antenna_m) -> tuple[np.ndarray, np.ndarray]:
+    """True ECEF position and velocity of the antenna at run times t (lever arm in body axes)."""
+    tr = sim.truth
+    c = _c_eb_at(sim, t)
+    lever = np.asarray(antenna_m, float)
+    r = tr.position_at(t) + c @ lever
+    # v_ant = v + C_eb (w_eb x l); w_eb ~ w_ib - C_be w_ie (Earth rate, small but kept).
+    k = np.clip(np.searchsorted(tr.t, t), 0, len(tr.t) - 1)
+    w_ie = np.array([0.0, 0.0, 7.292115e-5])
+    w_eb = tr.w_ib_body[k] - np.einsum("nji,j->ni", c, w_ie)
+    v = tr.velocity_at(t) + np.einsum("nij,nj->ni", c, np.cross(w_eb, lever))
+    return r, v
+
+
+def _pos_lines(t_abs, r, q, ns, sd_neu, v_neu, sd_v, program: str) -> list[str]:
+    llh = _llh_deg(r)
+    lines = [f"% program   : {program}", "% (lat/lon/height=WGS84/ellipsoidal,Q=1:fix,2:float,5:single)",
+             "%  GPST                   latitude(deg) longitude(deg)  height(m)   Q  ns   sdn(m)   sde(m)   sdu(m)"
+             "  sdne(m)  sdeu(m)  sdun(m) age(s)  ratio    vn(m/s)    ve(m/s)    vu(m/s)     sdvn     sdve     sdvu"
+             "    sdvne    sdveu    sdvun"]
+    for ts, (la, lo, h), qq, n, s, v, sv in zip(_gpst_text(t_abs), llh, q, ns, sd_neu, v_neu, sd_v):
+        lines.append(f"{ts} {la:14.9f} {lo:14.9f} {h:10.4f} {int(qq):3d} {int(n):3d} {s[0]:8.4f} {s[1]:8.4f} "
+                     f"{s[2]:8.4f} {0.0:8.4f} {0.0:8.4f} {0.0:8.4f} {0.0:6.2f} {0.0:6.1f} {v[0]:10.5f} {v[1]:10.5f} "
+                     f"{v[2]:10.5f} {sv[0]:8.5f} {sv[1]:8.5f} {sv[2]:8.5f} {0.0:8.5f} {0.0:8.5f} {0.0:8.5f}")
+    return lines
+
+
+def _toml_value(v) -> str:
+    if isinstance(v, str):
+        return f'"{v}"'
+    if isinstance(v, (list, tuple, np.ndarray)):
+        return "[" + ", ".join(_toml_value(x) for x in np.asarray(v).tolist()) + "]"
+    return repr(float(v)) if isinstance(v, float) else str(v)
+
+
+def write_dataset(sim: Simulation, directory: str | Path, *, imu_to_body_ypr_deg=(-90.0, 3.0, 180.0),
+                  antenna_m=(0.6, -0.3, -1.1), imu_time_offset_s: float = 0.05, imu_format: str = "increments",
+                  gnss_rate_hz: float = 5.0, gnss_phase_s: float = 0.137, fix_sigma_range_m=(0.01, 0.04),
+                  float_every: int = 13, zero_sigma_every: int = 7, velocity_sigma_mps: float = 0.03,
+                  seed: int = 0) -> Path:
+    """Write the data set of ``sim`` into ``directory`` (created); returns the data-set file."""
+    if imu_format not in ("increments", "rates"):
+        raise ValueError(f"imu_format {imu_format!r}: increments or rates")
+    out = Path(directory)
+    out.mkdir(parents=True, exist_ok=True)
+    sc = sim.scenario
+    rng = np.random.default_rng([sim.seed, seed, 16])
+    t_start_abs = sc.start.gps_week * 604800.0 + sc.start.gps_tow_s  # run time 0 in GPS seconds
+    m = ypr_matrix(*imu_to_body_ypr_deg)
+
+    # IMU in its own axes, stamped early by the offset.
+    dth_imu, dv_imu = sim.imu_dtheta @ m, sim.imu_dv @ m  # rows: (M^T v)^T = v^T M
+    t_end = sim.imu_t
+    dt = np.diff(np.concatenate([[t_end[0] - (t_end[1] - t_end[0])], t_end]))
+    if imu_format == "increments":
+        t_stamp, acc, gyr, units = t_end, dv_imu, dth_imu, ("m/s", "rad")
+    else:
+        t_stamp, acc, gyr, units = t_end - dt / 2, dv_imu / dt[:, None], dth_imu / dt[:, None], ("m/s^2", "rad/s")
+    unix = t_start_abs + GPS_UNIX_OFFSET_S + t_stamp - imu_time_offset_s
+    table = np.column_stack([unix, acc, gyr])
+    np.savetxt(out / "imu.csv", table, delimiter=",", fmt=["%.6f"] + ["%.10e"] * 6,
+               header="t_gpst_unix,ax,ay,az,gx,gy,gz", comments="")
+
+    # Receiver fixes of the antenna, off whole seconds.
+    t_fix = np.arange(gnss_phase_s, sim.imu_t[-1] - 0.5, 1.0 / gnss_rate_hz)
+    r_true, v_true = antenna_truth(sim, t_fix, antenna_m)
+    n = len(t_fix)
+    idx = np.arange(n)
+    q = np.where(idx % float_every == float_every - 1, 2, 1)
+    s_h = rng.uniform(*fix_sigma_range_m, n) * np.where(q == 2, 5.0, 1.0)
+    s_v = 1.6 * s_h
+    stated_zero = idx % zero_sigma_every == 3
+    drawn_h, drawn_v = np.where(stated_zero, 0.01, s_h), np.where(stated_zero, 0.015, s_v)
+    lat, lon = np.array([ecef_to_geodetic(x)[:2] for x in r_true]).T
+    c_en = ecef_to_ned_matrix(lat, lon)  # (n, 3, 3) NED -> ECEF
+    e_ned = rng.normal(size=(n, 3)) * np.column_stack([drawn_h, drawn_h, drawn_v])
+    r_fix = r_true + np.einsum("nij,nj->ni", c_en, e_ned)
+    v_ned = np.einsum("nji,nj->ni", c_en, v_true) + rng.normal(0, velocity_sigma_mps, (n, 3))
+    sd = np.column_stack([s_h, s_h, s_v]) * ~stated_zero[:, None]
+    sdv = np.full((n, 3), velocity_sigma_mps)
+    ns = np.full(n, 9)
+    (out / "receiver.pos").write_text("\n".join(_pos_lines(
+        t_start_abs + t_fix, r_fix, q, ns, sd, v_ned * [1, 1, -1], sdv, "gpsins sim (receiver)")) + "\n")
+
+    # The antenna's truth at 10 Hz as the reference.
+    t_ref = np.arange(0.05, sim.imu_t[-1] - 0.05, 0.1)
+    r_ref, v_ref = antenna_truth(sim, t_ref, antenna_m)
+    lat, lon = np.array([ecef_to_geodetic(x)[:2] for x in r_ref]).T
+    v_ref_ned = np.einsum("nji,nj->ni", ecef_to_ned_matrix(lat, lon), v_ref)
+    z = np.zeros((len(t_ref), 3))
+    (out / "truth.pos").write_text("\n".join(_pos_lines(
+        t_start_abs + t_ref, r_ref, np.ones(len(t_ref)), np.full(len(t_ref), 9), z, v_ref_ned * [1, 1, -1], z,
+        "gpsins sim (truth of the antenna)")) + "\n")
+
+    noise = imu_noise_truth(sc.imu)
+    lines = [f'name = "{sc.name}_seed{sim.seed}"',
+             f'description = "gpsins sim --dataset: {sc.name}, seed {sim.seed}, '
+             f'IMU {sim.imu_rate_hz} Hz ({imu_format}), fixes {gnss_rate_hz:g} Hz"', "",
+             "[imu]", 'file = "imu.csv"', 'format = "csv"', 'columns = ["t", "ax", "ay", "az", "gx", "gy", "gz"]',
+             'time = "gpst_unix"', f'accel_unit = "{units[0]}"', f'gyro_unit = "{units[1]}"', "skip_rows = 1",
+             f"time_offset_s = {imu_time_offset_s!r}",
+             f"imu_to_body_ypr_deg = {_toml_value([float(x) for x in imu_to_body_ypr_deg])}", "",
+             "[gnss]", 'file = "receiver.pos"', 'format = "rtklib-pos"',
+             f"antenna_m = {_toml_value([float(x) for x in antenna_m])}", "",
+             "[vehicle]", 'kind = "none"', "",
+             "[scoring]", 'reference = "truth.pos"', "reference_q = [1]", "",
+             "[filter]", 'preset = "default"',
+             f"gyro_bias_residual_rad_per_s = {noise['gyro_bias_residual_rad_per_s']!r}",
+             f"accel_bias_residual_mps2 = {noise['accel_bias_residual_mps2']!r}", "",
+             "[filter.imu_noise]"] + [f"{k} = {_toml_value(v)}" for k, v in noise["imu_noise"].items()]
+    path = out / "dataset.toml"
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    return path
+

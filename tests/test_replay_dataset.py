@@ -1,0 +1,362 @@
+"""Replay of data sets (issue 16): the walk loose (.pos, NAV-PVT) and tight (UBX) end to end with its
+outage scoring recomputed independently; the simulator's own data set with a known mounting rotation,
+lever arm and IMU time offset, each checked against truth and each visibly worse when wrong; per-fix
+sigmas (zeros included) and INS-only mode."""
+
+import json
+import re
+import tomllib
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from gpsins import cli, dataset, replay
+from gpsins.readers import rtklib_pos
+from gpsins.sim import earth, scenario, simulate
+from gpsins.sim import dataset_writer as dw
+
+WALK = Path(__file__).parent / "data" / "walk_0827"
+
+
+# --- helpers computed independently of the code under test ------------------------------------------------------
+
+def _ned_errors(t_sol, r_sol, t_ref, r_ref):
+    """Solution minus reference in NED at the reference epochs inside the solution (the simulator's own
+    geodetic model, not the core's)."""
+    use = (t_ref >= t_sol[0]) & (t_ref <= t_sol[-1])
+    est = np.column_stack([np.interp(t_ref[use], t_sol, r_sol[:, j]) for j in range(3)])
+    out = []
+    for x, r in zip(est, r_ref[use]):
+        lat, lon, _ = earth.ecef_to_geodetic(r)
+        out.append(earth.ecef_to_ned_matrix(lat, lon).T @ (x - r))
+    return use, np.array(out).reshape(-1, 3)
+
+
+def _score_by_hand(t_sol, r_sol, t_ref, r_ref, t0, first, length, period, end, t_last):
+    starts = []
+    k = 0
+    while t0 + first + k * period < t_last - end:
+        starts.append(t0 + first + k * period)
+        k += 1
+    use, e = _ned_errors(t_sol, r_sol, t_ref, r_ref)
+    tr = t_ref[use]
+    h, v = np.hypot(e[:, 0], e[:, 1]), np.abs(e[:, 2])
+    inside = np.zeros(len(tr), bool)
+    max_h, max_v = [], []
+    for s in starts:
+        m = (tr >= s) & (tr < s + length)
+        inside |= m
+        max_h.append(h[m].max())
+        max_v.append(v[m].max())
+    return np.array(starts), np.array(max_h), np.array(max_v), np.sqrt(np.mean(h[~inside] ** 2))
+
+
+# --- the walk -------------------------------------------------------------------------------------------------
+
+WALK_RUNS = [("walk_0827.toml", "loose"), ("walk_0827_ubx.toml", "loose"), ("walk_0827_ubx.toml", "tight")]
+
+
+@pytest.fixture(scope="module")
+def walk_runs(tmp_path_factory):
+    out = {}
+    for name, mode in WALK_RUNS:
+        d = tmp_path_factory.mktemp(f"{Path(name).stem}_{mode}")
+        out[(name, mode)] = (replay.replay(WALK / name, d, mode=mode), d)
+    return out
+
+
+@pytest.mark.parametrize("name, mode", WALK_RUNS)
+def test_walk_replays_and_its_outage_scoring_is_recomputed_independently(walk_runs, name, mode):
+    res, d = walk_runs[(name, mode)]
+    s = json.loads((d / "run.json").read_text())
+    z = np.load(d / "results.npz")
+    assert s["kind"] == "dataset" and s["mode"] == mode and len(z["t"]) > 15000
+    # The data set's schedule: two 15 s outages from the first GNSS epoch; no GNSS update inside them.
+    sched = np.array(s["outages"]["schedule"])
+    t0 = s["outages"]["gnss_first_t"]
+    np.testing.assert_allclose(sched - t0, [[25, 40], [70, 85]])
+    gnss = np.isin(z["upd_kind"], (1, 2, 3, 6))
+    tu = z["upd_t"][gnss]
+    assert gnss.sum() > 10
+    assert not np.any((tu[:, None] >= sched[:, 0]) & (tu[:, None] < sched[:, 1]))
+    assert s["outages"]["fixes_removed"] == 120  # 4 Hz fixes, 2 x 15 s
+    if mode == "tight":
+        assert s["outages"]["pseudoranges_removed"] > 0 and s["counters"]["pseudoranges_used"] > 0
+    # Scoring recomputed from the written arrays and the reference file (Q = 1 epochs, geoid height added).
+    ref = rtklib_pos.read(WALK / "gnss_1730_sf.pos", -21.387)
+    ref = ref.select(ref.q == 1)
+    t_ref = ref.t_abs - int(z["week"]) * 604800.0
+    starts, max_h, max_v, outside = _score_by_hand(z["t"], z["r_point_ecef"], t_ref, ref.r_ecef, t0, 25, 15, 45, 45,
+                                                   s["outages"]["gnss_last_t"])
+    np.testing.assert_allclose(starts, sched[:, 0])
+    sc = s["scoring"]
+    np.testing.assert_allclose([o["max_h_m"] for o in sc["per_outage"]], max_h, rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose([o["max_v_m"] for o in sc["per_outage"]], max_v, rtol=1e-6, atol=1e-6)
+    assert sc["horizontal_m"]["rms"] == pytest.approx(np.sqrt(np.mean(max_h ** 2)), rel=1e-6)
+    assert sc["horizontal_m"]["worst"] == pytest.approx(max_h.max(), rel=1e-6)
+    assert sc["outside"]["rms_h_m"] == pytest.approx(outside, rel=1e-6, abs=1e-6)
+    # The figures, reported (not asserted: the filter's start-up and gate recovery are another issue's).
+    print(f"\n{name} {mode}: RMS of per-outage max horizontal drift {sc['horizontal_m']['rms']:.2f} m, "
+          f"outside outages {sc['outside']['rms_h_m']:.3f} m; fixes accepted {s['counters']['fixes_accepted']}, "
+          f"rejected {s['counters']['fixes_rejected']}")
+
+
+def test_walk_data_set_noise_and_rates_reach_the_filter(walk_runs):
+    _, d = walk_runs[("walk_0827.toml", "loose")]
+    cfg = tomllib.loads((d / "config.toml").read_text())
+    s = json.loads((d / "run.json").read_text())
+    assert cfg["imu_rate_hz"] == pytest.approx(1 / 0.006, rel=0.01)  # from the data, not 64 Hz
+    assert cfg["imu_noise"]["gyro_arw_rad_per_sqrt_s"] == 6.63e-5 and cfg["gyro_bias_cal_rad_per_s"] == [0, 0, 0]
+    assert cfg["use_fix_velocity"] is True and 0.02 <= cfg["fix_velocity_sigma_mps"] < 0.1
+    assert s["dataset"]["fix_quality"] == {"fix": 349, "float": 187}
+    _, d = walk_runs[("walk_0827_ubx.toml", "tight")]
+    cfg = tomllib.loads((d / "config.toml").read_text())
+    assert cfg["pseudorange_decimation"] == 4  # RAWX at 4 Hz: about one epoch a second
+    # The fixes written: hdop/vdop carry the per-fix sigma (floors 0.02 / 0.03 m for RTK fixed).
+    z = np.load(d / "results.npz")
+    h = z["fixes"][:, 7] * cfg["fix_uere_m"] / np.sqrt(2)
+    assert h.min() == pytest.approx(0.02) and (h > 0.1).any()
+
+
+def test_fix_sigmas_floors_defaults_and_zeros():
+    from gpsins.readers.common import Fixes
+
+    n = 6
+    f = Fixes(np.arange(n, dtype=float), np.zeros((n, 3)),
+              np.array([[0.0, 0.0, 0.0], [0.03, 0.04, 0.05], [np.nan] * 3, [0.0, 0.0, 0.0], [0.2, 0.2, 0.3],
+                        [np.nan] * 3]), np.array([1, 1, 1, 2, 5, 5]), np.zeros(n, int))
+    h, v = dataset.fix_sigmas(f)
+    np.testing.assert_allclose(h, [0.02, np.sqrt((0.03 ** 2 + 0.04 ** 2) / 2), 0.05, 0.15, 1.5, 3.0])
+    np.testing.assert_allclose(v, [0.03, 0.05, 0.1, 0.3, 3.0, 6.0])
+    h2, _ = dataset.fix_sigmas(f, {"fix": (0.005, 0.01)})
+    assert h2[0] == 0.005
+    tab = dataset.fix_table(f, 0.0, 3.0)
+    assert np.all(tab[:, 7] > 0) and np.all(tab[:, 8] > 0) and np.all(tab[:, 9] == 2)
+    np.testing.assert_allclose(3.0 * tab[:, 7] / np.sqrt(2), h)
+
+
+def test_replay_cli_on_a_data_set_prints_the_outage_table(tmp_path, capsys):
+    assert cli.main(["replay", str(WALK / "walk_0827.toml"), "--out", str(tmp_path / "r"),
+                     "--outages", "20:10:40", "--point", "imu"]) == 0
+    text = capsys.readouterr().out
+    assert "drift against gnss_1730_sf.pos" in text and "outside RMS" in text
+    s = json.loads((tmp_path / "r" / "run.json").read_text())
+    assert s["outages"]["spec"] == "20:10:40:0"
+    np.testing.assert_allclose(np.array(s["outages"]["schedule"]) - s["outages"]["gnss_first_t"],
+                               [[20, 30], [60, 70], [100, 110]])  # 140 is past the last epoch (133.75 s)
+    assert s["solution_point"] == "imu"
+    assert cli.main(["replay", str(WALK / "walk_0827.toml"), "--out", str(tmp_path / "x"), "--outages", "5:10"]) == 2
+    assert "--outages '5:10'" in capsys.readouterr().err
+
+
+# --- the simulator's data set: mounting rotation, lever arm, time offset against truth -----------------------
+
+MOUNT = (-90.0, 3.0, 180.0)
+LEVER = (0.6, -0.3, -1.1)
+OFFSET_S = 0.05
+
+
+@pytest.fixture(scope="module")
+def sim_set(tmp_path_factory):
+    """The default drive cut to its first 2 minutes, with a 100 Hz IMU, written as a data set (IMU rates)."""
+    data = tomllib.loads((resources.files("gpsins.sim") / "scenarios" / "default.toml").read_text())
+    keep, total = [], 0.0
+    for seg in data["segment"]:
+        keep.append(seg)
+        total += seg["duration_s"]
+        if total > 110:
+            break
+    keep.append({"label": "stop", "duration_s": 10, "speed_mps": 0})
+    labels = {s["label"] for s in keep}
+    data["segment"] = keep
+    data["obstruction"] = [o for o in data.get("obstruction", []) if o.get("segment", keep[0]["label"]) in labels]
+    data.setdefault("imu", {})["rate_hz"] = 100
+    sim = simulate(scenario.parse(data, "short"), 3)
+    d = tmp_path_factory.mktemp("simset")
+    path = dw.write_dataset(sim, d, imu_to_body_ypr_deg=MOUNT, antenna_m=LEVER, imu_time_offset_s=OFFSET_S,
+                            imu_format="rates")
+    return sim, path
+
+
+@pytest.fixture(scope="module")
+def right_run(sim_set, tmp_path_factory):
+    return _run_variant(sim_set, tmp_path_factory.mktemp("right"), "right")
+
+
+def _run_variant(sim_set, tmp_path, name, edit=lambda s: s, **kw):
+    sim, path = sim_set
+    p = path.parent / f"{name}.toml"
+    p.write_text(edit(path.read_text()))
+    res = replay.replay(p, tmp_path / name, outages="40:10:25", **kw)
+    z = np.load(tmp_path / name / "results.npz")
+    sc = sim.scenario
+    t_run = z["t"] + int(z["week"]) * 604800.0 - (sc.start.gps_week * 604800.0 + sc.start.gps_tow_s)
+    # IMU-point errors against the simulator's truth, NED, after the heading is known (plus 5 s).
+    e = np.array([earth.ecef_to_ned_matrix(*earth.ecef_to_geodetic(r)[:2]).T @ (x - r)
+                  for x, r in zip(z["r_ecef"][::20], sim.truth.position_at(t_run[::20]))])
+    hk = np.flatnonzero(z["heading_known"])
+    ok = t_run[::20] > t_run[hk[0]] + 5.0
+    inside3 = np.mean(np.abs(e[ok]) <= 3 * z["sigma_ned_m"][::20][ok], axis=0)
+    rms_h = float(np.sqrt(np.mean(e[ok, 0] ** 2 + e[ok, 1] ** 2)))
+    return res.summary, inside3, rms_h
+
+
+def test_sim_data_set_with_the_right_mounting_lever_and_offset_is_inside_3_sigma(sim_set, tmp_path):
+    s, inside3, rms_h = _run_variant(sim_set, tmp_path, "right")  # (its own directory: the files are read here)
+    print(f"\nright: IMU-point H RMS {rms_h:.3f} m, inside 3 sigma {inside3}, drift RMS "
+          f"{s['scoring']['horizontal_m']['rms']:.2f} m")
+    assert np.all(inside3 >= 0.97)
+    assert rms_h < 1.5
+    assert s["dataset"]["imu_time_offset_s"] == OFFSET_S
+    np.testing.assert_allclose(s["dataset"]["imu_to_body"], dw.ypr_matrix(*MOUNT), atol=1e-12)
+    cfg = tomllib.loads((tmp_path / "right" / "config.toml").read_text())
+    assert cfg["lever_arm_body_m"] == list(LEVER) and cfg["imu_rate_hz"] == pytest.approx(100, rel=1e-3)
+    # The antenna point written: IMU point + C_eb lever arm.
+    z = np.load(tmp_path / "right" / "results.npz")
+    from gpsins import _core
+    np.testing.assert_allclose(z["r_point_ecef"][-1], z["r_ecef"][-1] + _core.dcm_from_quat(z["q_eb"][-1]) @ LEVER,
+                               atol=1e-9)
+
+
+@pytest.mark.parametrize("name, edit", [
+    ("no_lever", lambda s: re.sub(r"antenna_m = .*", "antenna_m = [0.0, 0.0, 0.0]", s)),
+    ("mount_yaw_10", lambda s: re.sub(r"imu_to_body_ypr_deg = .*", "imu_to_body_ypr_deg = [-80.0, 3.0, 180.0]", s)),
+    ("no_offset", lambda s: re.sub(r"time_offset_s = .*", "time_offset_s = 0.0", s)),
+])
+def test_a_wrong_lever_mounting_or_offset_is_visibly_worse(sim_set, right_run, tmp_path, name, edit):
+    right, in_right, rms_right = right_run
+    wrong, in_wrong, rms_wrong = _run_variant(sim_set, tmp_path, name, edit)
+    dr, dw_ = right["scoring"]["horizontal_m"]["rms"], wrong["scoring"]["horizontal_m"]["rms"]
+    print(f"\n{name}: IMU-point H RMS {rms_wrong:.3f} m (right {rms_right:.3f}), inside 3 sigma {in_wrong} "
+          f"(right {in_right}), drift RMS {dw_:.2f} m (right {dr:.2f})")
+    assert rms_wrong > 1.3 * rms_right or in_wrong.min() < 0.8
+
+
+def test_zero_standard_deviations_do_not_break_anything(sim_set, tmp_path):
+    def zero(text):
+        return text.replace('file = "receiver.pos"', 'file = "receiver_zero.pos"')
+    sim, path = sim_set
+    rows = []
+    for line in (path.parent / "receiver.pos").read_text().splitlines():
+        if not line.startswith("%"):
+            tok = line.split()
+            tok[7:13] = ["0.0000"] * 6  # sdn sde sdu sdne sdeu sdun
+            tok[19:25] = ["0.00000"] * 6  # velocity sigmas
+            line = " ".join(tok)
+        rows.append(line)
+    (path.parent / "receiver_zero.pos").write_text("\n".join(rows) + "\n")
+    s, inside3, rms_h = _run_variant(sim_set, tmp_path, "zero", zero)
+    cfg = tomllib.loads((tmp_path / "zero" / "config.toml").read_text())
+    assert cfg["fix_velocity_sigma_mps"] == dataset.VELOCITY_SIGMA_FLOOR_MPS
+    assert np.isfinite(s["scoring"]["horizontal_m"]["rms"]) and rms_h < 2.0
+    assert s["counters"]["fixes_accepted"] > 0.9 * s["counters"]["fixes"]
+
+
+def test_ins_mode_navigates_freely_after_the_initialisation(sim_set, right_run, tmp_path):
+    s, _, _ = _run_variant(sim_set, tmp_path, "ins", mode="ins")
+    t_free = s["ins"]["aiding_until_t"]
+    z = np.load(tmp_path / "ins" / "results.npz")
+    fixes_used = z["upd_t"][np.isin(z["upd_kind"], (1, 2, 3))]
+    assert fixes_used.max() <= t_free and not np.isin(z["upd_kind"], (4, 5)).any()
+    assert s["scoring"]["n_outages"] == 1 and s["scoring"]["per_outage"][0]["start"] == t_free
+    loose = right_run[0]
+    assert s["scoring"]["horizontal_m"]["worst"] > 10 * loose["scoring"]["horizontal_m"]["worst"]
+    print(f"\nins: free from {t_free:.1f}, worst horizontal drift {s['scoring']['horizontal_m']['worst']:.1f} m")
+
+
+def test_a_session_with_truth_is_scored_against_the_truth_at_the_imu(sim_set, tmp_path):
+    from gpsins.sim.session import write_session
+
+    sim, _ = sim_set
+    write_session(sim, tmp_path / "session")
+    res = replay.replay(tmp_path / "session", tmp_path / "out", outages="40:10:25")
+    sc = res.summary["scoring"]
+    assert sc["reference"] == "truth.npz" and sc["point"] == "imu" and sc["n_outages"] == 4
+    z = np.load(tmp_path / "out" / "results.npz")
+    sched = np.array(res.summary["outages"]["schedule"])
+    gnss = np.isin(z["upd_kind"], (1, 2, 3))
+    assert not np.any((z["upd_t"][gnss][:, None] >= sched[:, 0]) & (z["upd_t"][gnss][:, None] < sched[:, 1]))
+    # Recomputed from the truth file (IMU point) and the written solution, every 10th truth epoch.
+    t_week = sim.scenario.start.gps_week * 604800.0
+    with np.load(tmp_path / "session" / "truth.npz") as tz:
+        t_ref, r_ref = tz["tow_s"][::10], tz["r_ecef"][::10]
+    np.testing.assert_allclose(z["r_point_ecef"], z["r_ecef"])
+    use, e = _ned_errors(z["t"], z["r_ecef"], t_ref + t_week - int(z["week"]) * 604800.0, r_ref)
+    tr = (t_ref + t_week - int(z["week"]) * 604800.0)[use]
+    for (a, b), o in zip(sched, sc["per_outage"]):
+        m = (tr >= a) & (tr < b)
+        assert o["max_h_m"] == pytest.approx(np.hypot(e[m, 0], e[m, 1]).max(), rel=0.02)
+
+
+def test_a_rinex_data_set_replays_loose_from_single_point_fixes_and_tight(shared_data, tmp_path):
+    """GEONET 0759 (observations every 30 s) with a synthetic IMU standing level and facing north at the
+    station for the first 20 minutes: both modes stay near the station's surveyed position."""
+    import os
+
+    r0 = np.array([-3976219.5082, 3382372.5671, 3652512.9849])  # the file's APPROX POSITION XYZ
+    lat, lon, _ = earth.ecef_to_geodetic(r0)
+    c_en = earth.ecef_to_ned_matrix(lat, lon)
+    g_ned = c_en.T @ earth.gravity_ecef(r0)  # gravity incl. centrifugal, NED
+    w_ned = c_en.T @ np.array([0.0, 0.0, 7.292115e-5])
+    t0 = 1316 * 604800.0 + 6 * 86400.0  # 2005-04-02 00:00 GPST: Saturday of week 1316
+    t = t0 - 5.0 + np.arange(0.0, 1200.0, 0.05)  # 20 Hz, starting 5 s before the first epoch
+    rows = np.column_stack([t, np.tile(-g_ned, (len(t), 1)), np.tile(w_ned, (len(t), 1))])
+    np.savetxt(tmp_path / "imu.csv", rows, delimiter=",", fmt="%.3f,%.9f,%.9f,%.9f,%.12e,%.12e,%.12e")
+    rel = Path(os.path.relpath(shared_data, tmp_path)).as_posix()
+    (tmp_path / "set.toml").write_text(f"""
+[imu]
+file = "imu.csv"
+columns = ["t", "ax", "ay", "az", "gx", "gy", "gz"]
+time = "gps_abs"
+[gnss]
+file = "{rel}/07590920.05o"
+format = "rinex"
+nav = "{rel}/07590920.05n"
+[filter]
+preset = "default"
+initial_yaw_deg = 0.0
+gyro_bias_cal_rad_per_s = [0.0, 0.0, 0.0]
+accel_bias_cal_mps2 = [0.0, 0.0, 0.0]
+gyro_scale_factor_cal = [0.0, 0.0, 0.0]
+accel_scale_factor_cal = [0.0, 0.0, 0.0]
+""")
+    for mode in ("loose", "tight"):
+        res = replay.replay(tmp_path / "set.toml", tmp_path / mode, mode=mode)
+        z = np.load(tmp_path / mode / "results.npz")
+        e = np.array([c_en.T @ (x - r0) for x in z["r_ecef"][::200]])
+        h = np.hypot(e[:, 0], e[:, 1])
+        print(f"\nRINEX {mode}: horizontal RMS {np.sqrt(np.mean(h ** 2)):.2f} m, max {h.max():.2f} m, "
+              f"vertical RMS {np.sqrt(np.mean(e[:, 2] ** 2)):.2f} m; {res.summary['counters']}")
+        assert np.sqrt(np.mean(h ** 2)) < 5.0 and np.abs(e[:, 2]).max() < 20.0
+    c = res.summary["counters"]
+    # Unknown C/N0 (no S1 in the file) is not masked as weak: only the elevation mask removes some. (The
+    # core then rejects most of them: the receiver clock drifts 1.4 us/s, 12.5 km between the 30 s epochs,
+    # while its drift state starts at zero and the gate locks it out; reported, not asserted.)
+    assert c["pseudorange_epochs"] == 40 and c["pseudoranges_masked"] < 0.2 * (
+        c["pseudoranges_used"] + c["pseudoranges_rejected"] + c["pseudoranges_masked"])
+
+
+def test_report_of_a_data_set_has_the_drift_figure_and_table(walk_runs, tmp_path):
+    import matplotlib.pyplot as plt
+
+    from gpsins import report
+
+    (_, d_loose), (_, d_tight) = walk_runs[("walk_0827_ubx.toml", "loose")], walk_runs[("walk_0827_ubx.toml", "tight")]
+    page = report.make_report([d_loose, d_tight], tmp_path / "rep")
+    assert (tmp_path / "rep" / "outage_drift.png").exists()
+    text = page.read_text()
+    assert "## Drift per outage against gnss_1730_sf.pos (antenna point)" in text
+    s = json.loads((d_loose / "run.json").read_text())["scoring"]
+    row = next(x for x in text.splitlines() if x.startswith("| rms |"))
+    assert f"| {s['horizontal_m']['rms']:.2f} |" in row
+    figs = report.build_figures([d_loose, d_tight])
+    fig = figs["outage_drift.png"]
+    ax = fig.axes[0]
+    z = np.load(d_loose / "results.npz")
+    shown = np.concatenate([ln.get_ydata() for ln in ax.get_lines() if ln.get_color() == "tab:blue"
+                            and ln.get_linestyle() == "-"])
+    np.testing.assert_allclose(np.sort(shown), np.sort(z["drift_h_m"]))  # every drift epoch of the loose run
+    for f in figs.values():
+        plt.close(f)
