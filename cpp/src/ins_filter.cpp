@@ -316,16 +316,18 @@ void InsFilter<NB, NC>::reset_to_fix(const FixInput& fix) {
   if constexpr (NC == 2) clock_set_ = false;
 }
 
-// While the heading is unknown the horizontal specific force is applied in a
+// While the heading is unknown the horizontal acceleration is applied in a
 // wrong direction: the velocity error grows by up to twice its size. Its
-// variance grows accordingly (as a random walk over one second).
+// variance grows accordingly (as a random walk over one second). The part of
+// the horizontal specific force a tilt error explains (0.1 m/s^2, about half a
+// degree) is left to the attitude states; standing still there is none.
 template <int NB, int NC>
 void InsFilter<NB, NC>::inflate_unknown_heading(const Increment& inc) {
   if (!(inc.dt_s > 0.0)) return;
   const Vec3 u = core_.nav.r_ecef_m.normalized();
   const Vec3 f = core_.nav.q_eb * (inc.dv_mps / inc.dt_s - core_.imu.accel_bias_mps2);
-  const Vec3 f_h = f - f.dot(u) * u;
-  const double q = 4.0 * f_h.squaredNorm() * inc.dt_s;
+  const double a = std::max(0.0, (f - f.dot(u) * u).norm() - 0.1);
+  const double q = 4.0 * a * a * inc.dt_s;
   core_.P.template block<3, 3>(es::vel, es::vel) += q * (Mat3::Identity() - u * u.transpose());
 }
 
@@ -372,7 +374,7 @@ void InsFilter<NB, NC>::propagate_to(const Increment& inc) {
   if (!initialised_) return;
   core_.propagate(rest);
   if (!heading_known_) {
-    inflate_unknown_heading(rest);
+    if (!standstill_) inflate_unknown_heading(rest);
     decouple_yaw();
   }
   const double pos_var = core_.P.template block<3, 3>(es::pos, es::pos).trace();
@@ -689,8 +691,11 @@ void InsFilter<NB, NC>::detect_standstill(const Increment& inc) {
   const Vec3 earth_b = core_.nav.q_eb.conjugate() * earth_rate_ecef();
   // The filter's speed may start a standstill (no zero-velocity update has pinned
   // it yet); a recent GNSS speed above its limit bars or ends one.
-  const bool veto = t_last_ - gnss_speed_t_ <= 1.5 && gnss_speed_mps_ > cfg_.standstill_max_gnss_speed_mps;
-  const bool may_begin = core_.nav.v_ecef_mps.norm() < cfg_.standstill_max_speed_mps;
+  // A recent GNSS speed below it, while the IMU is quiet, may also start one:
+  // the filter's velocity after a stop can be off by more than its limit.
+  const bool gnss_fresh = t_last_ - gnss_speed_t_ <= 1.5;
+  const bool veto = gnss_fresh && gnss_speed_mps_ > cfg_.standstill_max_gnss_speed_mps;
+  const bool may_begin = core_.nav.v_ecef_mps.norm() < cfg_.standstill_max_speed_mps || gnss_fresh;
   standstill_ = detector_.decide(rate - earth_b, may_begin, veto, t_last_);
   if (!standstill_) {
     standstill_blocks_ = 0;

@@ -82,7 +82,9 @@ bool StandstillDetector::decide(const Vec3& rate_less_bias_earth, bool may_begin
   const bool was = standing_;
   const bool quiet = std_f_.maxCoeff() < th_.accel_std_mps2 && std_w_.maxCoeff() < th_.gyro_std_rad_per_s &&
                      rate_less_bias_earth.norm() < th_.gyro_mean_rad_per_s;
-  const bool near_ref = have_ref_ && (mean_f_ - ref_f_).norm() < th_.accel_shift_mps2 &&
+  const double sigma = th_.accel_vrw_mps_per_sqrt_s.maxCoeff() / std::sqrt(window_dt_);
+  const double shift = std::max(th_.accel_shift_mps2, 5.0 * sigma);
+  const bool near_ref = have_ref_ && (mean_f_ - ref_f_).norm() < shift &&
                         (mean_w_ - ref_w_).norm() < th_.gyro_mean_rad_per_s;
   if (veto || !quiet) {
     standing_ = false;
@@ -93,13 +95,24 @@ bool StandstillDetector::decide(const Vec3& rate_less_bias_earth, bool may_begin
       if (!held_off) {
         ref_f_ = mean_f_;
         ref_w_ = mean_w_;
+        ref_sum_f_ = mean_f_ * window_blocks_;
+        ref_sum_w_ = mean_w_ * window_blocks_;
+        ref_blocks_ = window_blocks_;
         have_ref_ = true;
       }
     }
   } else {
     // The newest quarter's mean has more noise: allow three of its sigmas on top.
     const double recent_allow = 3.0 * th_.accel_vrw_mps_per_sqrt_s.maxCoeff() / std::sqrt(recent_dt_);
-    standing_ = near_ref && (recent_f_ - ref_f_).norm() < th_.accel_shift_mps2 + recent_allow;
+    standing_ = near_ref && (recent_f_ - ref_f_).norm() < shift + recent_allow;
+    if (standing_) {  // the reference: the mean of every block since standing began
+      const auto newest = static_cast<std::size_t>((head_ - 1 + window_blocks_) % window_blocks_);
+      ref_sum_f_ += bf_[newest];
+      ref_sum_w_ += bw_[newest];
+      ++ref_blocks_;
+      ref_f_ = ref_sum_f_ / ref_blocks_;
+      ref_w_ = ref_sum_w_ / ref_blocks_;
+    }
   }
   if (was && !standing_) ended_t_ = t_s;
   return standing_;

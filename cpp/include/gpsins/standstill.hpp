@@ -6,8 +6,8 @@
 // - quiet: the spread of the block means of specific force and of angular rate
 //   (per axis) and the mean rate less bias and Earth rate are small;
 // - at rest: once standing, the window's mean specific force and rate, and the
-//   mean of its newest quarter, stay near the values they had when standing
-//   began (pulling away moves the mean specific force by the acceleration even
+//   mean of its newest quarter, stay near their mean since standing began
+//   (threshold at least five sigmas of the window mean's noise) (pulling away moves the mean specific force by the acceleration even
 //   when the motion is smooth; the filter's own velocity cannot show it, since
 //   zero-velocity updates pin it).
 // Standing can only begin when the caller allows it (the filter's speed, which
@@ -82,6 +82,8 @@ class StandstillDetector {
   bool have_ref_ = false;
   double ended_t_ = -1e300;
   Vec3 ref_f_ = Vec3::Zero(), ref_w_ = Vec3::Zero();
+  Vec3 ref_sum_f_ = Vec3::Zero(), ref_sum_w_ = Vec3::Zero();  // newest blocks while standing
+  int ref_blocks_ = 0;
 };
 
 }  // namespace gpsins
