@@ -669,7 +669,7 @@ void InsFilter<NB, NC>::process_fix(const FixInput& fix) {
   if (cfg_.use_fix_velocity && fix.v_ecef_mps.allFinite() && heading_known_) {
     const Vec3 w_eb = last_inc_.dtheta_rad / last_inc_.dt_s - core_.imu.gyro_bias_rad_per_s -
                       core_.nav.q_eb.conjugate() * earth_rate_ecef();
-    const double s = cfg_.fix_velocity_sigma_mps;
+    const double s = cfg_.fix_velocity_sigma_mps * (cfg_.fix_velocity_sigma_hdop_scaled ? fix.hdop : 1.0);
     const auto mv = gnss_velocity(core_, fix.v_ecef_mps, Mat3::Identity() * s * s, cfg_.lever_arm_body_m, w_eb);
     record(kFixVelocity, apply(mv, 3), 3);
   }

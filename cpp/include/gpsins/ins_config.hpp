@@ -74,7 +74,8 @@ struct InsConfig {
   double fix_uere_m = 3.0;
   Vec3 fix_sigma_ecef_m = Vec3::Zero();
   bool use_fix_velocity = false;
-  double fix_velocity_sigma_mps = 0.1;
+  double fix_velocity_sigma_mps = 0.1;  // per axis; times the fix's HDOP when scaled
+  bool fix_velocity_sigma_hdop_scaled = false;
 
   // Pseudoranges (tight coupling). Variance from the elevation model when the
   // sigma is <= 0 (RTKLIB's, as in single-point positioning).
