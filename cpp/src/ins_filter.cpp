@@ -19,7 +19,6 @@ const char* input_status_text(InputStatus s) {
     case InputStatus::Ok: return "ok";
     case InputStatus::NonFinite: return "value is NaN or infinite";
     case InputStatus::TimeNotIncreasing: return "time does not increase";
-    case InputStatus::GapTooLong: return "gap longer than max_gap_s";
     case InputStatus::BadValue: return "value out of range";
   }
   return "unknown";

@@ -24,7 +24,7 @@ enum class InputStatus : int {
   Ok = 0,
   NonFinite = 1,
   TimeNotIncreasing = 2,
-  GapTooLong = 3,
+  // 3 was GapTooLong: long gaps now restart the navigation (Counters::imu_gap_restarts)
   BadValue = 4,
 };
 const char* input_status_text(InputStatus s);
