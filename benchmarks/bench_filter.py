@@ -3,6 +3,11 @@
     python benchmarks/bench_filter.py speed [REPEATS]   # IMU epochs/s through the batch API
     python benchmarks/bench_filter.py nees [SEEDS]      # NEES over full default drives
     python benchmarks/bench_filter.py tight [REPEATS]   # tight: 10 Hz pseudorange updates
+    python benchmarks/bench_filter.py checks            # chi-square gate vs the report's attitude test
+
+Checks: the default drive clean and with 10 s of zero delta-v, each with every
+update check (chi_square, attitude_correction, both, none) and with the GNSS
+reset on (5 s) and off: final and RMS errors, rejections, resets, mean NEES.
 
 Speed: the default drive's 18 k IMU epochs (15 states, covariance propagated
 every epoch, 1 Hz fixes, standstill updates), run REPEATS times; also a
@@ -112,6 +117,28 @@ def tight(repeats: int) -> None:
               f"{c['pseudoranges_used']} scalar updates per run)")
 
 
+def checks() -> None:
+    s = sim.simulate(sim.load("default"), 0)
+    tr = evaluate.Truth(s.truth.t, s.truth.r_ecef, s.truth.v_ecef, s.truth.q_eb)
+    clean = sim.imu_table(s)
+    dead = clean.copy()
+    dead[(dead[:, 0] >= 100) & (dead[:, 0] < 110), 4:7] = 0.0
+    for name, imu in (("default drive", clean), ("10 s zero dv", dead)):
+        for check in flt.UPDATE_CHECKS:
+            for reset in (5.0, 0.0):
+                cfg = flt.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), "update_check": check,
+                                             "gnss_reset_timeout_s": reset})
+                sol = flt.run(imu, sim.fix_table(s), cfg, covariance=True)
+                err = evaluate.nav_errors(sol, tr)
+                e = evaluate.nees(err.e9, sol.covariance[:, :9, :9])
+                h = np.hypot(err.r_ned[:, 0], err.r_ned[:, 1])
+                c = sol.counters
+                print(f"{name:14s} {check:20s} reset {reset:3.0f} s: final {np.linalg.norm(err.r_ned[-1]):9.2f} m, "
+                      f"H RMS {np.sqrt(np.mean(h ** 2)):8.2f} m, fixes rejected {c['fixes_rejected']:3d}, "
+                      f"attitude refused {c['updates_attitude_refused']:3d}, resets {c['gnss_resets']}, "
+                      f"diverged {c['diverged']}, mean NEES {e.mean():.1f}")
+
+
 if __name__ == "__main__":
     what = sys.argv[1] if len(sys.argv) > 1 else "speed"
     arg = int(sys.argv[2]) if len(sys.argv) > 2 else None
@@ -121,5 +148,7 @@ if __name__ == "__main__":
         nees(arg or 20)
     elif what == "tight":
         tight(arg or 20)
+    elif what == "checks":
+        checks()
     else:
         sys.exit(__doc__)

@@ -63,6 +63,10 @@ py::dict counters_dict(const Counters& c) {
   py::dict d;
   d["imu_samples"] = c.imu_samples;
   d["imu_gaps_bridged"] = c.imu_gaps_bridged;
+  d["imu_gap_restarts"] = c.imu_gap_restarts;
+  d["imu_samples_rejected"] = c.imu_samples_rejected;
+  d["gnss_resets"] = c.gnss_resets;
+  d["updates_attitude_refused"] = c.updates_attitude_refused;
   d["fixes"] = c.fixes;
   d["fixes_accepted"] = c.fixes_accepted;
   d["fixes_rejected"] = c.fixes_rejected;
@@ -164,6 +168,8 @@ py::dict run_batch(InsFilter<NB, NC>& f, const Array& imu, const Array& fixes, c
   std::vector<UpdateRecord> log;
   log.reserve(static_cast<std::size_t>(m * 2 + n / 8 + 16));
   f.set_update_log(&log);
+  std::vector<FilterEvent> events;
+  f.set_event_log(&events);
   const double* pi = imu.data();
   const double* pf = fixes.data();
   const double* pp = prs.data();
@@ -216,6 +222,7 @@ py::dict run_batch(InsFilter<NB, NC>& f, const Array& imu, const Array& fixes, c
     }
   }
   f.set_update_log(nullptr);
+  f.set_event_log(nullptr);
   if (bad != InputStatus::Ok) input_error(bad_what, bad_row, bad_t, bad);
 
   py::dict out;
@@ -256,6 +263,20 @@ py::dict run_batch(InsFilter<NB, NC>& f, const Array& imu, const Array& fixes, c
   upd["innovation"] = innov;
   upd["innovation_sigma"] = isig;
   out["updates"] = upd;
+  const auto ne = static_cast<py::ssize_t>(events.size());
+  Array et({ne}), ev({ne});
+  py::array_t<int> ek({ne});
+  for (py::ssize_t i = 0; i < ne; ++i) {
+    const auto& e = events[static_cast<std::size_t>(i)];
+    et.mutable_at(i) = e.t_s;
+    ek.mutable_at(i) = e.kind;
+    ev.mutable_at(i) = e.value;
+  }
+  py::dict evd;
+  evd["t"] = et;
+  evd["kind"] = ek;
+  evd["value"] = ev;
+  out["events"] = evd;
   out["counters"] = counters_dict(f.counters());
   out["fixes_after_end"] = m - j;
   out["n_states"] = NB * 3 + NC;
@@ -346,6 +367,12 @@ void bind_filter(py::module_& m) {
       .value("gauss_markov", BiasModel::GaussMarkov)
       .value("constant", BiasModel::Constant);
 
+  py::enum_<UpdateCheck>(m, "UpdateCheck")
+      .value("chi_square", UpdateCheck::ChiSquare)
+      .value("attitude_correction", UpdateCheck::AttitudeCorrection)
+      .value("both", UpdateCheck::Both)
+      .value("none", UpdateCheck::None);
+
   py::class_<BiasConfig>(m, "BiasConfig")
       .def(py::init<>())
       .def_readwrite("model", &BiasConfig::model)
@@ -358,6 +385,9 @@ void bind_filter(py::module_& m) {
 #define GPSINS_FIELD(name) c.def_readwrite(#name, &InsConfig::name)
   GPSINS_FIELD(imu_rate_hz);
   GPSINS_FIELD(max_gap_s);
+  GPSINS_FIELD(gap_accel_sigma_mps2);
+  GPSINS_FIELD(gyro_range_rad_per_s);
+  GPSINS_FIELD(accel_range_mps2);
   GPSINS_FIELD(gyro_bias_cal_rad_per_s);
   GPSINS_FIELD(accel_bias_cal_mps2);
   GPSINS_FIELD(gyro_scale_factor_cal);
@@ -387,6 +417,7 @@ void bind_filter(py::module_& m) {
   GPSINS_FIELD(fix_sigma_ecef_m);
   GPSINS_FIELD(use_fix_velocity);
   GPSINS_FIELD(fix_velocity_sigma_mps);
+  GPSINS_FIELD(fix_velocity_sigma_hdop_scaled);
   GPSINS_FIELD(pseudorange_sigma_m);
   GPSINS_FIELD(pseudorange_elevation_mask_rad);
   GPSINS_FIELD(pseudorange_min_cn0_dbhz);
@@ -397,6 +428,10 @@ void bind_filter(py::module_& m) {
   GPSINS_FIELD(gps_time_offset_s);
   GPSINS_FIELD(zero_velocity_updates);
   GPSINS_FIELD(standstill_window_s);
+  GPSINS_FIELD(standstill_block_s);
+  GPSINS_FIELD(standstill_accel_shift_mps2);
+  GPSINS_FIELD(standstill_holdoff_s);
+  GPSINS_FIELD(standstill_max_gnss_speed_mps);
   GPSINS_FIELD(standstill_accel_std_mps2);
   GPSINS_FIELD(standstill_gyro_std_rad_per_s);
   GPSINS_FIELD(standstill_gyro_mean_rad_per_s);
@@ -404,6 +439,9 @@ void bind_filter(py::module_& m) {
   GPSINS_FIELD(zero_velocity_sigma_mps);
   GPSINS_FIELD(zero_rate_sigma_rad_per_s);
   GPSINS_FIELD(gate_probability);
+  GPSINS_FIELD(update_check);
+  GPSINS_FIELD(max_attitude_correction_rad);
+  GPSINS_FIELD(gnss_reset_timeout_s);
   GPSINS_FIELD(max_position_sigma_m);
 #undef GPSINS_FIELD
 
@@ -421,6 +459,7 @@ void bind_filter(py::module_& m) {
       .def("add_ephemeris", &PyFilter::add_ephemeris, py::arg("eph"))
       .def("set_klobuchar", &PyFilter::set_klobuchar, py::arg("alpha"), py::arg("beta"))
       .def_property_readonly("initialised", [](const PyFilter& p) { return p.with([](const auto& f) { return f.initialised(); }); })
+      .def_property_readonly("nominal_step_s", [](const PyFilter& p) { return p.with([](const auto& f) { return f.nominal_step_s(); }); })
       .def_property_readonly("standstill", [](const PyFilter& p) { return p.with([](const auto& f) { return f.standstill(); }); })
       .def_property_readonly("n_states", [](const PyFilter& p) { return p.with([](const auto& f) { return static_cast<int>(f.N); }); })
       .def_property_readonly("t", [](const PyFilter& p) { return p.with([](const auto& f) { return f.core().nav.t_s; }); })

@@ -19,7 +19,6 @@ const char* input_status_text(InputStatus s) {
     case InputStatus::Ok: return "ok";
     case InputStatus::NonFinite: return "value is NaN or infinite";
     case InputStatus::TimeNotIncreasing: return "time does not increase";
-    case InputStatus::GapTooLong: return "gap longer than max_gap_s";
     case InputStatus::BadValue: return "value out of range";
   }
   return "unknown";
@@ -56,6 +55,19 @@ ProcessNoise noise_of(const InsConfig& c) {
   return q;
 }
 
+StandstillThresholds thresholds_of(const InsConfig& c) {
+  StandstillThresholds t;
+  t.window_s = c.standstill_window_s;
+  t.block_s = c.standstill_block_s;
+  t.accel_std_mps2 = c.standstill_accel_std_mps2;
+  t.gyro_std_rad_per_s = c.standstill_gyro_std_rad_per_s;
+  t.gyro_mean_rad_per_s = c.standstill_gyro_mean_rad_per_s;
+  t.accel_shift_mps2 = c.standstill_accel_shift_mps2;
+  t.holdoff_s = c.standstill_holdoff_s;
+  t.accel_vrw_mps_per_sqrt_s = c.accel_vrw_mps_per_sqrt_s;
+  return t;
+}
+
 Euler levelled(const Vec3& f_mean) {
   Euler e;  // at rest f = -g in body axes (forward-right-down)
   e.roll_rad = std::atan2(-f_mean.y(), -f_mean.z());
@@ -66,11 +78,11 @@ Euler levelled(const Vec3& f_mean) {
 }  // namespace
 
 template <int NB, int NC>
-InsFilter<NB, NC>::InsFilter(const InsConfig& cfg) : cfg_(cfg) {
+InsFilter<NB, NC>::InsFilter(const InsConfig& cfg) : cfg_(cfg), detector_(thresholds_of(cfg)) {
   core_.noise = noise_of(cfg);
-  dt_nominal_ = 1.0 / cfg.imu_rate_hz;
-  ring_size_ = std::clamp(static_cast<int>(std::lround(cfg.standstill_window_s * cfg.imu_rate_hz)), 4, kRing);
-  const bool gating = cfg.gate_probability > 0.0 && cfg.gate_probability < 1.0;
+  dt_nominal_ = cfg.imu_rate_hz > 0.0 ? 1.0 / cfg.imu_rate_hz : 1.0 / 64.0;
+  const bool chi2 = cfg.update_check == UpdateCheck::ChiSquare || cfg.update_check == UpdateCheck::Both;
+  const bool gating = chi2 && cfg.gate_probability > 0.0 && cfg.gate_probability < 1.0;
   for (int d = 1; d < static_cast<int>(gates_.size()); ++d)
     gates_[static_cast<std::size_t>(d)] = gating ? chi2_quantile(cfg.gate_probability, d) : 0.0;
   heading_known_ = std::isfinite(cfg.initial_yaw_rad);
@@ -122,23 +134,33 @@ template <int NB, int NC>
 InputStatus InsFilter<NB, NC>::push_imu(double t_s, const Vec3& dtheta_rad, const Vec3& dv_mps) {
   if (!std::isfinite(t_s) || !dtheta_rad.allFinite() || !dv_mps.allFinite()) return InputStatus::NonFinite;
   if (have_time_ && !(t_s > t_last_)) return InputStatus::TimeNotIncreasing;
-  const double span = have_time_ ? t_s - t_last_ : dt_nominal_;
-  if (span > cfg_.max_gap_s) return InputStatus::GapTooLong;
+  double span = have_time_ ? t_s - t_last_ : dt_nominal_;
   ++counters_.imu_samples;
   if (!have_time_) {
     have_time_ = true;
     t_last_ = t_s - span;
+  } else if (span > cfg_.max_gap_s) {
+    restart_after_gap(span - dt_nominal_, t_s - dt_nominal_);
+    span = dt_nominal_;
+  } else {
+    track_step(span);
   }
 
   // The frame's increments cover its own interval; a longer span means frames
-  // were lost: bridged with the previous rates.
+  // were lost: bridged with the previous rates. So is a sample beyond the range.
   const bool gap = span > 1.5 * dt_nominal_;
   const double dt = gap ? dt_nominal_ : span;
+  const double over = out_of_range(dtheta_rad, dv_mps, dt);
+  const bool bad = over > 1.05;
+  if (bad) {
+    ++counters_.imu_samples_rejected;
+    event(kImuSampleRejected, over);
+  }
   const Increment inc = calibrated(dt, dtheta_rad, dv_mps);
-  if (gap) {
-    ++counters_.imu_gaps_bridged;
+  if (gap || bad) {
+    if (gap) ++counters_.imu_gaps_bridged;
     Increment bridge;
-    bridge.dt_s = span - dt;
+    bridge.dt_s = bad ? span : span - dt;
     if (last_inc_.dt_s > 0.0) {
       const double scale = bridge.dt_s / last_inc_.dt_s;
       bridge.dtheta_rad = last_inc_.dtheta_rad * scale;
@@ -146,16 +168,166 @@ InputStatus InsFilter<NB, NC>::push_imu(double t_s, const Vec3& dtheta_rad, cons
     }
     propagate_to(bridge);
   }
-  const bool was_initialised = initialised_;
-  propagate_to(inc);
-  if (!was_initialised && !initialised_) {
-    level_f_sum_ += inc.dv_mps;
-    level_time_ += inc.dt_s;
+  if (!bad) {
+    const bool was_initialised = initialised_;
+    propagate_to(inc);
+    if (!was_initialised && !initialised_) {
+      level_f_sum_ += inc.dv_mps;
+      level_time_ += inc.dt_s;
+    }
+    last_inc_ = inc;
+    detect_standstill(inc);
   }
-  last_inc_ = inc;
-  detect_standstill(inc);
   t_last_ = t_s;
   return InputStatus::Ok;
+}
+
+// The nominal step: the median of the last kSteps steps of the time stamps.
+template <int NB, int NC>
+void InsFilter<NB, NC>::track_step(double span) {
+  steps_[static_cast<std::size_t>(steps_head_)] = span;
+  steps_head_ = (steps_head_ + 1) % kSteps;
+  steps_count_ = std::min(steps_count_ + 1, kSteps);
+  std::array<double, kSteps> v = steps_;
+  const auto mid = v.begin() + steps_count_ / 2;
+  std::nth_element(v.begin(), mid, v.begin() + steps_count_);
+  dt_nominal_ = *mid;
+}
+
+// The sample's largest rate or specific force as a fraction of its range (0: no range set).
+template <int NB, int NC>
+double InsFilter<NB, NC>::out_of_range(const Vec3& dtheta, const Vec3& dv, double dt) const {
+  double r = 0.0;
+  if (cfg_.gyro_range_rad_per_s > 0.0) r = std::max(r, dtheta.cwiseAbs().maxCoeff() / dt / cfg_.gyro_range_rad_per_s);
+  if (cfg_.accel_range_mps2 > 0.0) r = std::max(r, dv.cwiseAbs().maxCoeff() / dt / cfg_.accel_range_mps2);
+  return r;
+}
+
+template <int NB, int NC>
+void InsFilter<NB, NC>::event(int kind, double value) {
+  if (events_) events_->push_back(FilterEvent{t_last_, kind, value});
+}
+
+// An IMU gap too long to bridge: the motion over it is unknown. Attitude and
+// biases are carried; the heading becomes unknown (the vehicle may have turned),
+// roll and pitch get their initial spread on top, velocity and position the
+// spread of an unknown acceleration over the gap. Fixes inside the gap are used
+// at their times on a constant-velocity coast. Before initialisation the
+// levelling starts over.
+template <int NB, int NC>
+void InsFilter<NB, NC>::restart_after_gap(double gap_s, double t_end) {
+  ++counters_.imu_gap_restarts;
+  event(kImuGapRestart, gap_s);
+  detector_.reset();
+  standstill_ = false;
+  standstill_blocks_ = 0;
+  last_inc_ = Increment{};
+  if (!initialised_) {
+    level_f_sum_.setZero();
+    level_time_ = 0.0;
+    while (pending_count_ > 0 && pending_[0].t_s < t_end) {
+      std::copy(pending_.begin() + 1, pending_.begin() + pending_count_, pending_.begin());
+      --pending_count_;
+      ++counters_.fixes_before_alignment;
+    }
+    t_last_ = t_end;
+    return;
+  }
+  auto& P = core_.P;
+  const Geodetic llh = ecef_to_geodetic(core_.nav.r_ecef_m);
+  const Mat3 c_bn = core_.nav.q_eb.toRotationMatrix().transpose() * rot_ned_to_ecef(llh.lat_rad, llh.lon_rad);
+  const Mat3 att_ned = c_bn.transpose() * P.template block<3, 3>(es::att, es::att) * c_bn;
+  const double a = cfg_.gap_accel_sigma_mps2;
+  const double sv = cfg_.velocity_sigma_mps + a * gap_s, sp = cfg_.position_sigma_m + 0.5 * a * gap_s * gap_s;
+  P.template topRows<9>().setZero();
+  P.template leftCols<9>().setZero();
+  const Vec3 att_var(att_ned(0, 0) + square(cfg_.attitude_sigma_rad).x(), att_ned(1, 1) + square(cfg_.attitude_sigma_rad).y(),
+                     M_PI * M_PI);
+  P.template block<3, 3>(es::att, es::att) = c_bn * att_var.asDiagonal() * c_bn.transpose();
+  P.template block<3, 3>(es::vel, es::vel) = Mat3::Identity() * sv * sv;
+  P.template block<3, 3>(es::pos, es::pos) = Mat3::Identity() * sp * sp;
+  P.template block<3, 3>(es::bg, es::bg).diagonal() += core_.noise.gyro_bias_drive_var * gap_s;
+  P.template block<3, 3>(es::ba, es::ba).diagonal() += core_.noise.accel_bias_drive_var * gap_s;
+  if constexpr (NC == 2) {
+    P.template middleRows<2>(Core::kClock).setZero();
+    P.template middleCols<2>(Core::kClock).setZero();
+    P(Core::kClock, Core::kClock) = cfg_.clock_bias_sigma_m * cfg_.clock_bias_sigma_m;
+    P(Core::kClock + 1, Core::kClock + 1) = cfg_.clock_drift_sigma_mps * cfg_.clock_drift_sigma_mps;
+    clock_set_ = false;
+    pending_pr_count_ = 0;  // the clock restarts from the next epoch after the gap
+  }
+  heading_known_ = false;
+  rejecting_ = false;
+  auto coast = [&](double dt) {
+    if (!(dt > 0.0)) return;
+    core_.nav.r_ecef_m += core_.nav.v_ecef_mps * dt;
+    core_.nav.t_s += dt;
+    if constexpr (NC == 2) core_.clock(0) += core_.clock(1) * dt;
+    P.template block<3, 3>(es::pos, es::pos) += dt * dt * P.template block<3, 3>(es::vel, es::vel);
+    t_last_ += dt;
+  };
+  while (pending_count_ > 0 && pending_[0].t_s < t_end) {
+    const FixInput fix = pending_[0];
+    std::copy(pending_.begin() + 1, pending_.begin() + pending_count_, pending_.begin());
+    --pending_count_;
+    coast(fix.t_s - t_last_);
+    process_fix(fix);
+  }
+  coast(t_end - t_last_);
+  t_last_ = t_end;
+}
+
+// Sustained rejection while the receiver reports solutions: true when a reset is due.
+template <int NB, int NC>
+void InsFilter<NB, NC>::note_gnss(bool accepted, double t) {
+  if (accepted) {
+    rejecting_ = false;
+  } else if (!rejecting_) {
+    rejecting_ = true;
+    rejected_since_ = t;
+  }
+}
+
+// Position and velocity from GNSS with their initial spread (PX4 EKF2's reset
+// after its fusion timeout); cross terms with the other states dropped.
+template <int NB, int NC>
+void InsFilter<NB, NC>::reset_to_fix(const FixInput& fix) {
+  ++counters_.gnss_resets;
+  counters_.diverged = true;
+  event(kGnssReset, fix.t_s - rejected_since_);
+  rejecting_ = false;
+  auto& P = core_.P;
+  core_.nav.r_ecef_m = fix.r_ecef_m - core_.nav.q_eb * cfg_.lever_arm_body_m;
+  double var_v = cfg_.velocity_sigma_mps * cfg_.velocity_sigma_mps;
+  if (fix.v_ecef_mps.allFinite()) {
+    core_.nav.v_ecef_mps = fix.v_ecef_mps;
+  } else if (have_prev_fix_ && fix.t_s - prev_fix_.t_s > 0.0 && fix.t_s - prev_fix_.t_s <= 2.0) {
+    core_.nav.v_ecef_mps = (fix.r_ecef_m - prev_fix_.r_ecef_m) / (fix.t_s - prev_fix_.t_s);
+    const double dt = fix.t_s - prev_fix_.t_s, s = cfg_.fix_uere_m * fix.hdop;
+    var_v += 2.0 * s * s / (dt * dt);
+  } else {
+    var_v += core_.nav.v_ecef_mps.squaredNorm() + 100.0;
+  }
+  P.template middleRows<6>(es::vel).setZero();
+  P.template middleCols<6>(es::vel).setZero();
+  P.template block<3, 3>(es::vel, es::vel) = Mat3::Identity() * var_v;
+  P.template block<3, 3>(es::pos, es::pos) = Mat3::Identity() * cfg_.position_sigma_m * cfg_.position_sigma_m;
+  if constexpr (NC == 2) clock_set_ = false;
+}
+
+// While the heading is unknown the horizontal acceleration is applied in a
+// wrong direction: the velocity error grows by up to twice its size. Its
+// variance grows accordingly (as a random walk over one second). The part of
+// the horizontal specific force a tilt error explains (0.1 m/s^2, about half a
+// degree) is left to the attitude states; standing still there is none.
+template <int NB, int NC>
+void InsFilter<NB, NC>::inflate_unknown_heading(const Increment& inc) {
+  if (!(inc.dt_s > 0.0)) return;
+  const Vec3 u = core_.nav.r_ecef_m.normalized();
+  const Vec3 f = core_.nav.q_eb * (inc.dv_mps / inc.dt_s - core_.imu.accel_bias_mps2);
+  const double a = std::max(0.0, (f - f.dot(u) * u).norm() - 0.1);
+  const double q = 4.0 * a * a * inc.dt_s;
+  core_.P.template block<3, 3>(es::vel, es::vel) += q * (Mat3::Identity() - u * u.transpose());
 }
 
 // Propagate across `inc`, which starts at t_last_, stopping at every pending
@@ -200,7 +372,10 @@ void InsFilter<NB, NC>::propagate_to(const Increment& inc) {
   t_last_ += rest.dt_s;
   if (!initialised_) return;
   core_.propagate(rest);
-  if (!heading_known_) decouple_yaw();
+  if (!heading_known_) {
+    if (!standstill_) inflate_unknown_heading(rest);
+    decouple_yaw();
+  }
   const double pos_var = core_.P.template block<3, 3>(es::pos, es::pos).trace();
   if (!std::isfinite(pos_var) || pos_var > 3.0 * cfg_.max_position_sigma_m * cfg_.max_position_sigma_m ||
       !core_.nav.r_ecef_m.allFinite())
@@ -310,13 +485,16 @@ void InsFilter<NB, NC>::process_pseudoranges(const PseudorangeEpoch& ep) {
       core_.clock(0) = res[static_cast<std::size_t>(n / 2)];
       clock_set_ = true;
     }
+    bool any = false;
     for (int i = 0; i < n; ++i) {
       const auto& u = use[static_cast<std::size_t>(i)];
       const auto m = pseudorange(core_, cfg_.lever_arm_body_m, u.sat, u.pr_corr, u.sagnac, u.var);
-      const auto r = core_.update(m.y, m.H, m.R, gate(1));
+      const auto r = apply(m, 1);
       record(kPseudorange, r, 1, u.prn);
       ++(r.accepted ? counters_.pseudoranges_used : counters_.pseudoranges_rejected);
+      any = any || r.accepted;
     }
+    note_gnss(any, ep.t_s);
   } else {
     (void)ep;
   }
@@ -385,6 +563,7 @@ void InsFilter<NB, NC>::set_heading(const FixInput& fix, const Vec3& v_ecef, dou
   core_.nav.q_eb = quat_body_to_ecef(e, llh.lat_rad, llh.lon_rad);
   core_.nav.r_ecef_m = fix.r_ecef_m - core_.nav.q_eb * cfg_.lever_arm_body_m;
   core_.nav.v_ecef_mps = v_ecef;
+  event(kHeadingSet, course_rad);
   P.template topRows<9>().setZero();
   P.template leftCols<9>().setZero();
   const Mat3 c_bn = core_.nav.q_eb.toRotationMatrix().transpose() * rot_ned_to_ecef(llh.lat_rad, llh.lon_rad);
@@ -416,8 +595,15 @@ void InsFilter<NB, NC>::record(int kind, const UpdateResult<M>& r, int dof, int 
   if (!heading_known_ && initialised_) decouple_yaw();
   if (!r.accepted) ++counters_.updates_rejected;
   if (r.guarded) ++counters_.updates_guarded;
+  if (r.attitude_refused) ++counters_.updates_attitude_refused;
   last_update_ = u;
   if (log_) log_->push_back(u);
+}
+
+template <int NB, int NC>
+template <int M, int K>
+UpdateResult<M> InsFilter<NB, NC>::apply(const Measurement<M, K>& m, int dof) {
+  return core_.update(m.y, m.H, m.R, gate(dof), attitude_limit());
 }
 
 template <int NB, int NC>
@@ -434,10 +620,19 @@ void InsFilter<NB, NC>::process_fix(const FixInput& fix) {
     if (v.allFinite() && std::hypot(v_ned.x(), v_ned.y()) >= cfg_.heading_min_speed_mps)
       set_heading(fix, v, std::atan2(v_ned.y(), v_ned.x()));
   }
-  prev_fix_ = fix;
-  have_prev_fix_ = true;
-
-  if constexpr (NC == 2) return;  // tight: the receiver's fixes only start the filter and give the heading
+  if (fix.v_ecef_mps.allFinite()) {
+    const Vec3 v_ned = c_en.transpose() * fix.v_ecef_mps;
+    gnss_speed_mps_ = std::hypot(v_ned.x(), v_ned.y());
+    gnss_speed_t_ = fix.t_s;
+  }
+  const bool reset_due = rejecting_ && cfg_.gnss_reset_timeout_s > 0.0 &&
+                         fix.t_s - rejected_since_ >= cfg_.gnss_reset_timeout_s;
+  if constexpr (NC == 2) {  // tight: the receiver's fixes only start the filter, give the heading, reset it
+    if (reset_due) reset_to_fix(fix);
+    prev_fix_ = fix;
+    have_prev_fix_ = true;
+    return;
+  }
 
   Mat3 r_cov;
   if ((cfg_.fix_sigma_ecef_m.array() > 0.0).all()) {
@@ -451,82 +646,76 @@ void InsFilter<NB, NC>::process_fix(const FixInput& fix) {
   if (fix.mode == 3) {
     const Eigen::Matrix<double, 2, 3> ne = c_en.transpose().template topRows<2>();
     const auto m2 = project(m, ne);
-    const auto r = core_.update(m2.y, m2.H, m2.R, gate(2));
+    const auto r = apply(m2, 2);
     record(kFix2D, r, 2);
     accepted = r.accepted;
   } else {
-    const auto r = core_.update(m.y, m.H, m.R, gate(3));
+    const auto r = apply(m, 3);
     record(kFix3D, r, 3);
     accepted = r.accepted;
   }
   ++(accepted ? counters_.fixes_accepted : counters_.fixes_rejected);
+  note_gnss(accepted, fix.t_s);
+  if (reset_due && !accepted) {
+    reset_to_fix(fix);
+    prev_fix_ = fix;
+    have_prev_fix_ = true;
+    return;
+  }
+  prev_fix_ = fix;
+  have_prev_fix_ = true;
 
   if (cfg_.use_fix_velocity && fix.v_ecef_mps.allFinite() && heading_known_) {
     const Vec3 w_eb = last_inc_.dtheta_rad / last_inc_.dt_s - core_.imu.gyro_bias_rad_per_s -
                       core_.nav.q_eb.conjugate() * earth_rate_ecef();
-    const double s = cfg_.fix_velocity_sigma_mps;
+    const double s = cfg_.fix_velocity_sigma_mps * (cfg_.fix_velocity_sigma_hdop_scaled ? fix.hdop : 1.0);
     const auto mv = gnss_velocity(core_, fix.v_ecef_mps, Mat3::Identity() * s * s, cfg_.lever_arm_body_m, w_eb);
-    record(kFixVelocity, core_.update(mv.y, mv.H, mv.R, gate(3)), 3);
+    record(kFixVelocity, apply(mv, 3), 3);
   }
 }
 
 template <int NB, int NC>
 void InsFilter<NB, NC>::detect_standstill(const Increment& inc) {
-  const Vec3 f = inc.dv_mps / inc.dt_s, w = inc.dtheta_rad / inc.dt_s;
-  const auto head = static_cast<std::size_t>(ring_head_);
-  if (ring_count_ == ring_size_) {
-    sum_f_ -= ring_f_[head];
-    sum_f2_ -= square(ring_f_[head]);
-    sum_w_ -= ring_w_[head];
-    sum_w2_ -= square(ring_w_[head]);
-  } else {
-    ++ring_count_;
-  }
-  ring_f_[head] = f;
-  ring_w_[head] = w;
-  sum_f_ += f;
-  sum_f2_ += square(f);
-  sum_w_ += w;
-  sum_w2_ += square(w);
-  ring_head_ = (ring_head_ + 1) % ring_size_;
-
-  standstill_ = false;
-  if (!initialised_ || !cfg_.zero_velocity_updates || ring_count_ < ring_size_) {
-    standstill_run_ = 0;
+  const bool fresh = detector_.add(inc.dv_mps / inc.dt_s, inc.dtheta_rad / inc.dt_s, inc.dt_s);
+  if (!initialised_ || !cfg_.zero_velocity_updates) {
+    standstill_ = false;
+    standstill_blocks_ = 0;
     return;
   }
-  const double n = ring_count_;
-  const Vec3 mean_f = sum_f_ / n, mean_w = sum_w_ / n;
-  const Vec3 var_f = (sum_f2_ / n - square(mean_f)).cwiseMax(0.0);
-  const Vec3 var_w = (sum_w2_ / n - square(mean_w)).cwiseMax(0.0);
-  const Vec3 rate = mean_w - core_.imu.gyro_bias_rad_per_s;
+  if (!fresh) {
+    if (standstill_) ++counters_.standstill_samples;
+    return;
+  }
+  const Vec3 rate = (detector_.mean_w() - core_.imu.gyro_bias_rad_per_s).cwiseQuotient(Vec3::Ones() + core_.imu.gyro_scale_factor);
   const Vec3 earth_b = core_.nav.q_eb.conjugate() * earth_rate_ecef();
-  standstill_ = var_f.maxCoeff() < cfg_.standstill_accel_std_mps2 * cfg_.standstill_accel_std_mps2 &&
-                var_w.maxCoeff() < cfg_.standstill_gyro_std_rad_per_s * cfg_.standstill_gyro_std_rad_per_s &&
-                (rate - earth_b).norm() < cfg_.standstill_gyro_mean_rad_per_s &&
-                core_.nav.v_ecef_mps.norm() < cfg_.standstill_max_speed_mps;
+  // The filter's speed may start a standstill (no zero-velocity update has pinned
+  // it yet); a recent GNSS speed above its limit bars or ends one.
+  // A recent GNSS speed below it, while the IMU is quiet, may also start one:
+  // the filter's velocity after a stop can be off by more than its limit.
+  const bool gnss_fresh = t_last_ - gnss_speed_t_ <= 1.5;
+  const bool veto = gnss_fresh && gnss_speed_mps_ > cfg_.standstill_max_gnss_speed_mps;
+  const bool may_begin = core_.nav.v_ecef_mps.norm() < cfg_.standstill_max_speed_mps || gnss_fresh;
+  standstill_ = detector_.decide(rate - earth_b, may_begin, veto, t_last_);
   if (!standstill_) {
-    standstill_run_ = 0;
+    standstill_blocks_ = 0;
     return;
   }
   ++counters_.standstill_samples;
-  ++standstill_run_;
-  // Zero velocity about 8 times per window; zero rate once per full window of
-  // new samples (its mean's noise is independent between windows).
-  if (standstill_run_ % std::max(1, ring_size_ / 4) == 0) {
-    const auto m = zero_velocity(core_, cfg_.zero_velocity_sigma_mps);
-    record(kZeroVelocity, core_.update(m.y, m.H, m.R, gate(3)), 3);
-    ++counters_.zero_velocity_updates;
-  }
-  if (standstill_run_ % ring_size_ == 0) {
-    const double window_s = n * dt_nominal_;
-    const Vec3 var = square(cfg_.gyro_arw_rad_per_sqrt_s) / window_s +
+  ++standstill_blocks_;
+  // Zero velocity at every block; zero rate once per window of new blocks (its
+  // mean's noise is independent between windows), with the noise measured from
+  // the spread of the block means (vibration included), at least the ARW's.
+  const auto m = zero_velocity(core_, cfg_.zero_velocity_sigma_mps);
+  record(kZeroVelocity, apply(m, 3), 3);
+  ++counters_.zero_velocity_updates;
+  if (standstill_blocks_ % detector_.window_blocks() == 0) {
+    const Vec3 var = detector_.mean_rate_variance().cwiseMax(square(cfg_.gyro_arw_rad_per_sqrt_s) / detector_.window_duration_s()) +
                      Vec3::Constant(cfg_.zero_rate_sigma_rad_per_s * cfg_.zero_rate_sigma_rad_per_s);
-    auto m = zero_rate(core_, rate.cwiseQuotient(Vec3::Ones() + core_.imu.gyro_scale_factor), var);
+    auto mz = zero_rate(core_, rate, var);
     // Without a heading the attitude coupling (Earth rate seen through a wrong
     // yaw) is far outside the linear range: use the update for the biases only.
-    if (!heading_known_) m.H.template middleCols<3>(es::att).setZero();
-    record(kZeroRate, core_.update(m.y, m.H, m.R, gate(3)), 3);
+    if (!heading_known_) mz.H.template middleCols<3>(es::att).setZero();
+    record(kZeroRate, apply(mz, 3), 3);
     ++counters_.zero_rate_updates;
   }
 }

@@ -69,17 +69,52 @@ class NavErrors:
         return np.hstack([self.dtheta, self.dv, self.dr])
 
 
+def _about(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
+    """Quaternions (n, 4) of rotations by angle about unit axes (n, 3)."""
+    return np.column_stack([np.cos(angle / 2), axis * np.sin(angle / 2)[:, None]])
+
+
+def _conj(q: np.ndarray) -> np.ndarray:
+    return q * np.array([1.0, -1.0, -1.0, -1.0])
+
+
+def _attitude_error(q_est: np.ndarray, q_true: np.ndarray) -> np.ndarray:
+    dq = _qmul(_conj(q_est), q_true)
+    return _core.rotvec_from_quat(dq * np.where(dq[:, :1] < 0, -1.0, 1.0))
+
+
 def nav_errors(sol, truth: Truth) -> NavErrors:
+    """Errors of a solution. While its heading is unknown (``sol.heading_known`` False) the
+    yaw error can be anything, and the rotation vector of a large rotation mixes it into
+    roll and pitch: there the attitude error is the tilt error after turning the estimate
+    by the yaw error about the local vertical, plus the yaw error (wrapped) along the
+    body's vertical, the form in which the filter carries it."""
     ref = truth.at(sol.t)
-    dq = _qmul(sol.q_eb * np.array([1.0, -1.0, -1.0, -1.0]), ref.q_eb)
-    dtheta = _core.rotvec_from_quat(dq * np.sign(dq[:, :1]))
+    dtheta = _attitude_error(sol.q_eb, ref.q_eb)
     llh = _core.ecef_to_geodetic(ref.r_ecef)
-    c_ne = np.swapaxes(c_en(llh[:, 0], llh[:, 1]), -1, -2)
+    c = c_en(llh[:, 0], llh[:, 1])
+    c_ne = np.swapaxes(c, -1, -2)
     r_ned = np.einsum("nij,nj->ni", c_ne, sol.r_ecef - ref.r_ecef)
     ypr_est = _core.euler_from_body_to_ecef(sol.q_eb, llh)
     ypr_true = _core.euler_from_body_to_ecef(ref.q_eb, llh)
     dypr = np.degrees(np.angle(np.exp(1j * (ypr_est - ypr_true))))
+    unknown = ~np.asarray(getattr(sol, "heading_known", np.ones(len(sol.t), bool)), bool)
+    if unknown.any():
+        down = c[unknown][:, :, 2]  # local down in ECEF
+        dpsi = np.angle(np.exp(1j * (ypr_true[unknown, 0] - ypr_est[unknown, 0])))
+        q_est = sol.q_eb[unknown]
+        turned = _qmul(_about(down, dpsi), q_est)
+        down_b = np.einsum("nji,nj->ni", _dcm(q_est), down)
+        dtheta[unknown] = _attitude_error(turned, ref.q_eb[unknown]) + dpsi[:, None] * down_b
     return NavErrors(sol.t, dtheta, ref.v_ecef - sol.v_ecef, ref.r_ecef - sol.r_ecef, r_ned, dypr)
+
+
+def _dcm(q: np.ndarray) -> np.ndarray:
+    """(n, 3, 3) rotation matrices of quaternions (w, x, y, z)."""
+    w, x, y, z = q.T
+    return np.stack([np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+                     np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+                     np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1)], -2)
 
 
 def nees(errors: np.ndarray, covariance: np.ndarray) -> np.ndarray:

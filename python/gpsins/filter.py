@@ -36,13 +36,16 @@ import numpy as np
 from . import _core
 
 PRESETS = ("default", "report2005")
+EVENT_KINDS = {1: "imu_gap_restart", 2: "gnss_reset", 3: "imu_sample_rejected", 4: "heading_set"}
+UPDATE_CHECKS = ("chi_square", "attitude_correction", "both", "none")
 UPDATE_KINDS = {1: "fix_3d", 2: "fix_2d", 3: "fix_velocity", 4: "zero_velocity", 5: "zero_rate", 6: "pseudorange"}
 
 GM_PEAK_PER_SIGMA = 0.617  # ADEV peak of a Gauss-Markov process / its stationary sigma
 FLAT_PER_B = 0.664  # ADEV floor of bias instability B
 
 _DEGREE_KEYS = {"attitude_sigma_deg": "attitude_sigma_rad", "initial_yaw_deg": "initial_yaw_rad",
-                "heading_sigma_deg": "heading_sigma_rad",
+                "heading_sigma_deg": "heading_sigma_rad", "gyro_range_deg_per_s": "gyro_range_rad_per_s",
+                "max_attitude_correction_deg": "max_attitude_correction_rad",
                 "pseudorange_elevation_mask_deg": "pseudorange_elevation_mask_rad"}
 _EXTRA_KEYS = {"preset", "mode", "imu_noise", "gyro_bias_residual_rad_per_s", "accel_bias_residual_mps2"}
 _NOISE_KEYS = {"gyro_arw_rad_per_sqrt_s", "gyro_bias_instability_rad_per_s", "gyro_rrw_rad_per_s_sqrt_s",
@@ -318,6 +321,11 @@ def core_config(cfg: dict) -> _core.InsConfig:
     for key, value in table.items():
         if key not in fields or value is None:
             continue
+        if key == "update_check":
+            if value not in UPDATE_CHECKS:
+                raise ConfigError(f"update_check: unknown '{value}' ({', '.join(UPDATE_CHECKS)})")
+            c.update_check = getattr(_core.UpdateCheck, value)
+            continue
         if key in ("gyro_bias", "accel_bias"):
             b = _core.BiasConfig()
             for bk, bv in value.items():
@@ -390,6 +398,7 @@ class Solution:
     clock: np.ndarray | None = None  # (n, 2) bias m, drift m/s
     covariance: np.ndarray | None = None
     extra: dict = field(default_factory=dict)
+    events: dict = field(default_factory=dict)  # t, kind (EVENT_KINDS), value: restarts, resets, rejected samples
 
     @classmethod
     def from_batch(cls, out: dict, mode: str, scale_factors: bool) -> "Solution":
@@ -404,7 +413,13 @@ class Solution:
             clock, k = s[:, k:k + 2], k + 2
         return cls(mode, n, s[:, 0], s[:, 1:4], s[:, 4:7], s[:, 7:11], s[:, 11:14], s[:, 14:17],
                    s[:, k:k + n], (s[:, k + n].astype(int) & 1) > 0, (s[:, k + n].astype(int) & 2) > 0, out["updates"], out["counters"], sf, clock,
-                   out.get("covariance"), {"fixes_after_end": out["fixes_after_end"]})
+                   out.get("covariance"), {"fixes_after_end": out["fixes_after_end"]}, out["events"])
+
+    def event_list(self) -> list[dict]:
+        """The filter's events in time order as {t, kind, value} with kind named (EVENT_KINDS)."""
+        e = self.events
+        return [{"t": float(t), "kind": EVENT_KINDS.get(int(k), str(int(k))), "value": float(v)}
+                for t, k, v in zip(e.get("t", ()), e.get("kind", ()), e.get("value", ()))]
 
     def llh(self) -> np.ndarray:
         return _core.ecef_to_geodetic(self.r_ecef)

@@ -57,6 +57,7 @@ struct UpdateResult {
   double nis = 0.0;
   bool accepted = false;
   bool guarded = false;  // rejected because the result was not a valid covariance
+  bool attitude_refused = false;  // rejected: the attitude correction exceeded its limit
 };
 
 // Square blocks of 3x3 matrices with a non-zero mask, so products skip the
@@ -252,9 +253,11 @@ class Eskf {
 
   // Kalman update with chi-square gate (gate <= 0 disables it), Joseph form,
   // injection and reset. A result that is not a valid covariance is undone.
+  // attitude_limit > 0: the report's divergence test, an update whose attitude
+  // correction is larger (rad) is refused.
   template <int M>
   UpdateResult<M> update(const Eigen::Matrix<double, M, 1>& y, const Eigen::Matrix<double, M, N>& H,
-                         const Eigen::Matrix<double, M, M>& R, double gate) {
+                         const Eigen::Matrix<double, M, M>& R, double gate, double attitude_limit = 0.0) {
     UpdateResult<M> res;
     res.innovation = y;
     const Eigen::Matrix<double, N, M> pht = P * H.transpose();
@@ -269,6 +272,10 @@ class Eskf {
     if (gate > 0.0 && !(res.nis <= gate)) return res;
     const Eigen::Matrix<double, N, M> K = llt.solve(pht.transpose()).transpose();
     const VecN dx = K * y;
+    if (attitude_limit > 0.0 && !(dx.template segment<3>(es::att).norm() <= attitude_limit)) {
+      res.attitude_refused = true;
+      return res;
+    }
     // Joseph form (I - K H) P (I - K H)^T + K R K^T, multiplied out with A = P H^T and
     // S = H P H^T + R into P - K A^T - A K^T + K S K^T: the same expression, symmetric
     // term by term, in O(N^2 M) instead of two dense N x N products.

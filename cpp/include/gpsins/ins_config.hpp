@@ -10,6 +10,11 @@ namespace gpsins {
 
 enum class BiasModel { RandomWalk = 0, GaussMarkov = 1, Constant = 2 };
 
+// What refuses a measurement update: the chi-square gate on the innovation, the
+// report's divergence test on the correction's attitude part (seed 004, 7.1.1.3),
+// both, or nothing.
+enum class UpdateCheck { ChiSquare = 0, AttitudeCorrection = 1, Both = 2, None = 3 };
+
 struct BiasConfig {
   BiasModel model = BiasModel::RandomWalk;
   Vec3 random_walk_per_sqrt_s = Vec3::Zero();  // rate random walk K: rad/s/sqrt(s) or m/s^2/sqrt(s)
@@ -18,8 +23,17 @@ struct BiasConfig {
 };
 
 struct InsConfig {
+  // Only the first sample's interval; after it the nominal step is the running
+  // median of the time stamps' steps, and a step over 1.5 times it is a gap.
   double imu_rate_hz = 64.0;
-  double max_gap_s = 0.5;  // a longer IMU gap is an input error
+  // Gaps up to this are bridged with the previous rates; a longer one restarts
+  // the navigation states (attitude and biases carried, covariance inflated).
+  double max_gap_s = 0.5;
+  double gap_accel_sigma_mps2 = 2.0;  // unknown acceleration over a long gap
+  // Sensor range: a sample beyond it (x 1.05) is bad, replaced like a lost frame.
+  // <= 0: no limit.
+  double gyro_range_rad_per_s = 0.0;
+  double accel_range_mps2 = 0.0;
 
   // IMU calibration applied to the raw increments: measured = (1 + sf) true + bias.
   Vec3 gyro_bias_cal_rad_per_s = Vec3::Zero();
@@ -60,7 +74,8 @@ struct InsConfig {
   double fix_uere_m = 3.0;
   Vec3 fix_sigma_ecef_m = Vec3::Zero();
   bool use_fix_velocity = false;
-  double fix_velocity_sigma_mps = 0.1;
+  double fix_velocity_sigma_mps = 0.1;  // per axis; times the fix's HDOP when scaled
+  bool fix_velocity_sigma_hdop_scaled = false;
 
   // Pseudoranges (tight coupling). Variance from the elevation model when the
   // sigma is <= 0 (RTKLIB's, as in single-point positioning).
@@ -77,18 +92,30 @@ struct InsConfig {
   bool pseudorange_troposphere = true;
   double gps_time_offset_s = 0.0;  // filter time + this = GPS seconds since the GPS epoch
 
-  // Standstill: detected from the IMU window while the speed estimate is low.
+  // Standstill (see standstill.hpp): spreads of block means over the window,
+  // the mean's shift from its value when standing began, the mean rate. It
+  // begins only below standstill_max_speed_mps (filter) and ends or is barred
+  // by a GNSS speed above standstill_max_gnss_speed_mps.
   bool zero_velocity_updates = true;
   double standstill_window_s = 0.5;
+  double standstill_block_s = 0.05;
   double standstill_accel_std_mps2 = 0.12;
   double standstill_gyro_std_rad_per_s = 0.015;
   double standstill_gyro_mean_rad_per_s = 0.02;
+  double standstill_accel_shift_mps2 = 0.05;
+  double standstill_holdoff_s = 2.0;  // after a standstill: resume only at its specific force
   double standstill_max_speed_mps = 0.5;
+  double standstill_max_gnss_speed_mps = 0.3;
   double zero_velocity_sigma_mps = 0.02;
   double zero_rate_sigma_rad_per_s = 1e-4;
 
   // Innovation gate: chi-square probability (<= 0 or >= 1 disables gating).
   double gate_probability = 0.9999;
+  UpdateCheck update_check = UpdateCheck::ChiSquare;
+  double max_attitude_correction_rad = 0.0873;  // 5 deg, for the attitude-correction check
+  // GNSS measurements rejected this long while the receiver reports solutions:
+  // position and velocity reset to GNSS with inflated covariance. <= 0: never.
+  double gnss_reset_timeout_s = 5.0;
   // Divergence guard: position sigma beyond this marks the filter diverged.
   double max_position_sigma_m = 1e4;
 };

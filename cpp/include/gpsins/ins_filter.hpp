@@ -11,10 +11,12 @@
 #include <cstdint>
 #include <vector>
 
+#include "gpsins/aiding/measurement.hpp"
 #include "gpsins/eskf.hpp"
 #include "gpsins/gnss/ephemeris.hpp"
 #include "gpsins/gnss/models.hpp"
 #include "gpsins/ins_config.hpp"
+#include "gpsins/standstill.hpp"
 
 namespace gpsins {
 
@@ -22,7 +24,7 @@ enum class InputStatus : int {
   Ok = 0,
   NonFinite = 1,
   TimeNotIncreasing = 2,
-  GapTooLong = 3,
+  // 3 was GapTooLong: long gaps now restart the navigation (Counters::imu_gap_restarts)
   BadValue = 4,
 };
 const char* input_status_text(InputStatus s);
@@ -72,9 +74,27 @@ struct UpdateRecord {
   std::array<double, 3> innovation_sigma{};
 };
 
+// What the filter did besides its regular updates (batch runs log them).
+enum EventKind : int {
+  kImuGapRestart = 1,     // value: the gap (s)
+  kGnssReset = 2,         // value: how long GNSS had been rejected (s)
+  kImuSampleRejected = 3, // value: the sample's largest rate or specific force over its range
+  kHeadingSet = 4,        // value: the heading (rad)
+};
+
+struct FilterEvent {
+  double t_s = 0.0;
+  int kind = 0;
+  double value = 0.0;
+};
+
 struct Counters {
   std::int64_t imu_samples = 0;
   std::int64_t imu_gaps_bridged = 0;
+  std::int64_t imu_gap_restarts = 0;      // gaps over max_gap_s: navigation restarted
+  std::int64_t imu_samples_rejected = 0;  // beyond the sensor's range, replaced like a lost frame
+  std::int64_t gnss_resets = 0;           // position and velocity reset to GNSS after sustained rejections
+  std::int64_t updates_attitude_refused = 0;  // the attitude-correction check refused the update
   std::int64_t fixes = 0;
   std::int64_t fixes_accepted = 0;
   std::int64_t fixes_rejected = 0;
@@ -91,6 +111,8 @@ struct Counters {
   std::int64_t pseudoranges_rejected = 0;
   std::int64_t pseudoranges_no_ephemeris = 0;
   std::int64_t pseudoranges_masked = 0;  // elevation, C/N0 or settling after (re)acquisition
+  // Set when the filter stopped explaining its measurements (sustained GNSS
+  // rejection) or its covariance or state became invalid; stays set.
   bool diverged = false;
 };
 
@@ -118,10 +140,12 @@ class InsFilter {
   const UpdateRecord& last_update() const { return last_update_; }
   // Every update is also appended here when set (batch runs).
   void set_update_log(std::vector<UpdateRecord>* log) { log_ = log; }
+  void set_event_log(std::vector<FilterEvent>* log) { events_ = log; }
+  double nominal_step_s() const { return dt_nominal_; }
 
  private:
-  static constexpr int kRing = 256;
   static constexpr int kPending = 16;
+  static constexpr int kSteps = 15;
 
   Increment calibrated(double dt, const Vec3& dtheta, const Vec3& dv) const;
   void propagate_to(const Increment& inc);
@@ -132,15 +156,30 @@ class InsFilter {
   void decouple_yaw();
   void set_heading(const FixInput& fix, const Vec3& v_ecef, double course_rad);
   void detect_standstill(const Increment& inc);
+  void track_step(double span);
+  double out_of_range(const Vec3& dtheta, const Vec3& dv, double dt) const;
+  void restart_after_gap(double gap_s, double t_end);
+  void note_gnss(bool accepted, double t);
+  void reset_to_fix(const FixInput& fix);
+  void event(int kind, double value);
+  void inflate_unknown_heading(const Increment& inc);
   template <int M>
   void record(int kind, const UpdateResult<M>& r, int dof, int id = 0);
+  template <int M, int K>
+  UpdateResult<M> apply(const Measurement<M, K>& m, int dof);
   double gate(int dof) const { return gates_[static_cast<std::size_t>(dof)]; }
+  double attitude_limit() const {
+    return cfg_.update_check == UpdateCheck::AttitudeCorrection || cfg_.update_check == UpdateCheck::Both
+               ? cfg_.max_attitude_correction_rad
+               : 0.0;
+  }
 
   InsConfig cfg_;
   Core core_;
   Counters counters_;
   UpdateRecord last_update_;
   std::vector<UpdateRecord>* log_ = nullptr;
+  std::vector<FilterEvent>* events_ = nullptr;
   std::array<double, 8> gates_{};
 
   bool initialised_ = false;
@@ -148,18 +187,23 @@ class InsFilter {
   bool have_time_ = false;
   double t_last_ = 0.0;
   double dt_nominal_ = 1.0 / 64.0;
+  std::array<double, kSteps> steps_{};
+  int steps_count_ = 0, steps_head_ = 0;
   Increment last_inc_;  // calibrated, for gap bridging
 
   // Levelling sums before initialisation.
   Vec3 level_f_sum_ = Vec3::Zero();
   double level_time_ = 0.0;
 
-  // Standstill window.
-  std::array<Vec3, kRing> ring_f_{}, ring_w_{};
-  int ring_size_ = 32, ring_count_ = 0, ring_head_ = 0;
-  Vec3 sum_f_ = Vec3::Zero(), sum_f2_ = Vec3::Zero(), sum_w_ = Vec3::Zero(), sum_w2_ = Vec3::Zero();
+  StandstillDetector detector_;
   bool standstill_ = false;
-  int standstill_run_ = 0;
+  int standstill_blocks_ = 0;
+  double gnss_speed_mps_ = -1.0, gnss_speed_t_ = -1e300;  // last GNSS speed and its time
+
+  // Sustained GNSS rejection.
+  double rejected_since_ = -1.0;
+  bool rejecting_ = false;
+  bool epoch_accepted_ = false;
 
   std::array<FixInput, kPending> pending_{};
   int pending_count_ = 0;

@@ -1,0 +1,192 @@
+"""The filter off the clean path (issue 14): IMU rates other than 64 Hz, gentle stop-and-go,
+bad samples, a dead accelerometer, long IMU gaps; and its NEES over a whole drive, the
+unknown-heading start included. Truth from the simulator."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from gpsins import evaluate, filter as flt, sim
+from gpsins.sim.scenario import parse
+
+START = {"gps_week": 1590, "gps_tow_s": 419400.0, "lat_deg": 59.37, "lon_deg": 17.95, "height_m": 30.0,
+         "heading_deg": 160.0}
+
+
+def stop_and_go(rate_hz: int, stops: int = 3):
+    """Stops with gentle pull-aways: a creep from rest to 2 m/s over 15 s, whose first seconds
+    an IMU cannot tell from standing (this drove the filter 5-57 km off at 64 and 200 Hz)."""
+    seg = [{"label": "stand", "duration_s": 20, "speed_mps": 0},
+           {"label": "go", "duration_s": 10, "speed_mps": 10},
+           {"label": "turn", "duration_s": 15, "turn_deg": 90}]
+    for i in range(stops):
+        seg += [{"label": f"stop{i}", "duration_s": 12, "speed_mps": 0},
+                {"label": f"wait{i}", "duration_s": 10, "speed_mps": 0},
+                {"label": f"creep{i}", "duration_s": 15, "speed_mps": 2.0},
+                {"label": f"go{i}", "duration_s": 10, "speed_mps": 8, "turn_deg": 30 * (-1) ** i}]
+    seg += [{"label": "end", "duration_s": 15, "speed_mps": 0}]
+    return parse({"name": "stop-and-go", "start": START, "segment": seg, "imu": {"rate_hz": rate_hz}})
+
+
+def truth_of(s):
+    tr = s.truth
+    return evaluate.Truth(tr.t, tr.r_ecef, tr.v_ecef, tr.q_eb)
+
+
+def true_speed(s, t):
+    i = np.clip(np.searchsorted(s.truth.t, t), 0, len(s.truth.t) - 1)
+    return np.linalg.norm(s.truth.v_ecef[i], axis=1)
+
+
+def final_error(s, sol) -> float:
+    return float(np.linalg.norm(evaluate.nav_errors(sol, truth_of(s)).r_ned[-1]))
+
+
+@pytest.mark.parametrize("rate_hz", [64, 200])
+def test_gentle_stop_and_go_converges_at_64_and_200_hz(rate_hz):
+    s = sim.simulate(stop_and_go(rate_hz), seed=0)
+    sol = flt.run(sim.imu_table(s), sim.fix_table(s), "default")
+    v = true_speed(s, sol.t)
+    ss = sol.standstill
+    false_rate = ss[v > 0.5].mean()
+    # At rest for at least a window (0.5 s) plus a block: standing.
+    rest = np.convolve(v < 1e-6, np.ones(int(0.6 * rate_hz)), "full")[:len(v)] >= int(0.6 * rate_hz)
+    missed = 1.0 - ss[rest].mean()
+    err = final_error(s, sol)
+    print(f"{rate_hz} Hz: final {err:.2f} m, standstill at > 0.5 m/s {100 * false_rate:.2f} %, "
+          f"missed at rest {100 * missed:.1f} %, fixes rejected {sol.counters['fixes_rejected']}")
+    assert err < 5.0
+    assert false_rate == 0.0
+    assert missed < 0.1
+    # Left over (issue 14, correlated GNSS errors): standing, the fixes' slowly varying errors
+    # make the position over-confident (0.4 m sigma, 2.8 m error at 64 Hz seed 0), and the next
+    # creep then costs a few rejected fixes and one GNSS reset before it is explained again.
+    assert sol.counters["fixes_rejected"] <= 10 and sol.counters["gnss_resets"] <= 1
+
+
+@pytest.fixture(scope="module")
+def default_drive():
+    return sim.simulate(sim.load("default"), seed=0)
+
+
+def run_default(s, imu, **over):
+    cfg = flt.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), **over})
+    return flt.run(imu, sim.fix_table(s), cfg, covariance=True)
+
+
+def test_a_sample_beyond_the_sensor_range_is_not_integrated(default_drive):
+    s = default_drive
+    imu = sim.imu_table(s)
+    k = np.searchsorted(imu[:, 0], 100.0)
+    imu[k, 1] = 1e6  # rad: was 98 km (1.6e9 m here) off
+    sol = run_default(s, imu)
+    assert sol.counters["imu_samples_rejected"] == 1
+    assert [e["kind"] for e in sol.event_list()].count("imu_sample_rejected") == 1
+    assert final_error(s, sol) < 5.0 and not sol.counters["diverged"]
+
+
+def test_ten_seconds_of_zero_delta_v_recovers_through_a_gnss_reset(default_drive):
+    s = default_drive
+    imu = sim.imu_table(s)
+    imu[(imu[:, 0] >= 100) & (imu[:, 0] < 110), 4:7] = 0.0  # was 14-18 km off, half the fixes rejected
+    sol = run_default(s, imu)
+    c = sol.counters
+    assert c["gnss_resets"] >= 1 and c["diverged"]
+    resets = [e["t"] for e in sol.event_list() if e["kind"] == "gnss_reset"]
+    assert all(100 < t < 125 for t in resets)
+    assert c["fixes_rejected"] < 20
+    err = evaluate.nav_errors(sol, truth_of(s))
+    after = sol.t > 140
+    assert np.mean(np.abs(err.e9[after]) <= 3 * sol.sigma[after, :9]) > 0.95
+    assert final_error(s, sol) < 5.0
+
+
+def test_a_long_imu_gap_restarts_the_navigation(default_drive):
+    s = default_drive
+    imu = sim.imu_table(s)
+    keep = ~((imu[:, 0] >= 100) & (imu[:, 0] < 108))  # 8 s unplugged while driving
+    sol = run_default(s, imu[keep])
+    assert sol.counters["imu_gap_restarts"] == 1
+    ev = sol.event_list()
+    assert ev[[e["kind"] for e in ev].index("imu_gap_restart")]["value"] == pytest.approx(8.0, abs=0.05)
+    err = evaluate.nav_errors(sol, truth_of(s))
+    after = sol.t > 118
+    assert np.mean(np.abs(err.e9[after]) <= 3 * sol.sigma[after, :9]) > 0.95
+    assert final_error(s, sol) < 5.0 and not sol.counters["diverged"]
+
+
+def with_lever_arm(s, fixes, lever_body_m):
+    """The receiver's fixes moved to an antenna at lever_body_m (body axes) from the IMU, by the
+    simulator's true attitude at each fix time."""
+    out = fixes.copy()
+    ok = (out[:, 0] >= s.truth.t[0]) & (out[:, 0] <= s.truth.t[-1]) & np.isfinite(out[:, 1])
+    q = truth_of(s).at(out[ok, 0]).q_eb
+    out[ok, 1:4] += np.einsum("nij,j->ni", evaluate._dcm(q), np.asarray(lever_body_m))
+    return out
+
+
+LEVER = [1.2, -0.4, -1.5]
+
+
+@pytest.mark.parametrize("over", [{}, {"use_fix_velocity": True}, {"scale_factor_states": True},
+                                  {"lever_arm_body_m": LEVER}],
+                         ids=["default", "fix_velocity", "scale_factors", "lever_arm"])
+def test_nees_over_the_whole_default_drive_is_inside_its_band(over):
+    """From the first output on, standing with the heading unknown and moving off included;
+    also with the paths the default drive does not take (was 68 from t = 0; 27.7 with fix
+    velocities)."""
+    sc = sim.load("default")
+    runs, rms = [], []
+    for seed in range(4):
+        s = sim.simulate(sc, seed=seed)
+        fixes = sim.fix_table(s)
+        if "lever_arm_body_m" in over:
+            fixes = with_lever_arm(s, fixes, over["lever_arm_body_m"])
+        cfg = flt.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), **over})
+        sol = flt.run(sim.imu_table(s), fixes, cfg, covariance=True)
+        err = evaluate.nav_errors(sol, truth_of(s))
+        runs.append(evaluate.nees(err.e9, sol.covariance[:, :9, :9]))
+        rms.append(np.sqrt(np.mean(err.r_ned[:, :2] ** 2) * 2))
+        assert sol.counters["fixes_rejected"] == 0 and sol.counters["updates_rejected"] <= 2
+    n = min(map(len, runs))
+    avg = np.mean([r[:n] for r in runs], 0).mean()
+    lo, hi = evaluate.nees_band(9, len(runs))
+    print(f"{over}: whole-run NEES over 4 seeds {avg:.2f}, band {lo:.2f}..{hi:.2f}, H RMS {np.mean(rms):.2f} m")
+    assert lo <= avg <= hi
+
+
+def test_a_lever_arm_left_out_is_seen():
+    s = sim.simulate(sim.load("default"), seed=1)
+    fixes = with_lever_arm(s, sim.fix_table(s), LEVER)
+    base = flt.load_config(None, sim.imu_noise_truth(s.scenario.imu))
+    down = {}
+    for name, cfg in (("with", {**base, "lever_arm_body_m": LEVER}), ("without", base)):
+        sol = flt.run(sim.imu_table(s), fixes, cfg, covariance=True)
+        down[name] = evaluate.nav_errors(sol, truth_of(s)).r_ned[sol.heading_known, 2]
+        assert sol.n_states == 15
+    # The antenna sits 1.5 m above the IMU (the vehicle about level): left out, the solution
+    # moves up by about that; the horizontal part averages out over the turns.
+    assert np.mean(down["without"] - down["with"]) == pytest.approx(LEVER[2], abs=0.3)
+
+
+def test_nominal_step_comes_from_the_stamps_not_the_configured_rate():
+    s = sim.simulate(stop_and_go(200, stops=1), seed=1)
+    imu = sim.imu_table(s)
+    ok = flt.run(imu, sim.fix_table(s), "default")
+    wrong = flt.run(imu, sim.fix_table(s), flt.load_config(None, {"imu_rate_hz": 64.0 * 1.3}))
+    assert wrong.counters["imu_gaps_bridged"] == 0
+    assert np.allclose(wrong.r_ecef[-1], ok.r_ecef[-1], atol=1e-6)
+    f = flt.streaming(flt.load_config(None, {"imu_rate_hz": 50.0}))
+    for row in imu[:50]:
+        f.push_imu(row[0], row[1:4], row[4:7])
+    assert f.nominal_step_s == pytest.approx(np.median(np.diff(imu[:50, 0])), rel=1e-9)
+
+
+def test_the_report_divergence_test_is_selectable():
+    cfg = flt.core_config(flt.load_config(None, {"update_check": "attitude_correction",
+                                                 "max_attitude_correction_deg": 2.0}))
+    assert str(cfg.update_check).endswith("attitude_correction")
+    assert cfg.max_attitude_correction_rad == pytest.approx(np.radians(2.0))
+    with pytest.raises(flt.ConfigError, match="update_check"):
+        flt.core_config(flt.load_config(None, {"update_check": "sometimes"}))
