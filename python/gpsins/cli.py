@@ -96,6 +96,12 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     return imu_cli.run_calibrate(args)
 
 
+def _cmd_lab(args: argparse.Namespace) -> int:
+    from .imu import cli as imu_cli
+
+    return imu_cli.run_lab(args)
+
+
 def _cmd_spp(args: argparse.Namespace) -> int:
     from . import spp
 
@@ -161,7 +167,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--taus", default="10", help="points per decade, or octave | decade | all (default 10)")
     p.add_argument("--json", help="write tau, deviations, bounds and fitted terms here")
     p.add_argument("--out", help="directory for plots and the filter parameter files (imu_noise.toml, imu.yaml)")
+    p.add_argument("--columns", help="column kinds of a CSV/NPY file: gyro_x,...,accel_z, time or skip")
+    p.add_argument("--start-s", type=float, help="analyse from this many seconds into the record")
+    p.add_argument("--end-s", type=float, help="... up to this many seconds")
+    p.add_argument("--estimator", choices=("overlapping", "non-overlapping"), default="overlapping")
     p.set_defaults(func=_cmd_allan)
+
+    p = sub.add_parser("lab", help="IMU lab workflow from a lab plan: calibration, noise, filter preset, report")
+    p.add_argument("plan", nargs="?", help="lab plan TOML (sessions: up-down, rate table, drift run)")
+    p.add_argument("--out", required=True, help="output directory")
+    p.add_argument("--simulate", action="store_true", help="first simulate a BP3010 lab day (and its plan) in OUT")
+    p.add_argument("--quick", action="store_true", help="with --simulate: a short day (about 40 min)")
+    p.add_argument("--seed", type=int, default=0)
+    p.set_defaults(func=_cmd_lab)
 
     p = sub.add_parser("calibrate", help="deterministic calibration: accelerometer up-down, gyro rate table")
     p.add_argument("kind", choices=("accel-updown", "gyro-rate-table"))

@@ -4,75 +4,86 @@ from __future__ import annotations
 
 import json
 import math
+import sys
 from pathlib import Path
 
 import numpy as np
 
-from . import allan, calibration, noise_fit, psd
+from . import allan, calibration, noise_fit, psd, records
+from .records import AXES
 
-AXES = ("gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z")
 
-
-def load_rates(source: str, rate_hz: float | None) -> tuple[np.ndarray, float, tuple[str, ...]]:
-    """(n, k) rate samples: a session's IMU (gyro rad/s then accel m/s^2) or a CSV/NPY file."""
-    p = Path(source)
-    if p.is_dir():
-        from .. import logs
-
-        imu = logs.read_session(p).imu()
-        dt = 1.0 / imu.rate_hz
-        return np.hstack([imu.dtheta_rad, imu.dv_mps]) / dt, float(imu.rate_hz), AXES
-    if rate_hz is None:
-        raise SystemExit(f"gpsins allan: {source}: give the sample rate with --rate HZ")
-    if p.suffix == ".npy":
-        data = np.load(p)
-    else:
-        try:
-            data = np.loadtxt(p, delimiter="," if p.suffix == ".csv" else None, comments="#", ndmin=2)
-        except ValueError as e:
-            raise SystemExit(f"gpsins allan: {source}: {e}") from None
-    data = data.reshape(len(data), -1)
-    names = AXES if data.shape[1] == 6 else tuple(f"col{k}" for k in range(data.shape[1]))
-    return data, float(rate_hz), names
+def load_rates(source: str, rate_hz: float | None, columns: str | None = None, start_s: float | None = None,
+               end_s: float | None = None) -> tuple[np.ndarray, float, tuple[str, ...]]:
+    """(n, k) rate samples: a session's IMU (gyro rad/s then accel m/s^2) or a CSV/NPY file whose
+    columns are declared (six columns default to gyro x y z, accel x y z)."""
+    try:
+        rec = records.load(source, rate_hz, columns, start_s, end_s)
+    except records.RecordError as e:
+        raise SystemExit(f"gpsins allan: {e}") from None
+    for note in rec.notes:
+        print(f"gpsins allan: warning: {source}: {note}", file=sys.stderr)
+    return rec.rates, rec.rate_hz, rec.columns
 
 
 def run_allan(args) -> int:
     from rich.progress import Progress
 
-    data, rate, names = load_rates(args.source, args.rate)
+    data, rate, names = load_rates(args.source, args.rate, getattr(args, "columns", None),
+                                   getattr(args, "start_s", None), getattr(args, "end_s", None))
     taus = args.taus if args.taus in ("octave", "all", "decade") else int(args.taus)
+    estimator = getattr(args, "estimator", "overlapping")
+    min_edf = float(getattr(args, "min_edf", noise_fit.MIN_EDF))
     out = Path(args.out) if args.out else None
+    st = records.steady_windows(data, rate)
+    moved = records.motion_warning(st, len(data) / rate)
+    if moved:
+        print(f"gpsins allan: warning: {args.source}: {moved}", file=sys.stderr)
     results, fits = {}, {}
     with Progress(transient=True) as bar:
         task = bar.add_task("Allan deviation", total=data.shape[1])
         for k, name in enumerate(names):
-            r = allan.oadev(data[:, k], rate, taus=taus)
-            f = noise_fit.fit(r.tau, r.adev, r.edf)
+            if estimator == "overlapping":
+                r = allan.oadev(data[:, k], rate, taus=taus)
+            else:
+                r = allan.adev_nonoverlapping(data[:, k], rate, taus=taus)
+            f = noise_fit.fit(r.tau, r.adev, r.edf, min_edf=min_edf)
             results[name], fits[name] = r, f
             bar.advance(task)
-    print(f"{len(data)} samples at {rate:g} Hz ({len(data) / rate / 3600:.2f} h)")
-    print(f"{'axis':8s} {'N (SI)':>11s} {'B (SI)':>11s} {'K (SI)':>11s} {'Q (SI)':>11s}  report units")
-    for name in names:
-        f = fits[name]
-        kind = "gyro" if name.startswith("gyro") else "accel"
-        tu = noise_fit.table_units(kind, f)
-        print(f"{name:8s} " + " ".join(f"{f.value.get(t, 0):11.3e}" for t in ("N", "B", "K", "Q")) + "  " +
-              ", ".join(f"{k} {v:.4g}" for k, v in tu.items()))
+    print(f"{len(data)} samples at {rate:g} Hz ({len(data) / rate / 3600:.2f} h), {estimator} Allan deviation")
+    short = int((next(iter(results.values())).edf < min_edf).sum())
+    if short:
+        print(f"gpsins allan: note: {short} of {len(next(iter(results.values())).tau)} taus have fewer than "
+              f"{min_edf:g} degrees of freedom: shown, not used for slope read-outs", file=sys.stderr)
+    if moved:
+        print("noise terms withheld: the record moved (see the warning); trim it with --start-s / --end-s")
+    else:
+        print(f"{'axis':8s} {'N (SI)':>11s} {'B (SI)':>11s} {'K (SI)':>11s} {'Q (SI)':>11s}  report units")
+        for name in names:
+            f = fits[name]
+            kind = "gyro" if name.startswith("gyro") else "accel"
+            tu = noise_fit.table_units(kind, f)
+            print(f"{name:8s} " + " ".join(f"{f.value.get(t, 0):11.3e}" for t in ("N", "B", "K", "Q")) + "  " +
+                  ", ".join(f"{k} {v:.4g}" for k, v in tu.items()))
     if args.json:
-        doc = {"rate_hz": rate, "samples": len(data), "axes": {}}
+        doc = {"rate_hz": rate, "samples": len(data), "estimator": estimator, "min_edf": min_edf,
+               "moved": moved, "axes": {}}
         for name in names:
             r, f = results[name], fits[name]
             doc["axes"][name] = {"tau_s": r.tau.tolist(), "adev": r.adev.tolist(), "lo": r.lo.tolist(),
-                                 "hi": r.hi.tolist(), "edf": r.edf.tolist(), "alpha": r.alpha.tolist(),
-                                 "confidence": r.confidence, "fit": f.value, "fit_sigma": f.sigma,
-                                 "slope_readouts": f.slope_readouts}
+                                 "hi": r.hi.tolist(), "edf": r.edf.tolist(), "alpha": np.asarray(r.alpha).tolist(),
+                                 "confidence": r.confidence,
+                                 "eq59_rel_sigma": np.broadcast_to(r.rel_sigma_eq59, r.tau.shape).tolist(),
+                                 "eq59_lo": r.eq59_lo.tolist(), "eq59_hi": r.eq59_hi.tolist(),
+                                 "fit": None if moved else f.value, "fit_sigma": None if moved else f.sigma,
+                                 "slope_readouts": None if moved else f.slope_readouts}
         Path(args.json).write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
     if out:
         out.mkdir(parents=True, exist_ok=True)
         _plots(out, names, results, fits, data, rate)
-        if tuple(names) == AXES:
+        if tuple(names) == AXES and not moved:
             _filter_files(out, fits, rate)
-        print(f"figures and parameter files in {out}")
+        print(f"figures{'' if moved else ' and parameter files'} in {out}")
     return 0
 
 
@@ -91,6 +102,8 @@ def _plots(out: Path, names, results, fits, data, rate) -> None:
             r, f = results[n], fits[n]
             axs[0].loglog(r.tau, r.adev, "o", ms=3, label=n)
             axs[0].fill_between(r.tau, r.lo, r.hi, alpha=0.2)
+            axs[0].loglog(r.tau, r.eq59_lo, "--", lw=0.6, color="grey")
+            axs[0].loglog(r.tau, r.eq59_hi, "--", lw=0.6, color="grey")
             axs[0].loglog(r.tau, f.model_adev, "-", lw=1)
             for term in f.terms:
                 single = noise_fit.fit_term_curve(r.tau, f, term)
@@ -101,7 +114,7 @@ def _plots(out: Path, names, results, fits, data, rate) -> None:
             axs[1].loglog(fc, pc, label=n)
         axs[0].set_xlabel("tau (s)")
         axs[0].set_ylabel("Allan deviation (SI)")
-        axs[0].set_title(f"{group}: data, {100 * results[cols[0]].confidence:.0f} % band, fit (solid), terms (dotted)")
+        axs[0].set_title(f"{group}: data, {100 * results[cols[0]].confidence:.0f} % band, fit (solid), terms (dotted), eq. 5.9 (dashed)", fontsize=8)
         axs[0].legend(fontsize=8)
         axs[1].set_xlabel("frequency (Hz)")
         axs[1].set_ylabel("one-sided PSD (SI^2/Hz)")
@@ -158,4 +171,33 @@ def run_calibrate(args) -> int:
         c = calibration.gyro_rate_table(rows[:, 0], rows[:, 1], w_ex, args.drift_bias)
         print(f"gyro: bias {c.bias:.6f} rad/s, scale factor {c.scale_factor:.6f}, residual RMS {c.residual_rms:.2e} "
               f"rad/s over {len(rows)} rates (Earth rate along the axis {w_ex:.3e} rad/s)")
+    return 0
+
+
+def run_lab(args) -> int:
+    """`gpsins lab PLAN --out DIR`, or `gpsins lab --simulate --out DIR`: a simulated lab day first."""
+    from . import lab
+
+    out = Path(args.out)
+    plan = args.plan
+    if args.simulate:
+        from ..sim import lab as sim_lab
+
+        cfg = sim_lab.LabDayConfig.quick() if args.quick else sim_lab.LabDayConfig()
+        day_dir = out / "lab_day"
+        if day_dir.exists():
+            raise SystemExit(f"gpsins lab: {day_dir} exists; give a new --out")
+        day = sim_lab.simulate_lab_day(cfg, args.seed)
+        plan = sim_lab.write_lab_day(day, day_dir)
+        print(f"simulated lab day (seed {args.seed}, {len(day.t) / day.rate_hz / 3600:.2f} h) in {day_dir}")
+    elif plan is None:
+        raise SystemExit("gpsins lab: give a lab plan (PLAN.toml) or --simulate")
+    try:
+        res = lab.run(plan, out / "report" if args.simulate else out)
+    except (lab.PlanError, lab.RecordError) as e:
+        raise SystemExit(f"gpsins lab: {e}") from None
+    for w in res["warnings"]:
+        print(f"gpsins lab: warning: {w}", file=sys.stderr)
+    where = out / "report" if args.simulate else out
+    print(f"report: {where / 'report.html'} (and report.md, lab.json, imu_preset.toml, imu.yaml)")
     return 0
