@@ -220,3 +220,14 @@ def test_plan_errors_name_the_file_and_key(tmp_path):
     p.write_text('[drift]\nsession = "nowhere"\n[site]\nlat_deg = 1.0\n')
     with pytest.raises(records.RecordError, match="nowhere"):
         lab.run_plan(lab.load_plan(p))
+
+
+def test_a_real_handheld_walk_gets_the_motion_warning_and_no_noise_terms(shared_data, tmp_path, capsys):
+    csv = shared_data / "walk_0827" / "imu_1730_sf.csv"  # accelerometer in g, gyro in rad/s
+    cols = "time,accel_x:g,accel_y:g,accel_z:g,gyro_x,gyro_y,gyro_z,skip,skip,skip,skip"
+    assert cli.main(["allan", str(csv), "--rate", "152", "--columns", cols, "--json", str(tmp_path / "w.json")]) == 0
+    assert "moved" in capsys.readouterr().err
+    doc = json.loads((tmp_path / "w.json").read_text())
+    assert doc["moved"] and doc["axes"]["accel_z"]["fit"] is None
+    rec = records.load(csv, 152.0, cols)
+    assert np.linalg.norm(rec.rates[:152, 3:].mean(0)) == pytest.approx(9.8, abs=0.3)  # g converted to m/s^2

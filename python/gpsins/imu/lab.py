@@ -156,7 +156,13 @@ def _noise_value(noise: dict | None, name: str) -> dict | None:
 
 # --- deterministic calibration --------------------------------------------------------------------------
 
-def _window_stats(y: np.ndarray, rate_hz: float) -> tuple[float, float, int]:
+def _window_stats(y: np.ndarray, rate_hz: float, white: dict | None = None) -> tuple[float, float, int]:
+    """Mean, its white-noise uncertainty and the sample count of a window. The error of the mean
+    against the bias's own mean over the window is the white part only: with the drift run's fitted
+    N it is N / sqrt(T); without, the sample standard deviation / sqrt(n) (which also holds the
+    wander inside the window, so it errs on the large side)."""
+    if white is not None and white.get("N", 0.0) > 0:
+        return float(y.mean()), float(white["N"] / math.sqrt(len(y) / rate_hz)), len(y)
     return float(y.mean()), float(y.std(ddof=1) / math.sqrt(len(y))), len(y)
 
 
@@ -186,7 +192,7 @@ def updown(plan: Plan, noise: dict | None, warnings: list) -> dict:
                 warnings.append(f"{rec.name}: window {a / rec.rate_hz:.0f}-{b / rec.rate_hz:.0f} s: accel {'xyz'[i]} "
                                 f"is {math.degrees(tilt):.1f} deg off the vertical (not levelled): skipped")
                 continue
-            m, s, n = _window_stats(rec.rates[a:b, 3 + i], rec.rate_hz)
+            m, s, n = _window_stats(rec.rates[a:b, 3 + i], rec.rate_hz, _noise_value(noise, f"accel_{'xyz'[i]}"))
             positions.append(dict(axis=i, sign=sign, mean=m, sigma=s, n=n, start=t0 + a / rec.rate_hz,
                                   length=(b - a) / rec.rate_hz, source=rec.name, window_s=[a / rec.rate_hz,
                                                                                             b / rec.rate_hz],
@@ -209,11 +215,12 @@ def updown(plan: Plan, noise: dict | None, warnings: list) -> dict:
             wander = noise_fit.window_combination_variance(
                 value, noise[f"accel_{a}"]["allan"].tau0, [(u["start"], u["length"], 1.0),
                                                           (d["start"], d["length"], -1.0)])
-            basis = "white noise of the windows + bias wander between them (drift-run noise terms)"
+            basis = "difference of the two window means under the drift run's noise terms (white + wander)"
         else:
             wander = 0.0
             basis = "white noise of the windows only (no drift run): a lower bound"
-        sig_s = math.sqrt(white + wander) / (2 * g)
+        # The model's variance already holds the windows' white noise.
+        sig_s = math.sqrt(wander if value is not None else white) / (2 * g)
         out["axes"][a] = {"bias_mps2": c.bias, "bias_sigma_mps2": sig_b, "scale_factor": c.scale_factor,
                           "scale_factor_sigma": sig_s, "z_up_mps2": u["mean"], "z_down_mps2": d["mean"],
                           "up": {k: u[k] for k in ("source", "window_s", "n", "sigma", "tilt_rad")},
@@ -245,7 +252,7 @@ def rate_table(plan: Plan, noise: dict | None, drift_bias: dict | None, warnings
             continue
         lo, hi = max(st.windows, key=lambda w: w[1] - w[0])
         w, w_sig = _table_rate(entry)
-        m, s, n = _window_stats(rec.rates[lo:hi, i], rec.rate_hz)
+        m, s, n = _window_stats(rec.rates[lo:hi, i], rec.rate_hz, _noise_value(noise, f"gyro_{a}"))
         if np.sign(m) != np.sign(w) and abs(w) > 0.05:
             warnings.append(f"{rec.name}: gyro {a} reads {m:+.4f} rad/s against a table rate of {w:+.4f}: check "
                             f"the axis and the sign convention")
@@ -266,8 +273,10 @@ def rate_table(plan: Plan, noise: dict | None, drift_bias: dict | None, warnings
         t1 = max(r["start"] + r["length"] for r in rs)
         var = []
         for r in rs:
-            v = r["sigma"] ** 2 + r["rate_sigma"] ** 2
-            if value is not None:  # wander of this run's mean about the mean over all runs of the axis
+            v = r["rate_sigma"] ** 2
+            if value is None:
+                v += r["sigma"] ** 2
+            else:  # this run's mean about the mean over all runs of the axis (white noise included)
                 v += noise_fit.window_combination_variance(value, noise[f"gyro_{a}"]["allan"].tau0,
                                                            [(r["start"], r["length"], 1.0), (t0, t1 - t0, -1.0)])
             var.append(v)
@@ -307,12 +316,12 @@ def earth_rate_body(plan: Plan) -> np.ndarray:
     return c_nb.T @ w_n
 
 
-def drift_test(plan: Plan, rec: records.Record, window: tuple[int, int], scale: dict) -> dict:
+def drift_test(plan: Plan, rec: records.Record, window: tuple[int, int], scale: dict, noise: dict | None) -> dict:
     w_b = earth_rate_body(plan)
     out = {}
     a0, a1 = window
     for i, a in enumerate("xyz"):
-        m, s, n = _window_stats(rec.rates[a0:a1, i], rec.rate_hz)
+        m, s, n = _window_stats(rec.rates[a0:a1, i], rec.rate_hz, _noise_value(noise, f"gyro_{a}"))
         sf = scale.get(a, 0.0)
         out[a] = {"bias_rad_per_s": m - (1 + sf) * w_b[i], "bias_sigma_rad_per_s": s, "mean_output_rad_per_s": m,
                   "earth_rate_rad_per_s": float(w_b[i]), "window_s": [a0 / rec.rate_hz, a1 / rec.rate_hz]}
@@ -355,7 +364,7 @@ def run_plan(plan: Plan) -> dict:
     res["updown"] = updown(plan, noise, warnings) if plan.updown else None
     rt = rate_table(plan, noise, None, warnings) if plan.rate_table else None
     scale = {a: v["scale_factor"] for a, v in (rt or {"axes": {}})["axes"].items()}
-    res["drift"] = drift_test(plan, drift_rec, window, scale) if window else None
+    res["drift"] = drift_test(plan, drift_rec, window, scale, noise) if window else None
     if rt and res["drift"]:
         for a, v in rt["axes"].items():
             v["bias_from_drift_test_rad_per_s"] = res["drift"][a]["bias_rad_per_s"]

@@ -18,6 +18,9 @@ import numpy as np
 
 AXES = ("gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z")
 COLUMN_KINDS = AXES + ("time", "skip")
+# Optional unit after a colon (accel_x:g, gyro_z:deg/s): the factor to SI.
+UNITS = {"accel": {"m/s^2": 1.0, "m/s2": 1.0, "g": 9.80665}, "gyro": {"rad/s": 1.0, "deg/s": np.pi / 180,
+                                                                       "deg/h": np.pi / 180 / 3600}}
 JUMP_SIGMA = 8.0
 DRIFT_ALLOWANCE = 3.0  # blocks' noise is inflated this much for the slow wander of the bias
 MIN_SAMPLES = 64
@@ -44,19 +47,26 @@ class Record:
         return len(self.rates) / self.rate_hz
 
 
-def parse_columns(spec: str | list | None, width: int, where: str) -> tuple[str, ...]:
+def parse_columns(spec: str | list | None, width: int, where: str) -> tuple[tuple[str, ...], np.ndarray]:
+    """Column kinds and each column's factor to SI."""
     if spec is None:
         if width == 6:
-            return AXES
+            return AXES, np.ones(6)
         raise RecordError(f"{where}: {width} columns; declare what they are (columns = gyro_x,...,accel_z, "
-                          f"time or skip)")
-    cols = tuple(c.strip() for c in (spec.split(",") if isinstance(spec, str) else spec))
-    bad = [c for c in cols if c not in COLUMN_KINDS]
-    if bad:
-        raise RecordError(f"{where}: unknown column kind(s) {', '.join(bad)} (known: {', '.join(COLUMN_KINDS)})")
+                          f"time or skip; a unit after a colon: accel_x:g, gyro_x:deg/s)")
+    cols, factors = [], []
+    for c in (spec.split(",") if isinstance(spec, str) else spec):
+        kind, _, unit = c.strip().partition(":")
+        if kind not in COLUMN_KINDS:
+            raise RecordError(f"{where}: unknown column kind {kind!r} (known: {', '.join(COLUMN_KINDS)})")
+        table = UNITS.get(kind.split("_")[0], {})
+        if unit and unit not in table:
+            raise RecordError(f"{where}: unknown unit {unit!r} for {kind} (known: {', '.join(table) or 'none'})")
+        cols.append(kind)
+        factors.append(table.get(unit, 1.0) if unit else 1.0)
     if len(cols) != width:
         raise RecordError(f"{where}: {len(cols)} column kinds declared for {width} columns")
-    return cols
+    return tuple(cols), np.array(factors)
 
 
 def load(source: str | Path, rate_hz: float | None = None, columns=None, start_s: float | None = None,
@@ -93,9 +103,9 @@ def load(source: str | Path, rate_hz: float | None = None, columns=None, start_s
         except (OSError, ValueError) as e:
             raise RecordError(f"{p}: {e}") from None
         data = np.asarray(data, dtype=float).reshape(len(data), -1)
-        cols = parse_columns(columns, data.shape[1], str(p))
+        cols, factors = parse_columns(columns, data.shape[1], str(p))
         keep = [i for i, c in enumerate(cols) if c not in ("time", "skip")]
-        data, cols, rate = data[:, keep], tuple(cols[i] for i in keep), float(rate_hz)
+        data, cols, rate = data[:, keep] * factors[keep], tuple(cols[i] for i in keep), float(rate_hz)
         bad = ~np.isfinite(data).all(1)
         if bad.any():
             raise RecordError(f"{p}: row {int(np.flatnonzero(bad)[0]) + 1} is not finite")
