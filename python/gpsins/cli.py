@@ -179,6 +179,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--simulate", action="store_true", help="first simulate a BP3010 lab day (and its plan) in OUT")
     p.add_argument("--quick", action="store_true", help="with --simulate: a short day (about 40 min)")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--speed", type=float, help="with --simulate: record through the pty emulators and the logger "
+                                               "at this many times real time")
     p.set_defaults(func=_cmd_lab)
 
     p = sub.add_parser("calibrate", help="deterministic calibration: accelerometer up-down, gyro rate table")

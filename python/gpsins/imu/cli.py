@@ -188,8 +188,12 @@ def run_lab(args) -> int:
         if day_dir.exists():
             raise SystemExit(f"gpsins lab: {day_dir} exists; give a new --out")
         day = sim_lab.simulate_lab_day(cfg, args.seed)
-        plan = sim_lab.write_lab_day(day, day_dir)
-        print(f"simulated lab day (seed {args.seed}, {len(day.t) / day.rate_hz / 3600:.2f} h) in {day_dir}")
+        if args.speed:
+            plan = sim_lab.record_through_logger(day, day_dir, speed=args.speed)
+        else:
+            plan = sim_lab.write_lab_day(day, day_dir)
+        how = f"recorded through the emulators and the logger at {args.speed:g}x" if args.speed else "written"
+        print(f"simulated lab day (seed {args.seed}, {len(day.t) / day.rate_hz / 3600:.2f} h) {how} in {day_dir}")
     elif plan is None:
         raise SystemExit("gpsins lab: give a lab plan (PLAN.toml) or --simulate")
     try:

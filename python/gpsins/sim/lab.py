@@ -289,29 +289,113 @@ def write_lab_day(day: LabDay, directory: str | Path, plan_name: str = "lab_plan
             f.write("realtime,monotonic\n")
             for tt in np.arange(t[0], t[-1], 10.0):
                 f.write(f"{cfg.start_unix_s + tt!r},{1000.0 + tt!r}\n")
-    truth = {"seed": day.seed, "config": {k: v for k, v in asdict(cfg).items() if k != "imu"},
-             "imu_model": {k: v for k, v in cfg.imu.__dict__.items()}, "unit": day.truth(),
-             "sessions": [{"name": s.name, "kind": s.kind, "axis": s.axis, "rate_rad_per_s": s.rate_rad_per_s,
-                           "day_samples": [s.i0, s.i1],
-                           "mean_gyro_bias_rad_per_s": day.true_bias("gyro", s.i0, s.i1).tolist(),
-                           "mean_accel_bias_mps2": day.true_bias("accel", s.i0, s.i1).tolist()}
-                          for s in day.sessions]}
-    (directory / "truth.json").write_text(json.dumps(truth, indent=1, default=list) + "\n", encoding="utf-8")
+    (directory / "truth.json").write_text(json.dumps(_truth_doc(day), indent=1, default=list) + "\n",
+                                          encoding="utf-8")
     plan = directory / plan_name
     plan.write_text(plan_text(day), encoding="utf-8")
     return plan
 
 
-def plan_text(day: LabDay) -> str:
+def _truth_doc(day: LabDay) -> dict:
+    return {"seed": day.seed, "config": {k: v for k, v in asdict(day.config).items() if k != "imu"},
+            "imu_model": {k: v for k, v in day.config.imu.__dict__.items()}, "unit": day.truth(),
+            "sessions": [{"name": s.name, "kind": s.kind, "axis": s.axis, "rate_rad_per_s": s.rate_rad_per_s,
+                          "day_samples": [s.i0, s.i1],
+                          "mean_gyro_bias_rad_per_s": day.true_bias("gyro", s.i0, s.i1).tolist(),
+                          "mean_accel_bias_mps2": day.true_bias("accel", s.i0, s.i1).tolist()}
+                         for s in day.sessions]}
+
+
+def plan_text(day: LabDay, names: list[str] | None = None) -> str:
+    """The lab plan of the day's recordings (all, or those named)."""
     cfg = day.config
+    chosen = [s for s in day.sessions if names is None or s.name in names]
     lines = [f"# Lab plan of a simulated BP3010 lab day (seed {day.seed}); truth in truth.json.",
              "[site]", f"lat_deg = {cfg.lat_deg!r}", f"height_m = {cfg.height_m!r}", ""]
-    for s in day.sessions:
+    for s in chosen:
         if s.kind == "updown":
             lines += ["[[updown]]", f'session = "{s.name}"', ""]
-    for s in day.sessions:
+    for s in chosen:
         if s.kind == "rate_table":
             lines += ["[[rate_table]]", f'session = "{s.name}"', f'axis = "{s.axis}"',
                       f"rate_rad_per_s = {s.rate_rad_per_s!r}", "axis_up = true", ""]
-    lines += ["[drift]", 'session = "drift"', f"heading_deg = {cfg.drift_heading_deg!r}", ""]
+    if any(s.kind == "drift" for s in chosen):
+        lines += ["[drift]", 'session = "drift"', f"heading_deg = {cfg.drift_heading_deg!r}", ""]
     return "\n".join(lines)
+
+
+# --- through the pty emulators and the logger, like a real lab day -----------------------------------
+
+class LabSessionSource:
+    """One recording of the lab day as a message source for the pty emulators (IMU only: a lab
+    recording has no receiver)."""
+
+    def __init__(self, day: LabDay, session: Session):
+        self.day, self.session = day, session
+        self.duration_s = (session.i1 - session.i0) / day.rate_hz
+
+    def gps_messages(self):
+        return iter(())
+
+    def imu_samples(self, rate_hz: int, t0: float = 0.0):
+        from ..sources import TimedSample
+        from .messages import combine_increments
+
+        s, base = self.session, self.day.rate_hz
+        m = max(1, int(round(base / rate_hz)))
+        dth, dv = self.day.dtheta[s.i0:s.i1], self.day.dv[s.i0:s.i1]
+        t = (np.arange(len(dth)) + 1.0) / base
+        if m > 1:
+            dth, dv = combine_increments(dth, dv, m)
+            t = t[m - 1::m][:len(dth)]
+        for k in np.flatnonzero(t >= t0 - 1e-9):
+            yield TimedSample(float(t[k]), bp3010.ImuSample(tuple(map(float, dth[k])), tuple(map(float, dv[k]))))
+
+
+def record_through_logger(day: LabDay, directory: str | Path, speed: float = 1.0, timeout_s: float = 60.0,
+                          sessions: list[str] | None = None) -> Path:
+    """Serve each recording on a pty (the BP3010 emulator) and record it with the logger daemon
+    (a subprocess), as a lab day would be recorded; then the truth and the plan. speed > 1 plays
+    the day faster than real time. Returns the plan's path."""
+    import signal
+    import subprocess
+    import sys
+    import tempfile
+    import time
+
+    from ..emulate import Emulators
+
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=False)
+    chosen = [s for s in day.sessions if sessions is None or s.name in sessions]
+    with tempfile.TemporaryDirectory(prefix="gpsins-lab-") as tmp:
+        tmp = Path(tmp)
+        for s in chosen:
+            devdir = tmp / f"dev-{s.name}"
+            source = LabSessionSource(day, s)
+            em = Emulators(devdir, source, speed=speed)
+            cfg = tmp / f"logger-{s.name}.toml"
+            cfg.write_text(f'[session]\nroot = "{tmp / "sessions"}"\nfsync_interval_s = 0.5\n'
+                           f'[gps]\nport = "{devdir / "gps"}"\n[imu]\nport = "{devdir / "imu"}"\n'
+                           f"rate_hz = {day.rate_hz}\n", encoding="utf-8")
+            proc = subprocess.Popen([sys.executable, "-m", "gpsins_logger.daemon", "--config", str(cfg),
+                                     "--session-dir", str(directory / s.name)], stdout=subprocess.PIPE,
+                                    stderr=subprocess.PIPE, text=True)
+            try:
+                proc.stdout.readline()  # the daemon prints its session directory once it is recording
+                em.start()
+                if not em.wait(source.duration_s / speed + timeout_s):
+                    raise RuntimeError(f"lab session {s.name}: the emulator did not finish")
+                time.sleep(0.3)  # the last frames through the pty
+                proc.send_signal(signal.SIGINT)
+                proc.communicate(timeout=20)
+            finally:
+                if proc.poll() is None:
+                    proc.kill()
+                    proc.wait()
+                em.stop()
+    (directory / "truth.json").write_text(json.dumps(_truth_doc(day), indent=1, default=list) + "\n",
+                                          encoding="utf-8")
+    plan = directory / "lab_plan.toml"
+    plan.write_text(plan_text(day, [s.name for s in chosen]), encoding="utf-8")
+    return plan
