@@ -145,7 +145,7 @@ def noise_analysis(rec: records.Record, analysis: dict) -> dict:
         fr, p = psd.psd(y, rec.rate_hz, float(analysis.get("psd_segment_s", 100.0)))
         fc, pc = psd.log_average(fr, p)
         n_psd = float(psd.white_level(fr, p))
-        out[name] = {"allan": r, "fit": f, "bump": bump, "psd": (fr, p, fc, pc), "N_psd": n_psd,
+        out[name] = {"y": y, "allan": r, "fit": f, "bump": bump, "psd": (fr, p, fc, pc), "N_psd": n_psd,
                      "short_taus": int((r.edf < min_edf).sum())}
     return out
 
@@ -212,21 +212,63 @@ def updown(plan: Plan, noise: dict | None, warnings: list) -> dict:
         value = _noise_value(noise, f"accel_{a}")
         white = math.hypot(u["sigma"], d["sigma"]) ** 2
         if value is not None:
-            wander = noise_fit.window_combination_variance(
-                value, noise[f"accel_{a}"]["allan"].tau0, [(u["start"], u["length"], 1.0),
-                                                          (d["start"], d["length"], -1.0)])
-            basis = "difference of the two window means under the drift run's noise terms (white + wander)"
+            first, second = sorted((u, d), key=lambda p: p["start"])
+            model = noise_fit.window_combination_variance(
+                value, noise[f"accel_{a}"]["allan"].tau0, [(first["start"], first["length"], 1.0),
+                                                          (second["start"], second["length"], -1.0)])
+            emp, indep = pair_difference_variance(noise[f"accel_{a}"]["y"], 1.0 / noise[f"accel_{a}"]["allan"].tau0,
+                                                  first["length"], second["start"] - first["start"] - first["length"],
+                                                  second["length"])
+            if indep >= MIN_INDEPENDENT_PAIRS:
+                var = emp
+                basis = (f"difference of two such window means slid along the drift run ({indep:.0f} independent "
+                         f"pairs; the fitted noise terms give {math.sqrt(model) / (2 * g):.1e})")
+            else:
+                var = model
+                basis = (f"difference of the two window means under the drift run's fitted noise terms (the run "
+                         f"holds only {indep:.0f} independent pairs of such windows)")
         else:
-            wander = 0.0
+            var = white
             basis = "white noise of the windows only (no drift run): a lower bound"
-        # The model's variance already holds the windows' white noise.
-        sig_s = math.sqrt(wander if value is not None else white) / (2 * g)
+        sig_s = math.sqrt(var) / (2 * g)
+        best = _best_position_length(value, noise[f"accel_{a}"]["allan"].tau0, abs(d["start"] - u["start"]) -
+                                     u["length"], g) if value is not None else None
         out["axes"][a] = {"bias_mps2": c.bias, "bias_sigma_mps2": sig_b, "scale_factor": c.scale_factor,
-                          "scale_factor_sigma": sig_s, "z_up_mps2": u["mean"], "z_down_mps2": d["mean"],
+                          "scale_factor_sigma": sig_s, "best_position_s": best, "z_up_mps2": u["mean"], "z_down_mps2": d["mean"],
                           "up": {k: u[k] for k in ("source", "window_s", "n", "sigma", "tilt_rad")},
                           "down": {k: d[k] for k in ("source", "window_s", "n", "sigma", "tilt_rad")},
                           "uncertainty_basis": basis}
     return out
+
+
+MIN_INDEPENDENT_PAIRS = 10
+
+
+def pair_difference_variance(y: np.ndarray, rate_hz: float, first_s: float, gap_s: float,
+                             second_s: float) -> tuple[float, float]:
+    """Mean square of (mean over a window of first_s) - (mean over a window of second_s starting gap_s
+    after it), slid sample by sample along a static record y: the sample statistic of the up-down
+    difference's wander. Returns it and the number of independent (disjoint) placements."""
+    n1, n2 = max(1, int(round(first_s * rate_hz))), max(1, int(round(second_s * rate_hz)))
+    ng = max(0, int(round(gap_s * rate_hz)))
+    span = n1 + ng + n2
+    if span >= len(y):
+        return float("nan"), 0.0
+    c = np.concatenate([[0.0], np.cumsum(y - y.mean())])
+    s = np.arange(len(y) - span + 1)
+    d = (c[s + n1] - c[s]) / n1 - (c[s + span] - c[s + n1 + ng]) / n2
+    return float(np.mean(d * d)), len(y) / span
+
+
+def _best_position_length(value: dict, tau0: float, gap_s: float, g: float) -> dict:
+    """The position length that minimises the scale factor's uncertainty under the drift run's noise:
+    longer positions average white noise down, but the bias wanders further between them."""
+    gap = max(gap_s, 0.0)
+    lengths = np.logspace(0.5, 3.6, 32)
+    sig = [math.sqrt(noise_fit.window_combination_variance(value, tau0, [(0.0, T, 1.0), (T + gap, T, -1.0)])) / (2 * g)
+           for T in lengths]
+    k = int(np.argmin(sig))
+    return {"length_s": float(lengths[k]), "scale_factor_sigma": float(sig[k])}
 
 
 def _table_rate(entry: dict) -> tuple[float, float]:

@@ -38,6 +38,11 @@ def tables(res: dict) -> list[str]:
         md += _table(f"Table 5.1: accelerometer bias and scale factor, up-down (eq. 5.2 corrected; g = "
                      f"{ud['gravity_mps2']:.5f} m/s^2)", ["Accelerometer", "Bias (m/s^2)", "Scale factor (unit less)",
                                                         "alpha_ii (%)"], rows)
+        best = [f"{a}: {v['best_position_s']['length_s']:.0f} s (sigma {v['best_position_s']['scale_factor_sigma']:.1e})"
+                for a, v in ud["axes"].items() if v.get("best_position_s")]
+        if best:
+            md += ["Position length that would minimise the scale factor's uncertainty under the drift run's noise "
+                   "(white noise averages down, the bias wanders between the positions): " + "; ".join(best) + ".", ""]
     if rt:
         for k, (a, v) in enumerate(rt["axes"].items()):
             rows = [[f"{r['rate']:+.4f}", f"{r['mean']:+.5f}", _e(r["sigma"], digits=1)] for r in v["runs"]]
