@@ -250,3 +250,13 @@ def test_a_lab_recording_goes_through_the_emulator_and_the_logger(tmp_path):
     ca, cb = (np.hstack([x.dtheta_rad, x.dv_mps]) for x in (a, b))
     assert np.array_equal(ca, cb[len(b) - len(a):])
     assert lab.load_plan(plan).updown == [{"session": "updown_x"}]
+
+
+def test_the_example_plan_parses():
+    from importlib import resources
+
+    text = resources.files("gpsins.imu").joinpath("lab_plan.example.toml").read_text()
+    data = tomllib.loads(text)
+    assert {e["session"] for e in data["updown"]} == {"updown_x", "updown_y", "updown_z"}
+    w, sig = lab._table_rate(data["rate_table"][1])
+    assert w == pytest.approx(-0.5, rel=1e-3) and sig == pytest.approx(0.5 * 0.2 / 125.7, rel=1e-6)

@@ -114,7 +114,8 @@ def _plots(out: Path, names, results, fits, data, rate) -> None:
             axs[1].loglog(fc, pc, label=n)
         axs[0].set_xlabel("tau (s)")
         axs[0].set_ylabel("Allan deviation (SI)")
-        axs[0].set_title(f"{group}: data, {100 * results[cols[0]].confidence:.0f} % band, fit (solid), terms (dotted), eq. 5.9 (dashed)", fontsize=8)
+        axs[0].set_title(f"{group}: data, {100 * results[cols[0]].confidence:.0f} % band, fit (solid), "
+                         f"terms (dotted), eq. 5.9 (dashed)", fontsize=8)
         axs[0].legend(fontsize=8)
         axs[1].set_xlabel("frequency (Hz)")
         axs[1].set_ylabel("one-sided PSD (SI^2/Hz)")

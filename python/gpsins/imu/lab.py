@@ -63,8 +63,8 @@ _ENTRY = {"session", "rate_hz", "columns", "start_s", "end_s"}
 _KEYS = {"updown": _ENTRY | {"name"},
          "rate_table": _ENTRY | {"axis", "axis_up", "rate_rad_per_s", "turns", "duration_s", "rate_sigma_rad_per_s"},
          "drift": _ENTRY | {"heading_deg", "earth_rate_body_rad_per_s"},
-         "analysis": {"taus", "estimator", "min_edf", "confidence", "psd_segment_s", "bias_repeatability_gyro_rad_per_s",
-                      "bias_repeatability_accel_mps2", "bias_tau_s"},
+         "analysis": {"taus", "estimator", "min_edf", "confidence", "psd_segment_s", "bias_tau_s",
+                      "bias_repeatability_gyro_rad_per_s", "bias_repeatability_accel_mps2"},
          "site": {"lat_deg", "height_m"}}
 
 
@@ -234,7 +234,8 @@ def updown(plan: Plan, noise: dict | None, warnings: list) -> dict:
         best = _best_position_length(value, noise[f"accel_{a}"]["allan"].tau0, abs(d["start"] - u["start"]) -
                                      u["length"], g) if value is not None else None
         out["axes"][a] = {"bias_mps2": c.bias, "bias_sigma_mps2": sig_b, "scale_factor": c.scale_factor,
-                          "scale_factor_sigma": sig_s, "best_position_s": best, "z_up_mps2": u["mean"], "z_down_mps2": d["mean"],
+                          "scale_factor_sigma": sig_s, "best_position_s": best,
+                          "z_up_mps2": u["mean"], "z_down_mps2": d["mean"],
                           "up": {k: u[k] for k in ("source", "window_s", "n", "sigma", "tilt_rad")},
                           "down": {k: d[k] for k in ("source", "window_s", "n", "sigma", "tilt_rad")},
                           "uncertainty_basis": basis}
@@ -375,7 +376,8 @@ def drift_test(plan: Plan, rec: records.Record, window: tuple[int, int], scale: 
 def run_plan(plan: Plan) -> dict:
     """Everything the plan asks for, as one result dictionary (arrays kept for the report)."""
     warnings: list[str] = []
-    res: dict = {"plan": str(plan.path.name), "site": {"lat_deg": math.degrees(plan.lat_rad), "height_m": plan.height_m},
+    res: dict = {"plan": str(plan.path.name),
+                 "site": {"lat_deg": math.degrees(plan.lat_rad), "height_m": plan.height_m},
                  "min_edf": float(plan.analysis.get("min_edf", noise_fit.MIN_EDF)),
                  "estimator": plan.analysis.get("estimator", "overlapping"), "warnings": warnings}
     noise = drift_rec = None
@@ -472,7 +474,8 @@ def kalibr_yaml(res: dict) -> str | None:
     n = res["noise"]
     if not n or not all(a in n for a in AXES):
         return None
-    rms = lambda prefix, t: math.sqrt(np.mean([n[f"{prefix}_{a}"]["fit"].value.get(t, 0.0) ** 2 for a in "xyz"]))  # noqa: E731
+    def rms(prefix, term):
+        return math.sqrt(np.mean([n[f"{prefix}_{a}"]["fit"].value.get(term, 0.0) ** 2 for a in "xyz"]))
     rate = next(iter(n.values()))["allan"].tau0 ** -1
     return (f"# Kalibr IMU noise model from `gpsins lab` (drift run; RMS over x, y, z)\n"
             f"accelerometer_noise_density: {rms('accel', 'N'):.6e}   # m/s^2/sqrt(Hz)\n"

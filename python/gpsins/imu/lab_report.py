@@ -38,8 +38,8 @@ def tables(res: dict) -> list[str]:
         md += _table(f"Table 5.1: accelerometer bias and scale factor, up-down (eq. 5.2 corrected; g = "
                      f"{ud['gravity_mps2']:.5f} m/s^2)", ["Accelerometer", "Bias (m/s^2)", "Scale factor (unit less)",
                                                         "alpha_ii (%)"], rows)
-        best = [f"{a}: {v['best_position_s']['length_s']:.0f} s (sigma {v['best_position_s']['scale_factor_sigma']:.1e})"
-                for a, v in ud["axes"].items() if v.get("best_position_s")]
+        best = [f"{a}: {b['length_s']:.0f} s (sigma {b['scale_factor_sigma']:.1e})"
+                for a, b in ((a, v.get("best_position_s")) for a, v in ud["axes"].items()) if b]
         if best:
             md += ["Position length that would minimise the scale factor's uncertainty under the drift run's noise "
                    "(white noise averages down, the bias wanders between the positions): " + "; ".join(best) + ".", ""]
@@ -70,7 +70,8 @@ def tables(res: dict) -> list[str]:
         if all(g) and all(ac):
             md += _table("Table 5.6: PSD white noise, sqrt of the one-sided plateau",
                          ["Noise term", "unit", "x axis", "y axis", "z axis"],
-                         [["Angular rate white noise", "(rad/s)/sqrt(Hz)"] + [_e(SQRT2 * v["N_psd"], digits=2) for v in g],
+                         [["Angular rate white noise", "(rad/s)/sqrt(Hz)"] +
+                          [_e(SQRT2 * v["N_psd"], digits=2) for v in g],
                           ["Acceleration white noise", "(m/s^2)/sqrt(Hz)"] + [_e(SQRT2 * v["N_psd"], digits=2)
                                                                                for v in ac]])
             md += _table("Table 5.7: PSD white noise in the report's units (eq. 5.10, 5.11)",
@@ -106,7 +107,8 @@ def tables(res: dict) -> list[str]:
             rows = []
             for a, vg, va in zip("xyz", g, ac):
                 k = noise_fit.RAD_PER_SQRT_S_TO_DEG_PER_SQRT_H
-                rows.append([a, f"{vg['N_psd'] * k:.3f}", f"{vg['fit'].value['N'] * k:.3f} ± {vg['fit'].sigma['N'] * k:.3f}",
+                rows.append([a, f"{vg['N_psd'] * k:.3f}",
+                             f"{vg['fit'].value['N'] * k:.3f} ± {vg['fit'].sigma['N'] * k:.3f}",
                              f"{va['N_psd'] * 60:.4f}",
                              f"{va['fit'].value['N'] * 60:.4f} ± {va['fit'].sigma['N'] * 60:.4f}"])
             md += _table("Table 5.10: PSD and Allan white-noise coefficients", ["", "Gyro PSD [deg/sqrt(h)]",
