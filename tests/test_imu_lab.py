@@ -259,4 +259,4 @@ def test_the_example_plan_parses():
     data = tomllib.loads(text)
     assert {e["session"] for e in data["updown"]} == {"updown_x", "updown_y", "updown_z"}
     w, sig = lab._table_rate(data["rate_table"][1])
-    assert w == pytest.approx(-0.5, rel=1e-3) and sig == pytest.approx(0.5 * 0.2 / 125.7, rel=1e-6)
+    assert w == pytest.approx(-0.5, rel=1e-3) and sig == pytest.approx(abs(w) * 0.2 / 125.7, rel=1e-9)
