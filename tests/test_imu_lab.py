@@ -96,6 +96,13 @@ def test_noise_terms_within_their_confidence_bands(lab_day):
         hi, adev = (np.array(v[k]) for k in ("chi2_hi", "adev"))
         dev = np.abs(np.log(want[ok] / adev[ok])) / np.log(hi[ok] / adev[ok])
         assert (dev <= 2).mean() > 0.7 and dev.max() <= 4, (name, dev.round(1))
+        # The fitted terms' curve follows the truth within the data's 2-sigma band at most taus (the
+        # simulated bias instability is a sum of Gauss-Markov processes, flat only from about 10 s to
+        # 1000 s, which the flicker term B can only approximate).
+        terms = tuple(t for t in ("Q", "N", "B", "K") if t in v["fit"])
+        model = np.sqrt(noise_fit.basis(tau, terms) @ np.array([v["fit"][t] ** 2 for t in terms]))
+        dev_fit = np.abs(np.log(want[ok] / model[ok])) / np.log(hi[ok] / adev[ok])
+        assert (dev_fit <= 2).mean() > 0.75 and dev_fit.max() <= 3.5, (name, dev_fit.round(1))
         # White noise: the fitted N and the PSD level within 3 % of the truth (quantisation included).
         m = day.config.imu
         n_true = (m.gyro_arw_rad_per_sqrt_s if kind == "gyro" else m.accel_vrw_mps_per_sqrt_s)[i]
@@ -173,6 +180,18 @@ def test_slope_readouts_use_only_taus_with_enough_degrees_of_freedom():
     assert ro["N_at_tau_1"] == pytest.approx(1e-3, rel=0.05)
     few = noise_fit.slope_readouts(r.tau, r.adev, r.edf, min_edf=1e9)
     assert "warning" in few and "N_at_tau_1" not in few
+
+
+def test_a_low_last_point_does_not_drag_the_fit_down():
+    # The issue's failure mode in the fit: white noise and rate random walk, the last tau (about two
+    # degrees of freedom) scattered ten times low. Weighted by its own AVAR it used to pull K to zero.
+    tau = np.logspace(-1.5, 3.5, 40)
+    n, k = 7e-3, 1.3e-3
+    adev = np.sqrt(n ** 2 / tau + k ** 2 * tau / 3)
+    edf = np.maximum(1000.0 / tau, 1.5)
+    adev[-1] /= 10
+    f = noise_fit.fit(tau, adev, edf)
+    assert f.value["K"] == pytest.approx(k, rel=0.1) and f.value["N"] == pytest.approx(n, rel=0.02)
 
 
 def test_non_overlapping_estimator_is_eq_5_7():

@@ -6,8 +6,8 @@
 Q quantisation (rad or m/s), N white rate noise (rad/sqrt(s), m/s/sqrt(s)), B bias
 instability (rad/s, m/s^2), K rate random walk (rad/s/sqrt(s), m/s^2/sqrt(s)), R
 rate ramp (rad/s^2, m/s^3). Fitted by non-negative least squares on the variance,
-each point weighted by its relative uncertainty (sqrt(edf / 2) / AVAR), terms
-switchable. The slope read-outs of the report (N on the -1/2 line at tau = 1, K on
+each point weighted by its relative uncertainty (sqrt(edf / 2) / AVAR of the model,
+iterated from the data's AVAR), terms switchable. The slope read-outs of the report (N on the -1/2 line at tau = 1, K on
 the +1/2 line at tau = 3, B = minimum / 0.664) are given for comparison, but only
 from taus with at least MIN_EDF equivalent degrees of freedom: at the last taus of
 a record (2-3 degrees of freedom) the curve scatters by tens of percent and its
@@ -60,6 +60,12 @@ def fit(tau: np.ndarray, adev: np.ndarray, edf: np.ndarray | None = None, terms=
     rel = np.sqrt(2.0 / np.asarray(edf, dtype=float)) if edf is not None else np.full(len(tau), 0.1)
     w = 1.0 / (rel * av)
     coef, _ = nnls(a * w[:, None], av * w)
+    # Reweight by the model, not the data: a point that scattered low (the last taus, a few degrees
+    # of freedom) would otherwise get a weight 1 / AVAR large enough to drag the whole fit down.
+    for _ in range(4):
+        model = np.maximum(a @ coef, 1e-300)
+        w = 1.0 / (rel * model)
+        coef, _ = nnls(a * w[:, None], av * w)
     names = list(terms) + [f"GM{T:g}" for T in gm_tau_s]
     # Uncertainty from the weighted normal matrix of the active terms.
     active = coef > 0
