@@ -279,3 +279,11 @@ def test_the_example_plan_parses():
     assert {e["session"] for e in data["updown"]} == {"updown_x", "updown_y", "updown_z"}
     w, sig = lab._table_rate(data["rate_table"][1])
     assert w == pytest.approx(-0.5, rel=1e-3) and sig == pytest.approx(abs(w) * 0.2 / 125.7, rel=1e-9)
+
+
+def test_calibrate_takes_an_up_down_recording(lab_day, capsys):
+    day, res, out = lab_day
+    session = out.parent / "day" / "updown_y"
+    assert cli.main(["calibrate", "accel-updown", str(session), "--lat-deg", "59.35"]) == 0
+    line = next(s for s in capsys.readouterr().out.splitlines() if s.startswith("y "))
+    assert float(line.split()[1]) == pytest.approx(res["updown"]["axes"]["y"]["bias_mps2"], abs=1e-5)

@@ -185,7 +185,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("calibrate", help="deterministic calibration: accelerometer up-down, gyro rate table")
     p.add_argument("kind", choices=("accel-updown", "gyro-rate-table"))
-    p.add_argument("table", help="CSV: up-down rows 'z_up,z_down' per axis; rate table rows 'table_rate,output'")
+    p.add_argument("table", help="CSV: up-down rows 'z_up,z_down' per axis; rate table rows 'table_rate,output'; "
+                                 "for accel-updown also a session directory with the up and down positions")
     p.add_argument("--lat-deg", type=float, default=59.35, help="latitude of the test, deg (default 59.35)")
     p.add_argument("--height-m", type=float, default=30.0)
     p.add_argument("--axis-up", action="store_true", help="the gyro axis points up (Earth rate along it)")

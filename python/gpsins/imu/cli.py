@@ -158,6 +158,8 @@ update_rate: {rate:g}
 
 def run_calibrate(args) -> int:
     lat = math.radians(args.lat_deg)
+    if args.kind == "accel-updown" and Path(args.table).is_dir():
+        return _updown_session(args, lat)
     if args.kind == "accel-updown":
         g = calibration.local_gravity_mps2(lat, args.height_m)
         rows = np.loadtxt(args.table, delimiter=",", comments="#", ndmin=2)
@@ -173,6 +175,30 @@ def run_calibrate(args) -> int:
         print(f"gyro: bias {c.bias:.6f} rad/s, scale factor {c.scale_factor:.6f}, residual RMS {c.residual_rms:.2e} "
               f"rad/s over {len(rows)} rates (Earth rate along the axis {w_ex:.3e} rad/s)")
     return 0
+
+
+def _updown_session(args, lat: float) -> int:
+    """Up-down from a recording: its steady windows, classified by the axis that sees gravity (one
+    session with the up and down positions of one or more axes, or all six)."""
+    from . import lab
+
+    plan = lab.Plan(Path(args.table).resolve().parent / "plan", lat, args.height_m,
+                    [{"session": str(Path(args.table).resolve())}], [], None)
+    warnings: list[str] = []
+    try:
+        res = lab.updown(plan, None, warnings)
+    except records.RecordError as e:
+        raise SystemExit(f"gpsins calibrate: {e}") from None
+    for w in warnings:
+        print(f"gpsins calibrate: warning: {w}", file=sys.stderr)
+    print(f"local gravity {res['gravity_mps2']:.5f} m/s^2 (WGS-84 normal gravity at {args.lat_deg:g} deg, "
+          f"{args.height_m:g} m); uncertainties: white noise only (`gpsins lab` adds the drift run's wander)")
+    print("axis  bias (m/s^2)          scale factor           up window (s)   down window (s)")
+    for a, v in res["axes"].items():
+        print(f"{a:4}  {v['bias_mps2']:9.5f} ± {v['bias_sigma_mps2']:.1e}  {v['scale_factor']:10.6f} ± "
+              f"{v['scale_factor_sigma']:.1e}  {v['up']['window_s'][0]:6.0f}-{v['up']['window_s'][1]:<6.0f}  "
+              f"{v['down']['window_s'][0]:6.0f}-{v['down']['window_s'][1]:<6.0f}")
+    return 0 if res["axes"] else 2
 
 
 def run_lab(args) -> int:

@@ -202,7 +202,7 @@ def updown(plan: Plan, noise: dict | None, warnings: list) -> dict:
         ups = [p for p in positions if p["axis"] == i and p["sign"] > 0]
         dns = [p for p in positions if p["axis"] == i and p["sign"] < 0]
         if not ups or not dns:
-            if plan.updown:
+            if ups or dns:
                 warnings.append(f"up-down: no {'up' if not ups else 'down'} position of accelerometer {a}")
             continue
         # The closest up and down windows in time: least bias wander between them.
@@ -406,6 +406,10 @@ def run_plan(plan: Plan) -> dict:
                     break
     res["noise"] = noise
     res["updown"] = updown(plan, noise, warnings) if plan.updown else None
+    if res["updown"] and len(res["updown"]["axes"]) < 3:
+        missing = sorted(set("xyz") - set(res["updown"]["axes"]))
+        warnings.append(f"up-down: accelerometer(s) {', '.join(missing)} not calibrated: the preset keeps the "
+                        f"default's accelerometer calibration")
     rt = rate_table(plan, noise, None, warnings) if plan.rate_table else None
     scale = {a: v["scale_factor"] for a, v in (rt or {"axes": {}})["axes"].items()}
     res["drift"] = drift_test(plan, drift_rec, window, scale, noise) if window else None
