@@ -127,6 +127,7 @@ def test_outputs_are_a_preset_the_filter_accepts_kalibr_yaml_and_one_report(lab_
     assert html.count("data:image/png;base64,") >= 2
     g = res["noise"]["gyro_x"]
     assert len(g["eq59_lo"]) == len(g["tau_s"]) == len(g["chi2_hi"])
+    assert any(w.startswith("drift run: 30 min static") for w in res["warnings"])  # short for B and K
 
 
 def test_motion_warning_fires_on_a_moving_record_and_not_on_a_static_one(tmp_path, capsys):
@@ -287,3 +288,13 @@ def test_calibrate_takes_an_up_down_recording(lab_day, capsys):
     assert cli.main(["calibrate", "accel-updown", str(session), "--lat-deg", "59.35"]) == 0
     line = next(s for s in capsys.readouterr().out.splitlines() if s.startswith("y "))
     assert float(line.split()[1]) == pytest.approx(res["updown"]["axes"]["y"]["bias_mps2"], abs=1e-5)
+
+
+def test_non_overlapping_estimator_in_the_lab_noise_analysis():
+    rng = np.random.default_rng(9)
+    y = rng.normal(0, 1e-3 * 8, (64 * 600, 6)) + [0.01, 0.02, 0.0, 0.1, 0.2, -9.8]
+    rec = records.Record("static", y, 64.0, records.AXES)
+    out = lab.noise_analysis(rec, {"estimator": "non-overlapping"})
+    r = out["gyro_x"]["allan"]
+    assert r.estimator == "non-overlapping" and out["gyro_x"]["fit"].value["N"] == pytest.approx(1e-3, rel=0.05)
+    assert np.all(r.edf == 38400 // r.m - 1)

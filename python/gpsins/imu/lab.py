@@ -398,6 +398,16 @@ def run_plan(plan: Plan) -> dict:
                                 f"{window[0] / drift_rec.rate_hz:.0f}-{window[1] / drift_rec.rate_hz:.0f} s only")
             noise = noise_analysis(static, plan.analysis)
             res["drift_window_s"] = [window[0] / drift_rec.rate_hz, window[1] / drift_rec.rate_hz]
+            span = (window[1] - window[0]) / drift_rec.rate_hz
+            usable = max(float(v["allan"].tau[v["allan"].edf >= res["min_edf"]].max(initial=0.0))
+                         for v in noise.values())
+            if span < 3600.0:
+                warnings.append(f"drift run: {span / 60:.0f} min static; taus with at least {res['min_edf']:g} degrees "
+                                f"of freedom reach only {usable:.0f} s, so bias instability and rate random walk rest on "
+                                f"few points (the report used 50 min; hours are better)")
+            for name, v in noise.items():
+                if "warning" in v["fit"].slope_readouts:
+                    warnings.append(f"{name}: {v['fit'].slope_readouts['warning']}")
             for name, v in noise.items():
                 if v["short_taus"]:
                     warnings.append(f"{name}: {v['short_taus']} of {len(v['allan'].tau)} taus have fewer than "
