@@ -264,9 +264,9 @@ def test_a_lab_recording_goes_through_the_emulator_and_the_logger(tmp_path):
     got = logs.read_session(tmp_path / "pty" / "updown_x")
     assert got.sidecar["sensors"]["imu"]["device"] == "bp3010"
     a, b = got.imu(), logs.read_session(tmp_path / "direct" / "updown_x").imu()
-    # The logger starts the IMU with its rate command: the first frames go by before it; the rest are
-    # the directly written frames, sample for sample.
-    assert 0.9 * len(b) <= len(a) <= len(b)
+    # The logger starts the IMU with its rate command: the first frames go by before it (more of them
+    # on a busy machine); the rest are the directly written frames, sample for sample.
+    assert 0.5 * len(b) <= len(a) <= len(b)
     ca, cb = (np.hstack([x.dtheta_rad, x.dv_mps]) for x in (a, b))
     assert np.array_equal(ca, cb[len(b) - len(a):])
     assert lab.load_plan(plan).updown == [{"session": "updown_x"}]
