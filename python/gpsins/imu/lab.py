@@ -56,6 +56,7 @@ class Plan:
     rate_table: list[dict]
     drift: dict | None
     analysis: dict = field(default_factory=dict)
+    recorded: list = field(default_factory=list)  # (start, end) unix seconds of every recording read
 
 
 _TOP = {"site", "updown", "rate_table", "drift", "analysis"}
@@ -118,8 +119,11 @@ def _load(plan: Plan, entry: dict) -> records.Record:
     src = Path(entry["session"])
     if not src.is_absolute():
         src = plan.path.parent / src
-    return records.load(src, entry.get("rate_hz"), entry.get("columns"), entry.get("start_s"), entry.get("end_s"),
-                        name=str(entry["session"]))
+    rec = records.load(src, entry.get("rate_hz"), entry.get("columns"), entry.get("start_s"), entry.get("end_s"),
+                       name=str(entry["session"]))
+    if rec.start_unix_s is not None:
+        plan.recorded.append((rec.start_unix_s, rec.start_unix_s + rec.duration_s))
+    return rec
 
 
 # --- noise ----------------------------------------------------------------------------------------------
@@ -314,26 +318,26 @@ def rate_table(plan: Plan, noise: dict | None, drift_bias: dict | None, warnings
         value = _noise_value(noise, f"gyro_{a}")
         t0 = min(r["start"] for r in rs)
         t1 = max(r["start"] + r["length"] for r in rs)
-        var = []
-        for r in rs:
-            v = r["rate_sigma"] ** 2
-            if value is None:
-                v += r["sigma"] ** 2
-            else:  # this run's mean about the mean over all runs of the axis (white noise included)
-                v += noise_fit.window_combination_variance(value, noise[f"gyro_{a}"]["allan"].tau0,
-                                                           [(r["start"], r["length"], 1.0), (t0, t1 - t0, -1.0)])
-            var.append(v)
-        wgt = 1.0 / np.array(var)
+        # Each run's mean about the mean over all runs of the axis: white noise and the bias's wander,
+        # correlated from run to run (a wander that trends through a sequence of rising rates would
+        # otherwise pass for a scale factor), plus each table rate's own uncertainty.
+        if value is not None:
+            combos = [[(r["start"], r["length"], 1.0), (t0, t1 - t0, -1.0)] for r in rs]
+            cov_e = noise_fit.window_combination_covariance(value, noise[f"gyro_{a}"]["allan"].tau0, combos)
+        else:
+            cov_e = np.diag([r["sigma"] ** 2 for r in rs])
+        cov_e = cov_e + np.diag([r["rate_sigma"] ** 2 for r in rs])
         A = np.column_stack([np.ones_like(x), x])
-        cov = np.linalg.inv(A.T @ (A * wgt[:, None]))
-        b, slope = cov @ (A.T @ (wgt * y))
+        ci = np.linalg.inv(cov_e)
+        cov = np.linalg.inv(A.T @ ci @ A)
+        b, slope = cov @ (A.T @ ci @ y)
         resid = y - A @ np.array([b, slope])
-        chi2_dof = float(np.sum(resid ** 2 * wgt) / max(len(x) - 2, 1))
+        chi2_dof = float(resid @ ci @ resid / max(len(x) - 2, 1))
         entry = {"scale_factor": float(slope - 1), "scale_factor_sigma": float(math.sqrt(cov[1, 1])),
                  "bias_rad_per_s": float(b), "bias_sigma_rad_per_s": float(math.sqrt(cov[0, 0])),
                  "chi2_per_dof": chi2_dof, "earth_rate_along_axis_rad_per_s": w_ex,
                  "runs": [{k: r[k] for k in ("rate", "rate_sigma", "mean", "sigma", "source", "window_s")} for r in rs],
-                 "uncertainty_basis": "weighted line; each run: white noise + bias wander about the runs' mean "
+                 "uncertainty_basis": "generalised least squares; the runs' white noise and correlated bias wander "
                                       "(drift-run noise terms) + table-rate uncertainty" if value is not None else
                                       "weighted line; white noise + table-rate uncertainty only (no drift run)"}
         # The report's pairwise form (eq. 5.4, corrected eq. 5.5) on the widest opposite-sign pair.
@@ -449,16 +453,27 @@ def calibration_table(res: dict, plan: Plan) -> dict:
     elif rt and len(rt["axes"]) == 3:
         cfg["gyro_bias_cal_rad_per_s"] = [rt["axes"][a]["bias_rad_per_s"] for a in "xyz"]
     an = plan.analysis
-    # A single lab day cannot measure the day-to-day turn-on repeatability: it comes from the plan
-    # (default: the default preset's) and is added to the calibration's own uncertainty.
+    # The turn-on bias the filter starts from is uncertain by: the calibration's own uncertainty; the
+    # wander of the bias over the lab day itself (rate random walk K over the day's span: the biases
+    # measured early and late in the day differ by about this); and the day-to-day repeatability, which
+    # one lab day cannot measure (from the plan; default: the default preset's values).
     rep_g = float(an.get("bias_repeatability_gyro_rad_per_s", DEFAULT_REPEATABILITY["gyro"]))
     rep_a = float(an.get("bias_repeatability_accel_mps2", DEFAULT_REPEATABILITY["accel"]))
+    span = (max(e for _, e in plan.recorded) - min(s for s, _ in plan.recorded)) if plan.recorded else 0.0
+    res["day_span_s"] = span
+
+    def wander(prefix):
+        if not res["noise"]:
+            return 0.0
+        k = max(res["noise"][f"{prefix}_{a}"]["fit"].value.get("K", 0.0) for a in "xyz"
+                if f"{prefix}_{a}" in res["noise"])
+        return k * math.sqrt(span)
     if dr:
         cal = max(dr[a]["bias_sigma_rad_per_s"] for a in "xyz")
-        cfg["gyro_bias_residual_rad_per_s"] = math.hypot(rep_g, cal)
+        cfg["gyro_bias_residual_rad_per_s"] = math.sqrt(rep_g ** 2 + cal ** 2 + wander("gyro") ** 2)
     if ud and ud["axes"]:
         cal = max(v["bias_sigma_mps2"] for v in ud["axes"].values())
-        cfg["accel_bias_residual_mps2"] = math.hypot(rep_a, cal)
+        cfg["accel_bias_residual_mps2"] = math.sqrt(rep_a ** 2 + cal ** 2 + wander("accel") ** 2)
     if res["noise"] and all(n in res["noise"] for n in AXES):
         def vec(prefix, term):
             return [float(res["noise"][f"{prefix}_{a}"]["fit"].value.get(term, 0.0)) for a in "xyz"]

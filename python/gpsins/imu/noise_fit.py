@@ -172,21 +172,34 @@ def window_combination_variance(value: dict, tau0: float, windows: list[tuple[fl
     correlation of adjacent windows' shared edge: the white-phase (Q) part comes out up to a third low,
     the white-rate part 0.5 % low; both are negligible against drift for windows of seconds or longer.
     windows: (start_s, length_s, weight). Two adjacent windows of length T, weights -1 and +1, give 2 AVAR(T)."""
-    starts = np.array([w[0] for w in windows])
-    lengths = np.array([w[1] for w in windows])
-    weights = np.array([w[2] for w in windows])
+    return float(window_combination_covariance(value, tau0, [windows])[0, 0])
+
+
+def window_combination_covariance(value: dict, tau0: float,
+                                  combinations: list[list[tuple[float, float, float]]]) -> np.ndarray:
+    """Covariance matrix of several such combinations (2 int S Re(H_j conj(H_k)) df); in the averaged
+    tail only identical windows of two combinations correlate."""
+    allw = [w for c in combinations for w in c]
+    starts = np.array([w[0] for w in allw])
+    lengths = np.array([w[1] for w in allw])
     span = starts.max() + lengths.max() - starts.min()
     f_hi = 0.5 / tau0
     f_cut = min(f_hi, 20.0 / lengths.min())  # above it the sinc terms are replaced by their mean
-    f_lo = 1e-4 / span
-    f = np.logspace(math.log10(f_lo), math.log10(f_cut), 20000)
-    centres = starts + lengths / 2
-    h = (weights[None, :] * np.sinc(f[:, None] * lengths[None, :]) *
-         np.exp(-2j * math.pi * f[:, None] * centres[None, :])).sum(1)
-    g = model_psd(f, value, tau0) * np.abs(h) ** 2 * f
-    total = np.trapezoid(g, np.log(f))
+    f = np.logspace(math.log10(1e-4 / span), math.log10(f_cut), 20000)
+    hs = []
+    for c in combinations:
+        st, ln, wt = (np.array([w[i] for w in c]) for i in range(3))
+        hs.append((wt[None, :] * np.sinc(f[:, None] * ln[None, :]) *
+                   np.exp(-2j * math.pi * f[:, None] * (st + ln / 2)[None, :])).sum(1))
+    h = np.stack(hs, 1)  # (frequencies, combinations)
+    s = model_psd(f, value, tau0) * f
+    cov = np.trapezoid(s[:, None, None] * np.real(h[:, :, None] * np.conj(h[:, None, :])), np.log(f), axis=0)
     if f_cut < f_hi:
         f2 = np.logspace(math.log10(f_cut), math.log10(f_hi), 2000)
-        h2 = (weights[None, :] ** 2 / (2 * math.pi ** 2 * f2[:, None] ** 2 * lengths[None, :] ** 2)).sum(1)
-        total += np.trapezoid(model_psd(f2, value, tau0) * h2 * f2, np.log(f2))
-    return float(2.0 * total)
+        tail = model_psd(f2, value, tau0) * f2 / (2 * math.pi ** 2 * f2 ** 2)
+        for j, cj in enumerate(combinations):
+            for k, ck in enumerate(combinations):
+                shared = sum(wa[2] * wb[2] / wa[1] ** 2 for wa in cj for wb in ck if wa[:2] == wb[:2])
+                if shared:
+                    cov[j, k] += shared * np.trapezoid(tail, np.log(f2))
+    return 2.0 * cov
