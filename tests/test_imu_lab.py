@@ -210,6 +210,17 @@ def test_window_difference_variance_is_twice_the_allan_variance_for_adjacent_win
         for T in (2.0, 60.0):
             v = noise_fit.window_combination_variance({term: c}, 1 / 64, [(0.0, T, -1.0), (T, T, 1.0)])
             assert v == pytest.approx(2 * c ** 2 * noise_fit.basis(np.array([T]), (term,))[0, 0], rel=0.01)
+    # Random walk, two windows of T with a gap G: var = K^2 (2 T / 3 + G) (integrating the increments).
+    k, T, G = 1e-3, 30.0, 8.0
+    v = noise_fit.window_combination_variance({"K": k}, 1 / 64, [(0.0, T, 1.0), (T + G, T, -1.0)])
+    assert v == pytest.approx(k ** 2 * (2 * T / 3 + G), rel=0.01)
+    # Covariances: var(c1 + c2) = var c1 + var c2 + 2 cov(c1, c2).
+    c1 = [(0.0, 20.0, 1.0), (0.0, 200.0, -1.0)]
+    c2 = [(150.0, 50.0, 1.0), (0.0, 200.0, -1.0)]
+    value = {"N": 1e-3, "B": 2e-4, "K": 1e-4}
+    cov = noise_fit.window_combination_covariance(value, 1 / 64, [c1, c2])
+    both = noise_fit.window_combination_variance(value, 1 / 64, c1 + c2)
+    assert both == pytest.approx(cov[0, 0] + cov[1, 1] + 2 * cov[0, 1], rel=0.01) and cov[0, 1] == cov[1, 0]
 
 
 def test_gauss_markov_bump_gives_its_time_constant_and_sigma():
