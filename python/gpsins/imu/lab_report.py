@@ -214,11 +214,18 @@ def _html(md: list[str], figs: dict[str, bytes]) -> str:
                 "<tr>" + "".join(f"<{'th' if i == 0 else 'td'}>{html.escape(c.strip())}</{'th' if i == 0 else 'td'}>"
                                  for c in r) + "</tr>" for i, r in enumerate(rows)) + "</table>")
             table.clear()
+    in_list = False
     for line in md:
         if line.startswith("|"):
             table.append(line)
             continue
         flush()
+        if in_list and not line.startswith("- "):
+            parts.append("</ul>")
+            in_list = False
+        if line.startswith("- ") and not in_list:
+            parts.append("<ul>")
+            in_list = True
         if line.startswith("# "):
             parts.append(f"<h1>{html.escape(line[2:])}</h1>")
         elif line.startswith("## "):
