@@ -73,9 +73,10 @@ def main() -> None:
         for seed in range(args.seeds):
             day = sim_lab.simulate_lab_day(cfg, seed)
             plan = sim_lab.write_lab_day(day, Path(tmp) / f"day{seed}")
-            res = lab.run_plan(lab.load_plan(plan))
+            p = lab.load_plan(plan)
+            res = lab.run_plan(p)
             rows.append(parameters(day, res))
-            presets.append(lab.calibration_table(res, lab.load_plan(plan)))
+            presets.append(lab.calibration_table(res, p))
     t_lab = time.perf_counter() - t0
     names = list(rows[0])
     z = {n: np.array([(r[n][0] - r[n][2]) / r[n][1] for r in rows]) for n in names}
@@ -91,6 +92,7 @@ def main() -> None:
     for seed, p in enumerate(presets):
         s = sim.simulate(drive, seed=seed)
         comp.append((horizontal_rms(s, flt.load_config("default")), horizontal_rms(s, flt.load_config(None, p))))
+        print(f"  seed {seed}: default {comp[-1][0]:.3f} m, generated {comp[-1][1]:.3f} m", flush=True)
     comp = np.array(comp)
     print(f"\ndefault drive, horizontal position RMS (m) over {len(comp)} seeds:")
     print(f"  hand-written default preset: mean {comp[:, 0].mean():.3f}, max {comp[:, 0].max():.3f}")

@@ -431,6 +431,8 @@ def run_plan(plan: Plan) -> dict:
         for a, v in rt["axes"].items():
             v["bias_from_drift_test_rad_per_s"] = res["drift"][a]["bias_rad_per_s"]
     res["rate_table"] = rt
+    rec = plan.recorded
+    res["day_span_s"] = (max(e for _, e in rec) - min(s for s, _ in rec)) if rec else 0.0
     return res
 
 
@@ -459,8 +461,7 @@ def calibration_table(res: dict, plan: Plan) -> dict:
     # one lab day cannot measure (from the plan; default: the default preset's values).
     rep_g = float(an.get("bias_repeatability_gyro_rad_per_s", DEFAULT_REPEATABILITY["gyro"]))
     rep_a = float(an.get("bias_repeatability_accel_mps2", DEFAULT_REPEATABILITY["accel"]))
-    span = (max(e for _, e in plan.recorded) - min(s for s, _ in plan.recorded)) if plan.recorded else 0.0
-    res["day_span_s"] = span
+    span = res.get("day_span_s", 0.0)
 
     def wander(prefix):
         if not res["noise"]:
