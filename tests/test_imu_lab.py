@@ -128,6 +128,12 @@ def test_outputs_are_a_preset_the_filter_accepts_kalibr_yaml_and_one_report(lab_
     g = res["noise"]["gyro_x"]
     assert len(g["eq59_lo"]) == len(g["tau_s"]) == len(g["chi2_hi"])
     assert any(w.startswith("drift run: 30 min static") for w in res["warnings"])  # short for B and K
+    # The preset's turn-on uncertainty covers the bias's wander over the lab day.
+    day = lab_day[0]
+    span = (day.sessions[-1].i1 - day.sessions[0].i0) / day.rate_hz
+    assert res["day_span_s"] == pytest.approx(span, abs=1.0)
+    k = max(res["noise"][f"gyro_{a}"]["fit"]["K"] for a in "xyz")
+    assert preset["gyro_bias_residual_rad_per_s"] >= k * math.sqrt(span) > 2e-3
 
 
 def test_motion_warning_fires_on_a_moving_record_and_not_on_a_static_one(tmp_path, capsys):
