@@ -167,7 +167,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--taus", default="10", help="points per decade, or octave | decade | all (default 10)")
     p.add_argument("--json", help="write tau, deviations, bounds and fitted terms here")
     p.add_argument("--out", help="directory for plots and the filter parameter files (imu_noise.toml, imu.yaml)")
-    p.add_argument("--columns", help="column kinds of a CSV/NPY file: gyro_x,...,accel_z, time or skip")
+    p.add_argument("--columns", help="column kinds of a CSV/NPY file: gyro_x,...,accel_z, time or skip; a unit "
+                                      "after a colon: accel_x:g, gyro_x:deg/s")
     p.add_argument("--start-s", type=float, help="analyse from this many seconds into the record")
     p.add_argument("--end-s", type=float, help="... up to this many seconds")
     p.add_argument("--estimator", choices=("overlapping", "non-overlapping"), default="overlapping")
