@@ -94,7 +94,8 @@ def tables(res: dict) -> list[str]:
                 ro = f.slope_readouts
                 cells.append("-" if "warning" in ro else
                              f"N {ro['N_at_tau_1']:.2e}, B {'<= ' if ro['B_is_upper_bound'] else ''}"
-                             f"{ro['B_min_over_0.664']:.2e} (tau {ro['tau_at_min_s']:.0f} s)")
+                             f"{ro['B_min_over_0.664']:.2e} (tau {ro['tau_at_min_s']:.0f} s; less N, K: "
+                             f"{ro['B_min_less_other_terms']:.2e})")
                 bump = v["bump"]
                 cells.append(f"T {bump['T_s']:.0f} s, sigma {bump['sigma']:.2e}" if bump else "none")
                 rows.append(cells)

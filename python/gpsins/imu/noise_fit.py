@@ -79,7 +79,15 @@ def fit(tau: np.ndarray, adev: np.ndarray, edf: np.ndarray | None = None, terms=
         c = math.sqrt(coef[i])
         value[n] = c
         sigma[n] = math.sqrt(cov[i, i]) / (2.0 * c) if c > 0 else math.sqrt(math.sqrt(max(cov[i, i], 0.0)))
-    return NoiseFit(tuple(names), value, sigma, np.sqrt(a @ coef), slope_readouts(tau, np.sqrt(av), edf, min_edf))
+    ro = slope_readouts(tau, np.sqrt(av), edf, min_edf)
+    if "tau_at_min_s" in ro:
+        # The minimum also holds the white noise, random walk and quantisation there (the curve of a
+        # MEMS gyro rarely flattens): less the fitted other terms, the read-out is comparable with B.
+        t = np.array([ro["tau_at_min_s"]])
+        others = sum(value.get(k, 0.0) ** 2 * basis(t, (k,))[0, 0] for k in ("Q", "N", "K", "R") if k in terms)
+        left = (ro["B_min_over_0.664"] * FLAT) ** 2 - others
+        ro["B_min_less_other_terms"] = float(math.sqrt(left) / FLAT) if left > 0 else 0.0
+    return NoiseFit(tuple(names), value, sigma, np.sqrt(a @ coef), ro)
 
 
 def slope_readouts(tau: np.ndarray, adev: np.ndarray, edf: np.ndarray | None = None,
