@@ -103,6 +103,8 @@ def test_noise_fit_recovers_known_coefficients():
     assert ro["N_at_tau_1"] == pytest.approx(truth["N"], rel=0.15)
     # The minimum also holds the white noise and random walk there: the read-out overestimates B.
     assert truth["B"] < ro["B_min_over_0.664"] < 2 * truth["B"]
+    # Less the fitted white noise and random walk at that tau, the read-out agrees with B.
+    assert ro["B_min_less_other_terms"] == pytest.approx(truth["B"], rel=0.25)
 
 
 def test_psd_white_level_agrees_with_allan():

@@ -125,6 +125,12 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     return imu_cli.run_calibrate(args)
 
 
+def _cmd_lab(args: argparse.Namespace) -> int:
+    from .imu import cli as imu_cli
+
+    return imu_cli.run_lab(args)
+
+
 def _cmd_spp(args: argparse.Namespace) -> int:
     from . import spp
 
@@ -206,11 +212,27 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--taus", default="10", help="points per decade, or octave | decade | all (default 10)")
     p.add_argument("--json", help="write tau, deviations, bounds and fitted terms here")
     p.add_argument("--out", help="directory for plots and the filter parameter files (imu_noise.toml, imu.yaml)")
+    p.add_argument("--columns", help="column kinds of a CSV/NPY file: gyro_x,...,accel_z, time or skip; a unit "
+                                      "after a colon: accel_x:g, gyro_x:deg/s")
+    p.add_argument("--start-s", type=float, help="analyse from this many seconds into the record")
+    p.add_argument("--end-s", type=float, help="... up to this many seconds")
+    p.add_argument("--estimator", choices=("overlapping", "non-overlapping"), default="overlapping")
     p.set_defaults(func=_cmd_allan)
+
+    p = sub.add_parser("lab", help="IMU lab workflow from a lab plan: calibration, noise, filter preset, report")
+    p.add_argument("plan", nargs="?", help="lab plan TOML (sessions: up-down, rate table, drift run)")
+    p.add_argument("--out", required=True, help="output directory")
+    p.add_argument("--simulate", action="store_true", help="first simulate a BP3010 lab day (and its plan) in OUT")
+    p.add_argument("--quick", action="store_true", help="with --simulate: a short day (about 40 min)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--speed", type=float, help="with --simulate: record through the pty emulators and the logger "
+                                               "at this many times real time")
+    p.set_defaults(func=_cmd_lab)
 
     p = sub.add_parser("calibrate", help="deterministic calibration: accelerometer up-down, gyro rate table")
     p.add_argument("kind", choices=("accel-updown", "gyro-rate-table"))
-    p.add_argument("table", help="CSV: up-down rows 'z_up,z_down' per axis; rate table rows 'table_rate,output'")
+    p.add_argument("table", help="CSV: up-down rows 'z_up,z_down' per axis; rate table rows 'table_rate,output'; "
+                                 "for accel-updown also a session directory with the up and down positions")
     p.add_argument("--lat-deg", type=float, default=59.35, help="latitude of the test, deg (default 59.35)")
     p.add_argument("--height-m", type=float, default=30.0)
     p.add_argument("--axis-up", action="store_true", help="the gyro axis points up (Earth rate along it)")

@@ -119,10 +119,22 @@ class AllanResult:
     hi: np.ndarray
     rel_sigma_eq59: np.ndarray  # the report's eq. 5.9 relative uncertainty of ADEV
     confidence: float
+    estimator: str = "overlapping"
 
     @property
     def avar(self) -> np.ndarray:
         return self.adev ** 2
+
+    @property
+    def eq59_lo(self) -> np.ndarray:
+        """ADEV minus its eq. 5.9 one-sigma error (floored at zero)."""
+        rel = self.rel_sigma_eq59 if self.adev.ndim == 1 else self.rel_sigma_eq59[:, None]
+        return np.maximum(self.adev * (1.0 - rel), 0.0)
+
+    @property
+    def eq59_hi(self) -> np.ndarray:
+        rel = self.rel_sigma_eq59 if self.adev.ndim == 1 else self.rel_sigma_eq59[:, None]
+        return self.adev * (1.0 + rel)
 
 
 def oadev(data: np.ndarray, rate_hz: float, *, taus: str | int = 10, data_type: str = "rate",
@@ -147,4 +159,32 @@ def oadev(data: np.ndarray, rate_hz: float, *, taus: str | int = 10, data_type: 
     rel = 1.0 / np.sqrt(2.0 * (n / m - 1.0))
     squeeze = (lambda v: v[:, 0]) if single else (lambda v: v)
     return AllanResult(m * tau0, squeeze(adev), m, n, tau0, squeeze(al), squeeze(edf), squeeze(lo), squeeze(hi), rel,
-                       confidence)
+                       confidence, "overlapping")
+
+
+def adev_nonoverlapping(data: np.ndarray, rate_hz: float, *, taus: str | int = 10,
+                        confidence: float = 0.683) -> AllanResult:
+    """The report's estimator (eq. 5.6-5.7): means of floor(N/n) disjoint clusters of n rate samples,
+    half the mean squared difference of successive means. Chi-square bounds with floor(N/n) - 1
+    degrees of freedom (the number of differences; exact for white rate noise), and eq. 5.9."""
+    a = np.asarray(data, dtype=float)
+    single = a.ndim == 1
+    a = a[:, None] if single else a
+    n = len(a)
+    m = cluster_sizes(n + 1, taus)
+    m = m[n // m >= 3]
+    av = np.empty((len(m), a.shape[1]))
+    for i, mm in enumerate(m):
+        k = n // mm
+        means = a[:k * mm].reshape(k, mm, -1).mean(1)
+        av[i] = 0.5 * np.mean(np.diff(means, axis=0) ** 2, axis=0)
+    edf = np.repeat((n // m - 1.0)[:, None], a.shape[1], 1)
+    p_lo, p_hi = (1 - confidence) / 2, (1 + confidence) / 2
+    adev = np.sqrt(av)
+    lo = adev * np.sqrt(edf / chi2.ppf(p_hi, edf))
+    hi = adev * np.sqrt(edf / chi2.ppf(p_lo, edf))
+    rel = 1.0 / np.sqrt(2.0 * (n / m - 1.0))
+    squeeze = (lambda v: v[:, 0]) if single else (lambda v: v)
+    alpha = np.zeros_like(edf, dtype=int)
+    return AllanResult(m / rate_hz, squeeze(adev), m, n + 1, 1.0 / rate_hz, squeeze(alpha), squeeze(edf), squeeze(lo),
+                       squeeze(hi), rel, confidence, "non-overlapping")

@@ -4,84 +4,94 @@ from __future__ import annotations
 
 import json
 import math
+import sys
 import warnings
 from pathlib import Path
 
 import numpy as np
 
-from . import allan, calibration, noise_fit, psd
+from . import allan, calibration, noise_fit, psd, records
+from .records import AXES
 
-AXES = ("gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z")
 
-
-def load_rates(source: str, rate_hz: float | None) -> tuple[np.ndarray, float, tuple[str, ...]]:
-    """(n, k) rate samples: a session's IMU (gyro rad/s then accel m/s^2) or a CSV/NPY file."""
+def _error(message: str) -> Exception:
+    """A failure the user can fix, printed by the CLI as one line with exit status 2."""
     from ..cli import CommandError
 
-    p = Path(source)
-    if not p.exists():
-        raise CommandError(f"{source}: no such file or directory; give a session directory or a CSV/NPY of rates")
-    if p.is_dir():
-        from .. import logs
+    return CommandError(message)
 
-        imu = logs.read_session(p).imu()
-        dt = 1.0 / imu.rate_hz
-        return np.hstack([imu.dtheta_rad, imu.dv_mps]) / dt, float(imu.rate_hz), AXES
-    if rate_hz is None:
-        raise CommandError(f"{source}: give the sample rate with --rate HZ")
-    if p.suffix == ".npy":
-        data = np.load(p)
-    else:
-        try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")  # an empty file: said below
-                data = np.loadtxt(p, delimiter="," if p.suffix == ".csv" else None, comments="#", ndmin=2)
-        except ValueError as e:
-            raise CommandError(f"{source}: not a table of numbers ({e})") from None
-    if data.size == 0:
-        raise CommandError(f"{source}: no samples; expected one row per sample, one column per axis")
-    data = data.reshape(len(data), -1)
-    names = AXES if data.shape[1] == 6 else tuple(f"col{k}" for k in range(data.shape[1]))
-    return data, float(rate_hz), names
+
+def load_rates(source: str, rate_hz: float | None, columns: str | None = None, start_s: float | None = None,
+               end_s: float | None = None) -> tuple[np.ndarray, float, tuple[str, ...]]:
+    """(n, k) rate samples: a session's IMU (gyro rad/s then accel m/s^2) or a CSV/NPY file whose
+    columns are declared (six columns default to gyro x y z, accel x y z)."""
+    try:
+        rec = records.load(source, rate_hz, columns, start_s, end_s)
+    except records.RecordError as e:
+        raise _error(str(e)) from None
+    for note in rec.notes:
+        print(f"gpsins allan: warning: {source}: {note}", file=sys.stderr)
+    return rec.rates, rec.rate_hz, rec.columns
 
 
 def run_allan(args) -> int:
     from rich.progress import Progress
 
-    data, rate, names = load_rates(args.source, args.rate)
+    data, rate, names = load_rates(args.source, args.rate, getattr(args, "columns", None),
+                                   getattr(args, "start_s", None), getattr(args, "end_s", None))
     taus = args.taus if args.taus in ("octave", "all", "decade") else int(args.taus)
+    estimator = getattr(args, "estimator", "overlapping")
+    min_edf = float(getattr(args, "min_edf", noise_fit.MIN_EDF))
     out = Path(args.out) if args.out else None
+    st = records.steady_windows(data, rate)
+    moved = records.motion_warning(st, len(data) / rate)
+    if moved:
+        print(f"gpsins allan: warning: {args.source}: {moved}", file=sys.stderr)
     results, fits = {}, {}
     with Progress(transient=True) as bar:
         task = bar.add_task("Allan deviation", total=data.shape[1])
         for k, name in enumerate(names):
-            r = allan.oadev(data[:, k], rate, taus=taus)
-            f = noise_fit.fit(r.tau, r.adev, r.edf)
+            if estimator == "overlapping":
+                r = allan.oadev(data[:, k], rate, taus=taus)
+            else:
+                r = allan.adev_nonoverlapping(data[:, k], rate, taus=taus)
+            f = noise_fit.fit(r.tau, r.adev, r.edf, min_edf=min_edf)
             results[name], fits[name] = r, f
             bar.advance(task)
-    print(f"{len(data)} samples at {rate:g} Hz ({len(data) / rate / 3600:.2f} h)")
-    print(f"{'axis':8s} {'N (SI)':>11s} {'B (SI)':>11s} {'K (SI)':>11s} {'Q (SI)':>11s}  report units")
-    for name in names:
-        f = fits[name]
-        kind = "gyro" if name.startswith("gyro") else "accel"
-        tu = noise_fit.table_units(kind, f)
-        print(f"{name:8s} " + " ".join(f"{f.value.get(t, 0):11.3e}" for t in ("N", "B", "K", "Q")) + "  " +
-              ", ".join(f"{k} {v:.4g}" for k, v in tu.items()))
+    print(f"{len(data)} samples at {rate:g} Hz ({len(data) / rate / 3600:.2f} h), {estimator} Allan deviation")
+    short = int((next(iter(results.values())).edf < min_edf).sum())
+    if short:
+        print(f"gpsins allan: note: {short} of {len(next(iter(results.values())).tau)} taus have fewer than "
+              f"{min_edf:g} degrees of freedom: shown, not used for slope read-outs", file=sys.stderr)
+    if moved:
+        print("noise terms withheld: the record moved (see the warning); trim it with --start-s / --end-s")
+    else:
+        print(f"{'axis':8s} {'N (SI)':>11s} {'B (SI)':>11s} {'K (SI)':>11s} {'Q (SI)':>11s}  report units")
+        for name in names:
+            f = fits[name]
+            kind = "gyro" if name.startswith("gyro") else "accel"
+            tu = noise_fit.table_units(kind, f)
+            print(f"{name:8s} " + " ".join(f"{f.value.get(t, 0):11.3e}" for t in ("N", "B", "K", "Q")) + "  " +
+                  ", ".join(f"{k} {v:.4g}" for k, v in tu.items()))
     if args.json:
-        doc = {"rate_hz": rate, "samples": len(data), "axes": {}}
+        doc = {"rate_hz": rate, "samples": len(data), "estimator": estimator, "min_edf": min_edf,
+               "moved": moved, "axes": {}}
         for name in names:
             r, f = results[name], fits[name]
             doc["axes"][name] = {"tau_s": r.tau.tolist(), "adev": r.adev.tolist(), "lo": r.lo.tolist(),
-                                 "hi": r.hi.tolist(), "edf": r.edf.tolist(), "alpha": r.alpha.tolist(),
-                                 "confidence": r.confidence, "fit": f.value, "fit_sigma": f.sigma,
-                                 "slope_readouts": f.slope_readouts}
+                                 "hi": r.hi.tolist(), "edf": r.edf.tolist(), "alpha": np.asarray(r.alpha).tolist(),
+                                 "confidence": r.confidence,
+                                 "eq59_rel_sigma": np.broadcast_to(r.rel_sigma_eq59, r.tau.shape).tolist(),
+                                 "eq59_lo": r.eq59_lo.tolist(), "eq59_hi": r.eq59_hi.tolist(),
+                                 "fit": None if moved else f.value, "fit_sigma": None if moved else f.sigma,
+                                 "slope_readouts": None if moved else f.slope_readouts}
         Path(args.json).write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
     if out:
         out.mkdir(parents=True, exist_ok=True)
         _plots(out, names, results, fits, data, rate)
-        if tuple(names) == AXES:
+        if tuple(names) == AXES and not moved:
             _filter_files(out, fits, rate)
-        print(f"figures and parameter files in {out}")
+        print(f"figures{'' if moved else ' and parameter files'} in {out}")
     return 0
 
 
@@ -101,6 +111,8 @@ def _plots(out: Path, names, results, fits, data, rate) -> None:
             r, f = results[n], fits[n]
             axs[0].loglog(r.tau, r.adev, "o", ms=3, color=color, label=f"{n} data")
             axs[0].fill_between(r.tau, r.lo, r.hi, alpha=0.2, color=color, lw=0)
+            axs[0].loglog(r.tau, r.eq59_lo, "--", lw=0.6, color=color)
+            axs[0].loglog(r.tau, r.eq59_hi, "--", lw=0.6, color=color)
             axs[0].loglog(r.tau, f.model_adev, "-", lw=1, color=color)
             for term in f.terms:
                 single = noise_fit.fit_term_curve(r.tau, f, term)
@@ -115,8 +127,8 @@ def _plots(out: Path, names, results, fits, data, rate) -> None:
         axs[1].legend(fontsize=8)
         axs[0].set_xlabel("tau (s)")
         axs[0].set_ylabel("Allan deviation (SI)")
-        axs[0].set_title(f"{group}: data, {100 * results[cols[0]].confidence:.0f} % band, fit (solid), terms (dotted)",
-                         fontsize=10)
+        axs[0].set_title(f"{group}: data, {100 * results[cols[0]].confidence:.0f} % band, fit (solid), "
+                         f"terms (dotted), eq. 5.9 (dashed)", fontsize=8)
         axs[0].legend(fontsize=8)
         axs[1].set_xlabel("frequency (Hz)")
         axs[1].set_ylabel("one-sided PSD (SI^2/Hz)")
@@ -175,6 +187,8 @@ def _table(path: str, columns: int) -> np.ndarray:
 
 def run_calibrate(args) -> int:
     lat = math.radians(args.lat_deg)
+    if args.kind == "accel-updown" and Path(args.table).is_dir():
+        return _updown_session(args, lat)
     if args.kind == "accel-updown":
         g = calibration.local_gravity_mps2(lat, args.height_m)
         rows = _table(args.table, 2)
@@ -189,4 +203,61 @@ def run_calibrate(args) -> int:
         c = calibration.gyro_rate_table(rows[:, 0], rows[:, 1], w_ex, args.drift_bias)
         print(f"gyro: bias {c.bias:.6f} rad/s, scale factor {c.scale_factor:.6f}, residual RMS {c.residual_rms:.2e} "
               f"rad/s over {len(rows)} rates (Earth rate along the axis {w_ex:.3e} rad/s)")
+    return 0
+
+
+def _updown_session(args, lat: float) -> int:
+    """Up-down from a recording: its steady windows, classified by the axis that sees gravity (one
+    session with the up and down positions of one or more axes, or all six)."""
+    from . import lab
+
+    plan = lab.Plan(Path(args.table).resolve().parent / "plan", lat, args.height_m,
+                    [{"session": str(Path(args.table).resolve())}], [], None)
+    notes: list[str] = []
+    try:
+        res = lab.updown(plan, None, notes)
+    except records.RecordError as e:
+        raise _error(str(e)) from None
+    for w in notes:
+        print(f"gpsins calibrate: warning: {w}", file=sys.stderr)
+    print(f"local gravity {res['gravity_mps2']:.5f} m/s^2 (WGS-84 normal gravity at {args.lat_deg:g} deg, "
+          f"{args.height_m:g} m); uncertainties: white noise only (`gpsins lab` adds the drift run's wander)")
+    print("axis  bias (m/s^2)          scale factor           up window (s)   down window (s)")
+    for a, v in res["axes"].items():
+        print(f"{a:4}  {v['bias_mps2']:9.5f} ± {v['bias_sigma_mps2']:.1e}  {v['scale_factor']:10.6f} ± "
+              f"{v['scale_factor_sigma']:.1e}  {v['up']['window_s'][0]:6.0f}-{v['up']['window_s'][1]:<6.0f}  "
+              f"{v['down']['window_s'][0]:6.0f}-{v['down']['window_s'][1]:<6.0f}")
+    return 0 if res["axes"] else 2
+
+
+def run_lab(args) -> int:
+    """`gpsins lab PLAN --out DIR`, or `gpsins lab --simulate --out DIR`: a simulated lab day first."""
+    from . import lab
+
+    out = Path(args.out)
+    plan = args.plan
+    if args.simulate:
+        from ..sim import lab as sim_lab
+
+        cfg = sim_lab.LabDayConfig.quick() if args.quick else sim_lab.LabDayConfig()
+        day_dir = out / "lab_day"
+        if day_dir.exists():
+            raise _error(f"{day_dir} exists; give a new --out")
+        day = sim_lab.simulate_lab_day(cfg, args.seed)
+        if args.speed:
+            plan = sim_lab.record_through_logger(day, day_dir, speed=args.speed)
+        else:
+            plan = sim_lab.write_lab_day(day, day_dir)
+        how = f"recorded through the emulators and the logger at {args.speed:g}x" if args.speed else "written"
+        print(f"simulated lab day (seed {args.seed}, {len(day.t) / day.rate_hz / 3600:.2f} h) {how} in {day_dir}")
+    elif plan is None:
+        raise _error("give a lab plan (PLAN.toml) or --simulate")
+    try:
+        res = lab.run(plan, out / "report" if args.simulate else out)
+    except (lab.PlanError, lab.RecordError) as e:
+        raise _error(str(e)) from None
+    for w in res["warnings"]:
+        print(f"gpsins lab: warning: {w}", file=sys.stderr)
+    where = out / "report" if args.simulate else out
+    print(f"report: {where / 'report.html'} (and report.md, lab.json, imu_preset.toml, imu.yaml)")
     return 0

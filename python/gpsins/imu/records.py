@@ -1,0 +1,174 @@
+"""IMU recordings as rate samples, and where they stood still.
+
+A record is (n, 6) rates: gyro x, y, z (rad/s) then accelerometer x, y, z
+(m/s^2), from a logger session directory (increments / interval) or a CSV/NPY
+file with a declared rate and column kinds. Steady windows are the stretches
+between jumps of the 1 s block means, a jump being a change larger than
+JUMP_SIGMA times what the in-block noise allows: a unit standing still (or
+turning at a constant rate on a table) is steady; a flip, a table ramp or a
+car accelerating is not.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+AXES = ("gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z")
+COLUMN_KINDS = AXES + ("time", "skip")
+# Optional unit after a colon (accel_x:g, gyro_z:deg/s): the factor to SI.
+UNITS = {"accel": {"m/s^2": 1.0, "m/s2": 1.0, "g": 9.80665}, "gyro": {"rad/s": 1.0, "deg/s": np.pi / 180,
+                                                                       "deg/h": np.pi / 180 / 3600}}
+JUMP_SIGMA = 8.0
+DRIFT_ALLOWANCE = 3.0  # blocks' noise is inflated this much for the slow wander of the bias
+MIN_SAMPLES = 64
+
+
+class RecordError(ValueError):
+    pass
+
+
+@dataclass
+class Record:
+    name: str
+    rates: np.ndarray  # (n, k) in the units of `columns`
+    rate_hz: float
+    columns: tuple[str, ...]
+    start_unix_s: float | None = None  # from a session's sidecar: places records on one time line
+    notes: tuple[str, ...] = ()
+
+    def column(self, name: str) -> np.ndarray:
+        return self.rates[:, self.columns.index(name)]
+
+    @property
+    def duration_s(self) -> float:
+        return len(self.rates) / self.rate_hz
+
+
+def parse_columns(spec: str | list | None, width: int, where: str) -> tuple[tuple[str, ...], np.ndarray]:
+    """Column kinds and each column's factor to SI."""
+    if spec is None:
+        if width == 6:
+            return AXES, np.ones(6)
+        raise RecordError(f"{where}: {width} columns; declare what they are (columns = gyro_x,...,accel_z, "
+                          f"time or skip; a unit after a colon: accel_x:g, gyro_x:deg/s)")
+    cols, factors = [], []
+    for c in (spec.split(",") if isinstance(spec, str) else spec):
+        kind, _, unit = c.strip().partition(":")
+        if kind not in COLUMN_KINDS:
+            raise RecordError(f"{where}: unknown column kind {kind!r} (known: {', '.join(COLUMN_KINDS)})")
+        table = UNITS.get(kind.split("_")[0], {})
+        if unit and unit not in table:
+            raise RecordError(f"{where}: unknown unit {unit!r} for {kind} (known: {', '.join(table) or 'none'})")
+        cols.append(kind)
+        factors.append(table.get(unit, 1.0) if unit else 1.0)
+    if len(cols) != width:
+        raise RecordError(f"{where}: {len(cols)} column kinds declared for {width} columns")
+    return tuple(cols), np.array(factors)
+
+
+def load(source: str | Path, rate_hz: float | None = None, columns=None, start_s: float | None = None,
+         end_s: float | None = None, name: str | None = None) -> Record:
+    """A session directory or a CSV/NPY file, trimmed to [start_s, end_s) seconds from its start."""
+    p = Path(source)
+    notes = []
+    start_unix = None
+    if p.is_dir():
+        from .. import logs
+
+        try:
+            session = logs.read_session(p)
+            imu = session.imu()
+        except (logs.LogError, KeyError) as e:
+            raise RecordError(f"{p}: {e}") from None
+        if len(imu) == 0:
+            raise RecordError(f"{p}: no IMU frames")
+        gaps = (np.diff(imu.counter.astype(np.int64)) - 1) % 256
+        if gaps.any():
+            notes.append(f"{int(gaps.sum())} IMU frame(s) missing (counter gaps); the samples are taken as contiguous")
+        dt = 1.0 / imu.rate_hz
+        data = np.hstack([imu.dtheta_rad, imu.dv_mps]) / dt
+        rate, cols = float(imu.rate_hz), AXES
+        start_unix = float(session.sidecar.get("start", {}).get("realtime", imu.stamps[0]))
+    else:
+        if rate_hz is None:
+            raise RecordError(f"{p}: give the sample rate (rate_hz / --rate) of a CSV/NPY file")
+        try:
+            if p.suffix == ".npy":
+                data = np.load(p)
+            else:
+                data = np.loadtxt(p, delimiter="," if p.suffix == ".csv" else None, comments="#", ndmin=2)
+        except (OSError, ValueError) as e:
+            raise RecordError(f"{p}: {e}") from None
+        data = np.asarray(data, dtype=float).reshape(len(data), -1)
+        cols, factors = parse_columns(columns, data.shape[1], str(p))
+        keep = [i for i, c in enumerate(cols) if c not in ("time", "skip")]
+        data, cols, rate = data[:, keep] * factors[keep], tuple(cols[i] for i in keep), float(rate_hz)
+        bad = ~np.isfinite(data).all(1)
+        if bad.any():
+            raise RecordError(f"{p}: row {int(np.flatnonzero(bad)[0]) + 1} is not finite")
+    i0 = 0 if start_s is None else int(round(start_s * rate))
+    i1 = len(data) if end_s is None else min(len(data), int(round(end_s * rate)))
+    data = data[i0:i1]
+    if len(data) < MIN_SAMPLES:
+        raise RecordError(f"{p}: {len(data)} samples{' after trimming' if i0 or i1 < len(data) else ''}; "
+                          f"at least {MIN_SAMPLES} are needed")
+    if start_unix is not None:
+        start_unix += i0 / rate
+    return Record(name or p.name, data, rate, cols, start_unix, tuple(notes))
+
+
+@dataclass
+class Steadiness:
+    windows: list[tuple[int, int]]  # sample ranges [i0, i1)
+    jumps: int
+    steady_fraction: float
+    block_s: float
+
+    @property
+    def moved(self) -> bool:
+        return self.jumps > 0 or self.steady_fraction < 0.9
+
+
+def steady_windows(rates: np.ndarray, rate_hz: float, block_s: float = 1.0, min_s: float = 5.0,
+                   edge_s: float = 1.0) -> Steadiness:
+    """Windows where every column's 1 s means stay steady; edge_s is cut off next to each jump."""
+    m = max(2, int(round(block_s * rate_hz)))
+    nb = len(rates) // m
+    if nb < 3:
+        return Steadiness([(0, len(rates))] if len(rates) else [], 0, 1.0, block_s)
+    blocks = rates[:nb * m].reshape(nb, m, -1)
+    means = blocks.mean(1)
+    # Noise of a block mean from the spread inside blocks (the median block: robust to the moving ones).
+    sigma = np.median(blocks.std(1), axis=0) / np.sqrt(m) * DRIFT_ALLOWANCE
+    sigma = np.maximum(sigma, 1e-12)
+    jump = (np.abs(np.diff(means, axis=0)) > JUMP_SIGMA * np.sqrt(2) * sigma).any(1)
+    edge = int(np.ceil(edge_s / block_s))
+    bad = np.zeros(nb, bool)
+    for j in np.flatnonzero(jump):
+        bad[max(0, j - edge + 1):j + edge + 1] = True
+    windows = []
+    k = 0
+    while k < nb:
+        if bad[k]:
+            k += 1
+            continue
+        j = k
+        while j < nb and not bad[j]:
+            j += 1
+        if (j - k) * block_s >= min_s:
+            windows.append((k * m, j * m if j < nb else len(rates)))
+        k = j
+    covered = sum(b - a for a, b in windows) / len(rates)
+    return Steadiness(windows, int(jump.sum()), float(covered), block_s)
+
+
+def motion_warning(st: Steadiness, duration_s: float) -> str | None:
+    if not st.moved:
+        return None
+    longest = max((b - a for a, b in st.windows), default=0)
+    return (f"the record moved: {st.jumps} jump(s) of the 1 s means, steady windows cover "
+            f"{100 * st.steady_fraction:.0f} % of {duration_s:.0f} s (longest {longest} samples). Noise terms of a "
+            f"moving record describe the motion, not the sensor: trim to a static span (start/end seconds)")
