@@ -143,11 +143,12 @@ def parse_overrides(pairs: list[str]) -> dict:
 # spreads, noise densities, times and rates, which may not.
 _SIGNED = ("_cal", "lever_arm", "initial_yaw", "gps_time_offset_s", "pseudorange_sigma_m")
 _POSITIVE = {"imu_rate_hz", "fix_uere_m", "bias_tau_s", "zero_velocity_sigma_mps", "zero_rate_sigma_rad_per_s",
-             "standstill_window_s", "pseudorange_decimation", "gm_tau_s"}
+             "standstill_window_s", "pseudorange_decimation", "gm_tau_s", "standstill_block_s",
+             "gyro_range_rad_per_s", "gyro_range_deg_per_s", "accel_range_mps2"}
 _RANGES = {"gate_probability": (0.0, 1.0), "pseudorange_elevation_mask_deg": (0.0, 90.0),
            "pseudorange_elevation_mask_rad": (0.0, math.pi / 2)}
 _STRINGS = {"preset": PRESETS, "mode": ("loose", "tight"),
-            "model": ("random_walk", "gauss_markov", "constant")}
+            "model": ("random_walk", "gauss_markov", "constant"), "update_check": UPDATE_CHECKS}
 
 
 def _key_types() -> dict[str, str]:
@@ -157,7 +158,8 @@ def _key_types() -> dict[str, str]:
     for k in _core_fields():
         v = getattr(c, k)
         kinds[k] = ("vec3" if isinstance(v, np.ndarray) else "bool" if isinstance(v, bool) else "int"
-                    if isinstance(v, int) else "float" if isinstance(v, float) else "table")
+                    if isinstance(v, int) else "float" if isinstance(v, float) else "str"
+                    if hasattr(type(v), "__members__") else "table")  # a pybind11 enum is chosen by name
     for deg, rad in _DEGREE_KEYS.items():
         kinds[deg] = kinds.get(rad, "float")
     kinds.update({"preset": "str", "mode": "str", "imu_noise": "table", "gyro_bias_residual_rad_per_s": "vec3",

@@ -225,7 +225,8 @@ def _dataset_inputs(path: Path, config, overrides: dict) -> Inputs:
         sats = ds.fixes.ns.astype(int)
         vs = dataset_mod.velocity_sigma(ds.fixes, ds.velocity_sigma_floor_mps)
         if vs is not None:
-            derived.update(use_fix_velocity=True, fix_velocity_sigma_mps=vs)
+            # The stated sigma, not one scaled by DOP: here the DOP columns carry the position sigmas.
+            derived.update(use_fix_velocity=True, fix_velocity_sigma_mps=vs, fix_velocity_sigma_hdop_scaled=False)
     elif ds.pseudoranges is not None:
         fixes, sats = _spp_fixes(ds.pseudoranges, ds.navigation, t_week)
     else:

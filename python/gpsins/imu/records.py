@@ -11,6 +11,7 @@ car accelerating is not.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -75,6 +76,8 @@ def load(source: str | Path, rate_hz: float | None = None, columns=None, start_s
     p = Path(source)
     notes = []
     start_unix = None
+    if not p.exists():
+        raise RecordError(f"{p}: no such file or directory; give a session directory or a CSV/NPY of rates")
     if p.is_dir():
         from .. import logs
 
@@ -99,9 +102,13 @@ def load(source: str | Path, rate_hz: float | None = None, columns=None, start_s
             if p.suffix == ".npy":
                 data = np.load(p)
             else:
-                data = np.loadtxt(p, delimiter="," if p.suffix == ".csv" else None, comments="#", ndmin=2)
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")  # an empty file: said below
+                    data = np.loadtxt(p, delimiter="," if p.suffix == ".csv" else None, comments="#", ndmin=2)
         except (OSError, ValueError) as e:
-            raise RecordError(f"{p}: {e}") from None
+            raise RecordError(f"{p}: not a table of numbers ({e})") from None
+        if np.size(data) == 0:
+            raise RecordError(f"{p}: no samples; expected one row per sample, one column per axis")
         data = np.asarray(data, dtype=float).reshape(len(data), -1)
         cols, factors = parse_columns(columns, data.shape[1], str(p))
         keep = [i for i, c in enumerate(cols) if c not in ("time", "skip")]
