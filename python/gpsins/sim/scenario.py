@@ -38,6 +38,7 @@ import numpy as np
 from gpsins_logger import bp3010
 from gpsins_logger.config import STANDARD_BAUDS
 
+from .reference import ReferenceModel
 from .track import Cover, Track, TrackSpec
 
 LINE_BITS_PER_BYTE = 10  # 8N1
@@ -163,6 +164,7 @@ class Scenario:
     description: str = ""
     source: str = ""
     track: Track | None = None  # a ride along a 3-D track instead of segment profiles
+    reference: ReferenceModel = field(default_factory=ReferenceModel)  # the dual-antenna RTK reference
 
     @property
     def duration_s(self) -> float:
@@ -191,8 +193,8 @@ def _build(cls, table: dict, where: str):
 
 
 TOP_KEYS = {"name", "description", "base", "start", "segment", "obstruction", "repeat", "imu", "gnss", "timing",
-            "track"}
-TABLE_KEYS = ("start", "imu", "gnss", "timing")
+            "track", "reference"}
+TABLE_KEYS = ("start", "imu", "gnss", "timing", "reference")
 
 
 def _with_base(data: dict, source: str, here: Path | None, seen: tuple[str, ...]) -> tuple[dict, str]:
@@ -343,7 +345,8 @@ def parse(data: dict, source: str = "<scenario>", here: Path | None = None) -> S
     return Scenario(name=data.get("name", _stem(source)), description=data.get("description", ""),
                     segments=segs, obstructions=obs, start=_build(Start, data.get("start", {}), f"{source}: [start]"),
                     imu=imu, gnss=_build(GnssModel, data.get("gnss", {}), f"{source}: [gnss]"),
-                    timing=timing, source=source, track=track)
+                    timing=timing, source=source, track=track,
+                    reference=_build(ReferenceModel, data.get("reference", {}), f"{source}: [reference]"))
 
 
 def _track(table: dict, source: str) -> tuple[Track, list[Segment], list[Obstruction]]:
