@@ -93,6 +93,8 @@ class ImuModel:
     accel_scale_factor: tuple = (-4.7856e-4, -0.0014, -0.0031)
     gyro_misalignment_rad: float = 1e-3  # std of each off-diagonal term
     accel_misalignment_rad: float = 1e-3
+    # Gyro g-sensitivity: std of each element of the 3x3 matrix G (rate error G f); 0 = none and no draw.
+    gyro_g_sensitivity_rad_per_s_per_mps2: float = 0.0
     # Noise (report Tables 5.8, 5.9: Q is the white-noise N, B bias instability, K rate random walk).
     gyro_arw_rad_per_sqrt_s: tuple = (8.8e-4, 8.7e-4, 8.1e-4)
     gyro_bias_instability_rad_per_s: tuple = (4.7e-4, 4.7e-4, 3.6e-4)
