@@ -290,7 +290,8 @@ TEST_CASE("every aiding source's H matches finite differences of an independent 
     w.sat = f.nav.r_ecef_m + 2.2e7 * (up + 0.8 * uniform3(rng, 1.0).cross(up)).normalized();
 
     const auto pf = position_fix(f, Vec3::Zero(), Mat3::Identity(), w.lever);
-    compare_h<3>(worst, "position_fix", pf.H, differences<3>(f, [&](const Filter& x) { return antenna_offset(x, w, f.nav.r_ecef_m); }));
+    compare_h<3>(worst, "position_fix", pf.H,
+                 differences<3>(f, [&](const Filter& x) { return antenna_offset(x, w, f.nav.r_ecef_m); }));
 
     const Vec3 w_eb = f.corrected(c.raw).dtheta_rad / c.raw.dt_s - f.nav.q_eb.conjugate() * earth_rate_ecef();
     const auto gv = gnss_velocity(f, Vec3::Zero(), Mat3::Identity(), w.lever, w_eb);
@@ -326,5 +327,5 @@ TEST_CASE("every aiding source's H matches finite differences of an independent 
   // Known omissions (reported, not hidden): gyro scale factor enters the antenna velocity
   // (C [l]x diag(w)) and the standing rate (diag(C^T w_ie)), but H has no such columns.
   MESSAGE("omitted columns: gnss_velocity_sg " << worst.rel["gnss_velocity_sg"] << ", zero_rate_sg "
-                                               << worst.rel["zero_rate_sg"] << " (1 = the column is missing; less where the missing term is below the row's scale)");
+          << worst.rel["zero_rate_sg"] << " (1 = the column is missing; less where the term is small)");
 }

@@ -17,6 +17,21 @@ Two keys build long drives from short ones:
   the obstructions inside that span come back with every pass, later ones
   move on. Copies are labelled ``LABEL #2``, ``LABEL #3``, ...
 
+Roll: ``bank_deg`` ramps a segment's roll to a target like the grade (a banked
+road, a tilted body); ``coordinated = true`` adds the bank of a coordinated
+turn, atan(v yaw_rate cos(pitch) / g0), which is zero at the segment's ends.
+
+A ``[track]`` table replaces the segments with a ride along a closed 3-D curve
+(sim/track.py): ``points`` rows [north, east, down (m from the start point),
+bank_deg, speed_kmh] splined periodically, ``laps``, ``rest_before_s`` and
+``rest_after_s`` standing at the start point, ``ramp_s`` to start and stop; the
+segments become "Initialisation", "Lap 1".."Lap N" and "Stop", and each
+``[[track.cover]]`` (``points = [i, j]``, ``below_elevation_deg``,
+``azimuth_deg``, ``flicker``) becomes an obstruction on every lap.
+
+``[reference]`` sets the dual-antenna RTK reference written beside the session
+(sim/reference.py; ``enabled = false`` writes none).
+
 The IMU's ``rate_hz`` may be any positive integer: 64, 32, 16 and 8 Hz are
 the BP3010's own rates; other rates keep its frame layout (LSBs scaled by
 64 / rate, as the frame specification defines) and suit the robustness
