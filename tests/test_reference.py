@@ -116,3 +116,26 @@ def test_reference_can_be_switched_off(tmp_path):
     sc = parse(tomllib.loads('[[segment]]\nlabel = "x"\nduration_s = 20\n[reference]\nenabled = false\n'), "t")
     d = write_session(sim.simulate(sc, seed=0), tmp_path / "s")
     assert not (d / "reference.csv").exists()
+
+
+def test_compare_scores_an_estimate_against_the_reference(session):
+    """The truth as the 'estimate' scores the reference's own errors; a 1 m north offset and a
+    heading bias across +-180 deg show up as themselves."""
+    s, _, ref = session
+    tr = s.truth
+    gps0 = s.scenario.start.gps_week * 604800.0 + s.scenario.start.gps_tow_s
+    i = s.truth_at_imu
+    yaw, pitch = tr.ypr[i, 0], tr.ypr[i, 1]
+    e = reference.compare(ref, gps0 + tr.t[i], tr.r_ecef[i], yaw, pitch)
+    summ = e.summary()
+    assert 0.003 < summ["horizontal_rms_m"] < 0.012 and summ["position_epochs"] == ref.position_ok.sum()
+    assert 0.10 < summ["heading_rms_deg"] < 0.20 and 0.21 < summ["pitch_rms_deg"] < 0.41
+    north = np.stack([-np.sin(tr.lat[i]) * np.cos(tr.lon[i]), -np.sin(tr.lat[i]) * np.sin(tr.lon[i]),
+                      np.cos(tr.lat[i])], -1)
+    shifted = reference.compare(ref, gps0 + tr.t[i], tr.r_ecef[i] + north, yaw + np.radians(179.0), pitch)
+    ok = np.all(np.isfinite(shifted.position_ned_m), axis=1)
+    assert np.allclose(shifted.position_ned_m[ok] - e.position_ned_m[ok], [1.0, 0.0, 0.0], atol=1e-3)
+    good = np.isfinite(shifted.heading_rad)
+    wrapped = np.mod(shifted.heading_rad[good] - e.heading_rad[good] + np.pi, 2 * np.pi) - np.pi
+    assert np.allclose(np.degrees(wrapped), 179.0, atol=1e-6)
+    assert np.all(np.abs(shifted.heading_rad[good]) <= np.pi)

@@ -133,3 +133,76 @@ def load(session_dir: str | Path) -> Reference:
     if not path.exists():
         raise ReferenceError(f"{path}: no reference file in this session")
     return read(path)
+
+
+# --- scoring a solution against the reference -------------------------------------------------
+
+WGS84_A = 6378137.0
+WGS84_E2 = 6.69437999014e-3
+
+
+def _lat_lon(r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Geodetic latitude and longitude (Bowring's closed form: well below 1e-9 rad near the ground)."""
+    x, y, z = r[:, 0], r[:, 1], r[:, 2]
+    p = np.hypot(x, y)
+    b = WGS84_A * np.sqrt(1.0 - WGS84_E2)
+    ep2 = WGS84_E2 / (1.0 - WGS84_E2)
+    th = np.arctan2(z * WGS84_A, p * b)
+    lat = np.arctan2(z + ep2 * b * np.sin(th) ** 3, p - WGS84_E2 * WGS84_A * np.cos(th) ** 3)
+    return lat, np.arctan2(y, x)
+
+
+def _ecef_to_ned(d: np.ndarray, lat: np.ndarray, lon: np.ndarray) -> np.ndarray:
+    sl, cl, so, co = np.sin(lat), np.cos(lat), np.sin(lon), np.cos(lon)
+    n = -sl * co * d[:, 0] - sl * so * d[:, 1] + cl * d[:, 2]
+    e = -so * d[:, 0] + co * d[:, 1]
+    dn = -cl * co * d[:, 0] - cl * so * d[:, 1] - sl * d[:, 2]
+    return np.stack([n, e, dn], axis=-1)
+
+
+@dataclass
+class ReferenceErrors:
+    """Estimate minus reference at the reference's epochs inside the estimate's span."""
+    gps_s: np.ndarray  # (k,) continuous GPS seconds
+    position_ned_m: np.ndarray  # (k, 3), NaN where the reference has no position
+    sigma_ned_m: np.ndarray  # (k, 3) the reference's own sigma
+    heading_rad: np.ndarray  # (k,) wrapped to [-pi, pi), NaN where no attitude
+    pitch_rad: np.ndarray
+    sigma_heading_rad: np.ndarray
+    sigma_pitch_rad: np.ndarray
+
+    def summary(self) -> dict:
+        """RMS errors and how much of the time the reference could score at all."""
+        pos = np.all(np.isfinite(self.position_ned_m), axis=1)
+        att = np.isfinite(self.heading_rad) & np.isfinite(self.pitch_rad)
+        p, h = self.position_ned_m[pos], self.heading_rad[att]
+
+        def rms(x):
+            return float(np.sqrt(np.mean(x ** 2))) if len(x) else float("nan")
+        return {"epochs": int(len(self.gps_s)), "position_epochs": int(pos.sum()), "attitude_epochs": int(att.sum()),
+                "horizontal_rms_m": float(np.sqrt(np.mean(np.sum(p[:, :2] ** 2, 1)))) if len(p) else float("nan"),
+                "vertical_rms_m": rms(p[:, 2]), "heading_rms_deg": float(np.degrees(rms(h))),
+                "pitch_rms_deg": float(np.degrees(rms(self.pitch_rad[att]))),
+                "reference_horizontal_sigma_m": rms(np.hypot(*self.sigma_ned_m[pos, :2].T)) if len(p) else float("nan")}
+
+
+def compare(ref: Reference, gps_s: np.ndarray, r_ecef_m: np.ndarray, yaw_rad: np.ndarray,
+            pitch_rad: np.ndarray) -> ReferenceErrors:
+    """Errors of an estimate (continuous GPS seconds, ECEF position, yaw and pitch relative to
+    local NED, e.g. a filter's solution) against the reference, the estimate interpolated
+    linearly to the reference's epochs (yaw unwrapped first)."""
+    gps_s = np.asarray(gps_s, dtype=np.float64)
+    if len(gps_s) < 2 or np.any(np.diff(gps_s) <= 0):
+        raise ValueError("estimate times must be at least two and strictly increasing")
+    tr = ref.gps_seconds()
+    k = (tr >= gps_s[0]) & (tr <= gps_s[-1])
+    t = tr[k]
+    r = np.stack([np.interp(t, gps_s, r_ecef_m[:, i]) for i in range(3)], axis=-1)
+    yaw = np.interp(t, gps_s, np.unwrap(yaw_rad))
+    pitch = np.interp(t, gps_s, pitch_rad)
+    r_ref = ref.r_ecef_m[k]
+    lat, lon = _lat_lon(np.where(np.isfinite(r_ref), r_ref, r))
+    d_ned = _ecef_to_ned(r - r_ref, lat, lon)
+    dh = np.mod(yaw - ref.heading_rad[k] + np.pi, 2.0 * np.pi) - np.pi
+    return ReferenceErrors(t, d_ned, ref.sigma_ned_m[k], dh, pitch - ref.pitch_rad[k], ref.sigma_heading_rad[k],
+                           ref.sigma_pitch_rad[k])
