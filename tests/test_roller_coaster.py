@@ -8,6 +8,8 @@ import pytest
 from gpsins import sim
 from gpsins.sim import scenario as scn
 from gpsins.sim import trajectory
+from gpsins.sim.session import imu_frames
+from gpsins_logger import bp3010
 from simcheck import increment_errors, reintegration_errors
 
 G = 9.80665
@@ -53,9 +55,9 @@ def test_roller_coaster_dynamics_and_bp3010_ranges(lap_sim):
     assert 3.0 <= g_level.max() <= 4.0
     assert np.degrees(np.abs(tr.w_ib_body)).max() < 300.0
     assert np.abs(tr.f_body).max() < 10.0 * G
-    # The emulated unit's frames (+-458 deg/s, +-10 g worth of delta-v) never flag over-range.
-    lsb_limit = 0.125  # rad per 64 Hz frame
-    assert np.abs(lap_sim.imu_dtheta).max() < lsb_limit
+    # The emulated unit's frames (+-458 deg/s, +-13 g) never flag over-range either.
+    frames = imu_frames(lap_sim.imu_dtheta, lap_sim.imu_dv, np.arange(len(lap_sim.imu_t)), lap_sim.imu_rate_hz)
+    assert not np.any(frames[:, 13] & (bp3010.STATUS_GYRO_OVERRANGE | bp3010.STATUS_ACCEL_OVERRANGE))
 
 
 def test_roller_coaster_truth_reintegrates(lap_sim):
