@@ -2,6 +2,7 @@
 
 Per axis, in the units of the report's tables (Tables 5.1, 5.5, 5.8, 5.9):
 output = (I + scale factor + misalignment) ideal + bias * dt + white noise,
+plus, for the gyros, the g-sensitivity G delta-v (a rate error G f),
 where bias = turn-on bias + bias instability (a weighted sum of first-order
 Gauss-Markov processes whose Allan deviation is flat at 0.664 B) + rate random
 walk. Quantisation is the frame's LSB, applied by the encoder. Every true
@@ -46,9 +47,10 @@ class ImuErrors:
     accel_matrix: np.ndarray
     gyro_bias_drift: np.ndarray  # (n, 3) time-varying part of the bias at each sample
     accel_bias_drift: np.ndarray
+    gyro_g_matrix: np.ndarray | None = None  # (3, 3) rad/s per m/s^2 of specific force; None = none
 
     def as_dict(self) -> dict:
-        return {k: np.asarray(v).tolist() for k, v in self.__dict__.items() if "drift" not in k}
+        return {k: np.asarray(v).tolist() for k, v in self.__dict__.items() if "drift" not in k and v is not None}
 
 
 def _vec(x) -> np.ndarray:
@@ -92,7 +94,10 @@ def draw_errors(m: ImuModel, n: int, rng: np.random.Generator) -> ImuErrors:
     am = _matrix(rng, m.accel_scale_factor, m.accel_misalignment_rad, m)
     gd = _drift(rng, n, dt, _vec(m.gyro_bias_instability_rad_per_s), _vec(m.gyro_rrw_rad_per_s_sqrt_s), m)
     ad = _drift(rng, n, dt, _vec(m.accel_bias_instability_mps2), _vec(m.accel_rrw_mps2_per_sqrt_s), m)
-    return ImuErrors(gb, ab, gm, am, gd, ad)
+    # Drawn last and only when asked for, so the other terms' draws stay the same per seed.
+    gg = rng.normal(0.0, m.gyro_g_sensitivity_rad_per_s_per_mps2, (3, 3)) \
+        if m.gyro_g_sensitivity_rad_per_s_per_mps2 > 0 else None
+    return ImuErrors(gb, ab, gm, am, gd, ad, gg)
 
 
 def measure(dtheta: np.ndarray, dv: np.ndarray, m: ImuModel, err: ImuErrors,
@@ -102,6 +107,8 @@ def measure(dtheta: np.ndarray, dv: np.ndarray, m: ImuModel, err: ImuErrors,
     dt = 1.0 / m.rate_hz
     g = dtheta @ err.gyro_matrix.T + (err.gyro_bias_rad_per_s + err.gyro_bias_drift) * dt
     a = dv @ err.accel_matrix.T + (err.accel_bias_mps2 + err.accel_bias_drift) * dt
+    if err.gyro_g_matrix is not None:
+        g += dv @ err.gyro_g_matrix.T
     if m.terms["white_noise"]:
         g += rng.normal(0.0, 1.0, (n, 3)) * _vec(m.gyro_arw_rad_per_sqrt_s) * np.sqrt(dt)
         a += rng.normal(0.0, 1.0, (n, 3)) * _vec(m.accel_vrw_mps_per_sqrt_s) * np.sqrt(dt)

@@ -17,6 +17,21 @@ Two keys build long drives from short ones:
   the obstructions inside that span come back with every pass, later ones
   move on. Copies are labelled ``LABEL #2``, ``LABEL #3``, ...
 
+Roll: ``bank_deg`` ramps a segment's roll to a target like the grade (a banked
+road, a tilted body); ``coordinated = true`` adds the bank of a coordinated
+turn, atan(v yaw_rate cos(pitch) / g0), which is zero at the segment's ends.
+
+A ``[track]`` table replaces the segments with a ride along a closed 3-D curve
+(sim/track.py): ``points`` rows [north, east, down (m from the start point),
+bank_deg, speed_kmh] splined periodically, ``laps``, ``rest_before_s`` and
+``rest_after_s`` standing at the start point, ``ramp_s`` to start and stop; the
+segments become "Initialisation", "Lap 1".."Lap N" and "Stop", and each
+``[[track.cover]]`` (``points = [i, j]``, ``below_elevation_deg``,
+``azimuth_deg``, ``flicker``) becomes an obstruction on every lap.
+
+``[reference]`` sets the dual-antenna RTK reference written beside the session
+(sim/reference.py; ``enabled = false`` writes none).
+
 The IMU's ``rate_hz`` may be any positive integer: 64, 32, 16 and 8 Hz are
 the BP3010's own rates; other rates keep its frame layout (LSBs scaled by
 64 / rate, as the frame specification defines) and suit the robustness
@@ -33,8 +48,13 @@ from dataclasses import dataclass, field, fields
 from importlib import resources
 from pathlib import Path
 
+import numpy as np
+
 from gpsins_logger import bp3010
 from gpsins_logger.config import STANDARD_BAUDS
+
+from .reference import ReferenceModel
+from .track import Cover, Track, TrackSpec
 
 LINE_BITS_PER_BYTE = 10  # 8N1
 
@@ -50,6 +70,8 @@ class Segment:
     speed_mps: float | None = None  # target at the end; None keeps the current speed
     turn_deg: float = 0.0  # heading change over the segment, + to the right
     grade_deg: float | None = None  # target road grade (pitch), + uphill
+    bank_deg: float | None = None  # target roll (banked road, body roll), + right side down
+    coordinated: bool = False  # add the bank of a coordinated turn, atan(v yaw_rate cos(pitch) / g0)
 
 
 @dataclass
@@ -86,6 +108,8 @@ class ImuModel:
     accel_scale_factor: tuple = (-4.7856e-4, -0.0014, -0.0031)
     gyro_misalignment_rad: float = 1e-3  # std of each off-diagonal term
     accel_misalignment_rad: float = 1e-3
+    # Gyro g-sensitivity: std of each element of the 3x3 matrix G (rate error G f); 0 = none and no draw.
+    gyro_g_sensitivity_rad_per_s_per_mps2: float = 0.0
     # Noise (report Tables 5.8, 5.9: Q is the white-noise N, B bias instability, K rate random walk).
     gyro_arw_rad_per_sqrt_s: tuple = (8.8e-4, 8.7e-4, 8.1e-4)
     gyro_bias_instability_rad_per_s: tuple = (4.7e-4, 4.7e-4, 3.6e-4)
@@ -156,6 +180,8 @@ class Scenario:
     timing: Timing = field(default_factory=Timing)
     description: str = ""
     source: str = ""
+    track: Track | None = None  # a ride along a 3-D track instead of segment profiles
+    reference: ReferenceModel = field(default_factory=ReferenceModel)  # the dual-antenna RTK reference
 
     @property
     def duration_s(self) -> float:
@@ -183,16 +209,17 @@ def _build(cls, table: dict, where: str):
         raise ScenarioError(f"{where}: {e}") from None
 
 
-TOP_KEYS = {"name", "description", "base", "start", "segment", "obstruction", "repeat", "imu", "gnss", "timing"}
-TABLE_KEYS = ("start", "imu", "gnss", "timing")
+TOP_KEYS = {"name", "description", "base", "start", "segment", "obstruction", "repeat", "imu", "gnss", "timing",
+            "track", "reference"}
+TABLE_KEYS = ("start", "imu", "gnss", "timing", "reference")
 
 
 def _with_base(data: dict, source: str, here: Path | None, seen: tuple[str, ...]) -> tuple[dict, str]:
     """The file's data on top of its base's (recursively); segment sources are named for errors."""
     base = data["base"]
-    if data.get("segment") or data.get("obstruction"):
+    if data.get("segment") or data.get("obstruction") or data.get("track"):
         raise ScenarioError(f"{source}: a scenario with a base takes its segments and obstructions from it; "
-                            f"remove [[segment]] and [[obstruction]] or the base")
+                            f"remove [[segment]], [[obstruction]] and [track] or the base")
     if not isinstance(base, str):
         raise ScenarioError(f"{source}: base must be a scenario name or a TOML path")
     path = Path(base)
@@ -295,14 +322,20 @@ def parse(data: dict, source: str = "<scenario>", here: Path | None = None) -> S
         raise ScenarioError(f"{source}: unknown key(s) {', '.join(sorted(unknown))}")
     if "base" in data:
         data, source = _with_base(data, source, here, (source,))
-    segs = [_build(Segment, s, f"{source}: segment {i + 1}") for i, s in enumerate(data.get("segment", []))]
+    track, track_obs = None, []
+    if "track" in data:
+        if data.get("segment"):
+            raise ScenarioError(f"{source}: a scenario with a [track] has no [[segment]] (the laps are its segments)")
+        track, segs, track_obs = _track(data["track"], source)
+    else:
+        segs = [_build(Segment, s, f"{source}: segment {i + 1}") for i, s in enumerate(data.get("segment", []))]
     if not segs:
         raise ScenarioError(f"{source}: no [[segment]]")
     for i, s in enumerate(segs):
         if not s.duration_s > 0:
             raise ScenarioError(f"{source}: segment {i + 1} ({s.label}): duration_s must be > 0")
     times = {label: (t0, t1) for label, t0, t1 in Scenario("", segs).segment_times()}
-    obs = []
+    obs = list(track_obs)
     for i, o in enumerate(data.get("obstruction", [])):
         o = dict(o)
         if "segment" in o:
@@ -329,7 +362,44 @@ def parse(data: dict, source: str = "<scenario>", here: Path | None = None) -> S
     return Scenario(name=data.get("name", _stem(source)), description=data.get("description", ""),
                     segments=segs, obstructions=obs, start=_build(Start, data.get("start", {}), f"{source}: [start]"),
                     imu=imu, gnss=_build(GnssModel, data.get("gnss", {}), f"{source}: [gnss]"),
-                    timing=timing, source=source)
+                    timing=timing, source=source, track=track,
+                    reference=_build(ReferenceModel, data.get("reference", {}), f"{source}: [reference]"))
+
+
+def _track(table: dict, source: str) -> tuple[Track, list[Segment], list[Obstruction]]:
+    """The track, its segments (rest, laps, rest) and the covers' obstructions on every lap."""
+    where = f"{source}: [track]"
+    table = dict(table)
+    covers = [_build(Cover, c, f"{where} cover {i + 1}") for i, c in enumerate(table.pop("cover", []))]
+    spec = _build(TrackSpec, table, where)
+    spec.points = [list(p) for p in spec.points]
+    spec.cover = covers
+    try:
+        tr = Track(spec, where)
+    except ValueError as e:
+        raise ScenarioError(str(e)) from None
+    rest0 = float(spec.rest_before_s)
+    segs = [Segment("Initialisation", rest0, speed_mps=0.0)] if rest0 > 0 else []
+    segs += [Segment(f"Lap {k + 1}", float(tr.lap_times[k + 1] - tr.lap_times[k])) for k in range(spec.laps)]
+    if spec.rest_after_s > 0:
+        segs.append(Segment("Stop", float(spec.rest_after_s)))
+    # Cover stretches by point index, on every lap: times from the ride's u(t).
+    tau = np.linspace(0.0, tr.ride_s, int(tr.ride_s * 200) + 2)
+    u = tr.u_of(tau)[0]
+    obs = []
+    n_pts = len(spec.points)
+    for i, c in enumerate(covers):
+        a, b = c.points
+        if not (0 <= a < n_pts and 0 <= b < n_pts):
+            raise ScenarioError(f"{where} cover {i + 1}: points must be indices 0..{n_pts - 1}")
+        ua, ub = tr.knots[a], tr.knots[b] if b > a else tr.knots[b] + tr.period
+        for lap in range(spec.laps):
+            t_in = np.interp([lap * tr.period + ua, lap * tr.period + ub], u, tau, right=np.nan)
+            if not np.all(np.isfinite(t_in)):
+                continue
+            obs.append(Obstruction(rest0 + t_in[0], rest0 + t_in[1], tuple(c.azimuth_deg), c.below_elevation_deg,
+                                   c.flicker, c.flicker_period_s, f"{c.label} lap {lap + 1}"))
+    return tr, segs, obs
 
 
 def builtin_names() -> list[str]:

@@ -30,7 +30,8 @@ import numpy as np
 from gpsins_logger import bp3010
 from gpsins_logger import superstar2 as ss2
 
-from . import Simulation
+from .. import reference as reference_file
+from . import Simulation, reference
 from .messages import SimSource
 
 GPS_UNIX_OFFSET_S = 315964800.0  # 1980-01-06 in Unix time
@@ -188,9 +189,24 @@ def write_session(sim: Simulation, directory: str | Path) -> Path:
         sidecar["simulation"]["imu_frame"] = (
             f"BP3010 frame layout at {sim.imu_rate_hz} Hz, not a BP3010 rate: LSBs scaled by "
             f"{bp3010.NOMINAL_RATE_HZ} / rate_hz, counter +1 per sample")
+    if sc.reference.enabled:
+        write_reference(sim, directory / reference_file.FILE_NAME)
+        sidecar["simulation"]["reference"] = reference_file.FILE_NAME
     (directory / "session.json").write_text(json.dumps(sidecar, indent=2) + "\n", encoding="utf-8")
     write_truth(sim, directory / "truth.npz")
     return directory
+
+
+def write_reference(sim: Simulation, path: str | Path) -> reference.ReferenceData:
+    """The dual-antenna RTK reference's file (gpsins.reference's layout), GPS-timed."""
+    sc = sim.scenario
+    ref = reference.simulate(sim, sc.reference, np.random.default_rng([sim.seed, sc.reference.seed_offset]))
+    m = sc.reference
+    reference_file.write(path, sc.start.gps_week, sc.start.gps_tow_s + ref.t, ref.r_ecef, ref.sigma_ned_m,
+                         ref.heading_rad, ref.pitch_rad, ref.sigma_heading_rad, ref.sigma_pitch_rad,
+                         comment=f"simulated: scenario {sc.name}, seed {sim.seed}, {m.rate_hz} Hz, "
+                                 f"baseline {m.baseline_m} m, RTK {m.rtk_3d_rms_m} m 3D RMS")
+    return ref
 
 
 def write_truth(sim: Simulation, path: str | Path) -> None:

@@ -1,7 +1,10 @@
 """Truth trajectory at a high internal rate, and the ideal IMU increments.
 
-Speed, heading and grade are smooth analytic functions of time (quintic
-ramps per segment), so velocity in NED and its derivative are exact. Latitude
+Speed, heading, grade and roll are smooth analytic functions of time (quintic
+ramps per segment; roll from banking targets plus, where a segment asks for it,
+the bank of a coordinated turn, atan(v psi' cos(theta) / g0)), so velocity in
+NED and its derivative are exact. A scenario with a [track] (a ride along a 3-D
+curve, sim/track.py) takes speed and the three angles from the track instead. Latitude
 and longitude follow from the curvature ODE (Simpson's rule on half steps,
 iterated to a fixed point); height is the exact integral of the vertical
 speed. Everything else is evaluated in closed form: ECEF acceleration from
@@ -40,8 +43,15 @@ def substeps_for(imu_rate_hz: float) -> int:
     return max(2, 2 * int(round(INTERNAL_RATE_HZ / (2.0 * imu_rate_hz))))
 
 
+G0 = 9.80665  # the bank of a coordinated turn is taken at standard gravity
+
+
 def _smoothstep(tau):
     return tau ** 3 * (10.0 - 15.0 * tau + 6.0 * tau * tau), 30.0 * tau ** 2 * (1.0 - tau) ** 2
+
+
+def _smoothstep_dd(tau):
+    return 60.0 * tau * (1.0 - tau) * (1.0 - 2.0 * tau)
 
 
 @dataclass
@@ -52,35 +62,52 @@ class Profiles:
     yaw_dot: np.ndarray
     pitch: np.ndarray
     pitch_dot: np.ndarray
+    roll: np.ndarray
+    roll_dot: np.ndarray
 
 
 def profiles(sc: Scenario, t: np.ndarray) -> Profiles:
-    """Speed, yaw (heading) and pitch (grade) with their time derivatives at times t."""
+    """Speed, yaw (heading), pitch (grade) and roll with their time derivatives at times t."""
     t = np.asarray(t, dtype=np.float64)
+    if sc.track is not None:
+        k = sc.track.kinematics(t - sc.track.spec.rest_before_s)
+        return Profiles(k["speed"], k["speed_dot"], k["yaw"], k["yaw_dot"], k["pitch"], k["pitch_dot"],
+                        k["roll"], k["roll_dot"])
     n_seg = len(sc.segments)
     t0, dur = np.empty(n_seg), np.empty(n_seg)
-    ends = np.empty((n_seg, 2, 3))  # per segment: (start, target) of speed, yaw, pitch
-    s0, y0, p0, a = 0.0, np.radians(sc.start.heading_deg), 0.0, 0.0
+    ends = np.empty((n_seg, 2, 4))  # per segment: (start, target) of speed, yaw, pitch, bank
+    coordinated = np.array([bool(seg.coordinated) for seg in sc.segments])
+    s0, y0, p0, r0, a = 0.0, np.radians(sc.start.heading_deg), 0.0, 0.0, 0.0
     for k, seg in enumerate(sc.segments):
         s1 = s0 if seg.speed_mps is None else float(seg.speed_mps)
         y1 = y0 + np.radians(seg.turn_deg)
         p1 = p0 if seg.grade_deg is None else np.radians(seg.grade_deg)
-        t0[k], dur[k], ends[k] = a, seg.duration_s, ((s0, y0, p0), (s1, y1, p1))
-        s0, y0, p0, a = s1, y1, p1, a + seg.duration_s
+        r1 = r0 if seg.bank_deg is None else np.radians(seg.bank_deg)
+        t0[k], dur[k], ends[k] = a, seg.duration_s, ((s0, y0, p0, r0), (s1, y1, p1, r1))
+        s0, y0, p0, r0, a = s1, y1, p1, r1, a + seg.duration_s
     # Each time's segment: the one it starts in; past the end, the last one (held at its target).
     k = np.minimum(np.searchsorted(t0 + dur, t, side="right"), n_seg - 1)
     tau = np.clip((t - t0[k]) / dur[k], 0.0, 1.0)
     s, ds = _smoothstep(tau)
     moving, d = tau < 1.0, dur[k]
     out = []
-    for j in range(3):
+    for j in range(4):
         a, b = ends[k, 0, j], ends[k, 1, j]
         out += [a + (b - a) * s, (b - a) * ds / d * moving]
+    yaw_ddot = (ends[k, 1, 1] - ends[k, 0, 1]) * _smoothstep_dd(tau) / d ** 2 * moving
     before = t < 0.0
     if np.any(before):  # before the run: standing as at the start
         for x in out:
             x[before] = 0.0
         out[2][before] = np.radians(sc.start.heading_deg)
+        yaw_ddot[before] = 0.0
+    c = coordinated[k] & moving & ~before
+    if np.any(c):  # the bank of a coordinated turn, on top of the segment's banking
+        v, vd, yd, pitch, pd = out[0][c], out[1][c], out[3][c], out[4][c], out[5][c]
+        x = v * yd * np.cos(pitch) / G0
+        xd = (vd * yd * np.cos(pitch) + v * yaw_ddot[c] * np.cos(pitch) - v * yd * np.sin(pitch) * pd) / G0
+        out[6][c] += np.arctan(x)
+        out[7][c] += xd / (1.0 + x * x)
     return Profiles(*out)
 
 
@@ -196,13 +223,13 @@ def _pointwise(sc: Scenario, out: Truth, dlat: np.ndarray, dlon: np.ndarray, k: 
     w_ie = np.stack([earth.OMEGA_E * np.cos(lat), np.zeros_like(lat), -earth.OMEGA_E * np.sin(lat)], -1)
     v_e = np.einsum("nij,nj->ni", c_en, v)
     a_e = np.einsum("nij,nj->ni", c_en, dv + np.cross(w_en, v))
-    roll = np.zeros_like(t)
+    roll = p.roll
     c_nb = earth.euler_to_dcm(p.yaw, p.pitch, roll)
     c_eb = c_en @ c_nb
     f_e = a_e + 2.0 * np.cross(earth.OMEGA_VEC, v_e) - earth.gravity_ecef(r)
-    # Euler-rate part of the body rate (roll held at zero, so its rate is zero too)
+    # Euler-rate part of the body rate (z-y-x: roll rate about the body's x axis)
     sr, cr, sp, cp = np.sin(roll), np.cos(roll), np.sin(p.pitch), np.cos(p.pitch)
-    w_nb = np.stack([-p.yaw_dot * sp, p.pitch_dot * cr + p.yaw_dot * sr * cp,
+    w_nb = np.stack([p.roll_dot - p.yaw_dot * sp, p.pitch_dot * cr + p.yaw_dot * sr * cp,
                      -p.pitch_dot * sr + p.yaw_dot * cr * cp], -1)
     out.r_ecef[k], out.v_ecef[k], out.a_ecef[k], out.c_eb[k] = r, v_e, a_e, c_eb
     out.q_eb[k] = earth.dcm_to_quat(c_eb)

@@ -1,0 +1,208 @@
+"""The reference system's file beside a session: ``reference.csv``.
+
+A dual-antenna carrier-phase reference (the report's Javad HD2, seed 004
+section 4.2) is not logged by the vehicle's logger: it records on its own and
+its RTK solution is post-processed against a base station, in GPS time. So its
+output sits beside the session as a plain text table rather than as a logger
+record file: readable by any tool, no system-time stamps to align, and one row
+per epoch whether or not the receiver had a solution.
+
+Layout: lines starting with ``#`` are comments; the first other line is the
+header naming the columns, in this order::
+
+    gps_week,gps_tow_s,x_m,y_m,z_m,sigma_n_m,sigma_e_m,sigma_d_m,heading_deg,pitch_deg,sigma_heading_deg,sigma_pitch_deg
+
+Position is ECEF (WGS-84) of the IMU's reference point (the reference's lever
+arm already applied), heading and pitch those of the antenna baseline along the
+body's forward axis, relative to local NED. Sigmas are 1-sigma. An empty field
+means no solution: position and attitude drop out independently.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+FILE_NAME = "reference.csv"
+MAGIC = "# gpsins reference 1"
+COLUMNS = ("gps_week", "gps_tow_s", "x_m", "y_m", "z_m", "sigma_n_m", "sigma_e_m", "sigma_d_m", "heading_deg",
+           "pitch_deg", "sigma_heading_deg", "sigma_pitch_deg")
+
+
+class ReferenceError(ValueError):
+    pass
+
+
+@dataclass
+class Reference:
+    gps_week: np.ndarray  # (n,) int
+    gps_tow_s: np.ndarray  # (n,)
+    r_ecef_m: np.ndarray  # (n, 3), NaN where no position
+    sigma_ned_m: np.ndarray  # (n, 3)
+    heading_rad: np.ndarray  # (n,), NaN where no attitude
+    pitch_rad: np.ndarray
+    sigma_heading_rad: np.ndarray
+    sigma_pitch_rad: np.ndarray
+    damaged_lines: list[tuple[int, str]] = field(default_factory=list)  # (line number, why), rows skipped
+
+    @property
+    def position_ok(self) -> np.ndarray:
+        return np.all(np.isfinite(self.r_ecef_m), axis=1)
+
+    @property
+    def attitude_ok(self) -> np.ndarray:
+        return np.isfinite(self.heading_rad) & np.isfinite(self.pitch_rad)
+
+    def gps_seconds(self) -> np.ndarray:
+        """Continuous GPS time (week * 604800 + tow)."""
+        return self.gps_week * 604800.0 + self.gps_tow_s
+
+
+def _fmt(x: float, digits: int) -> str:
+    return "" if not np.isfinite(x) else f"{x:.{digits}f}"
+
+
+def write(path: str | Path, gps_week: int, tow_s: np.ndarray, r_ecef_m: np.ndarray, sigma_ned_m: np.ndarray,
+          heading_rad: np.ndarray, pitch_rad: np.ndarray, sigma_heading_rad, sigma_pitch_rad,
+          comment: str = "") -> None:
+    """Write a reference file; NaN values become empty fields. tow_s may run past one week."""
+    n = len(tow_s)
+    sh = np.broadcast_to(np.degrees(sigma_heading_rad), (n,))
+    sp = np.broadcast_to(np.degrees(sigma_pitch_rad), (n,))
+    lines = [MAGIC]
+    if comment:
+        lines += [f"# {c}" for c in comment.splitlines()]
+    lines.append(",".join(COLUMNS))
+    for k in range(n):
+        week = gps_week + int(tow_s[k] // 604800.0)
+        tow = tow_s[k] - 604800.0 * (week - gps_week)
+        has_att = np.isfinite(heading_rad[k]) and np.isfinite(pitch_rad[k])
+        row = [str(week), f"{tow:.3f}", *(_fmt(x, 4) for x in r_ecef_m[k]),
+               *(_fmt(x, 4) if np.all(np.isfinite(r_ecef_m[k])) else "" for x in sigma_ned_m[k]),
+               _fmt(np.degrees(heading_rad[k]), 4), _fmt(np.degrees(pitch_rad[k]), 4),
+               _fmt(sh[k], 4) if has_att else "", _fmt(sp[k], 4) if has_att else ""]
+        lines.append(",".join(row))
+    Path(path).write_text("\n".join(lines) + "\n", encoding="ascii")
+
+
+def read(path: str | Path) -> Reference:
+    """Read a reference file. A row that does not parse is skipped and listed in damaged_lines;
+    a file without the header is an error naming the file."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="ascii", errors="replace")
+    except OSError as e:
+        raise ReferenceError(f"{path}: cannot read ({e.strerror})") from None
+    header_seen = False
+    rows, damaged = [], []
+    for num, line in enumerate(text.splitlines(), start=1):
+        if not line.strip() or line.startswith("#"):
+            continue
+        fields = line.split(",")
+        if not header_seen:
+            if tuple(f.strip() for f in fields) != COLUMNS:
+                raise ReferenceError(f"{path}: line {num}: header must be {','.join(COLUMNS)}")
+            header_seen = True
+            continue
+        if len(fields) != len(COLUMNS):
+            damaged.append((num, f"{len(fields)} fields, expected {len(COLUMNS)}"))
+            continue
+        try:
+            week = int(fields[0])
+            vals = [float(f) if f.strip() else np.nan for f in fields[1:]]
+        except ValueError as e:
+            damaged.append((num, str(e)))
+            continue
+        if not np.isfinite(vals[0]):
+            damaged.append((num, "gps_tow_s is empty"))
+            continue
+        rows.append((week, *vals))
+    if not header_seen:
+        raise ReferenceError(f"{path}: no header line ({','.join(COLUMNS)})")
+    a = np.array(rows, dtype=np.float64).reshape(-1, len(COLUMNS))
+    deg = np.pi / 180.0
+    return Reference(a[:, 0].astype(np.int64), a[:, 1], a[:, 2:5], a[:, 5:8], a[:, 8] * deg, a[:, 9] * deg,
+                     a[:, 10] * deg, a[:, 11] * deg, damaged)
+
+
+def load(session_dir: str | Path) -> Reference:
+    """The reference beside a session (``SESSION/reference.csv``)."""
+    path = Path(session_dir) / FILE_NAME
+    if not path.exists():
+        raise ReferenceError(f"{path}: no reference file in this session")
+    return read(path)
+
+
+# --- scoring a solution against the reference -------------------------------------------------
+
+WGS84_A = 6378137.0
+WGS84_E2 = 6.69437999014e-3
+
+
+def _lat_lon(r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Geodetic latitude and longitude (Bowring's closed form: well below 1e-9 rad near the ground)."""
+    x, y, z = r[:, 0], r[:, 1], r[:, 2]
+    p = np.hypot(x, y)
+    b = WGS84_A * np.sqrt(1.0 - WGS84_E2)
+    ep2 = WGS84_E2 / (1.0 - WGS84_E2)
+    th = np.arctan2(z * WGS84_A, p * b)
+    lat = np.arctan2(z + ep2 * b * np.sin(th) ** 3, p - WGS84_E2 * WGS84_A * np.cos(th) ** 3)
+    return lat, np.arctan2(y, x)
+
+
+def _ecef_to_ned(d: np.ndarray, lat: np.ndarray, lon: np.ndarray) -> np.ndarray:
+    sl, cl, so, co = np.sin(lat), np.cos(lat), np.sin(lon), np.cos(lon)
+    n = -sl * co * d[:, 0] - sl * so * d[:, 1] + cl * d[:, 2]
+    e = -so * d[:, 0] + co * d[:, 1]
+    dn = -cl * co * d[:, 0] - cl * so * d[:, 1] - sl * d[:, 2]
+    return np.stack([n, e, dn], axis=-1)
+
+
+@dataclass
+class ReferenceErrors:
+    """Estimate minus reference at the reference's epochs inside the estimate's span."""
+    gps_s: np.ndarray  # (k,) continuous GPS seconds
+    position_ned_m: np.ndarray  # (k, 3), NaN where the reference has no position
+    sigma_ned_m: np.ndarray  # (k, 3) the reference's own sigma
+    heading_rad: np.ndarray  # (k,) wrapped to [-pi, pi), NaN where no attitude
+    pitch_rad: np.ndarray
+    sigma_heading_rad: np.ndarray
+    sigma_pitch_rad: np.ndarray
+
+    def summary(self) -> dict:
+        """RMS errors and how much of the time the reference could score at all."""
+        pos = np.all(np.isfinite(self.position_ned_m), axis=1)
+        att = np.isfinite(self.heading_rad) & np.isfinite(self.pitch_rad)
+        p, h = self.position_ned_m[pos], self.heading_rad[att]
+
+        def rms(x):
+            return float(np.sqrt(np.mean(x ** 2))) if len(x) else float("nan")
+        return {"epochs": int(len(self.gps_s)), "position_epochs": int(pos.sum()), "attitude_epochs": int(att.sum()),
+                "horizontal_rms_m": float(np.sqrt(np.mean(np.sum(p[:, :2] ** 2, 1)))) if len(p) else float("nan"),
+                "vertical_rms_m": rms(p[:, 2]), "heading_rms_deg": float(np.degrees(rms(h))),
+                "pitch_rms_deg": float(np.degrees(rms(self.pitch_rad[att]))),
+                "reference_horizontal_sigma_m": rms(np.hypot(*self.sigma_ned_m[pos, :2].T)) if len(p) else float("nan")}
+
+
+def compare(ref: Reference, gps_s: np.ndarray, r_ecef_m: np.ndarray, yaw_rad: np.ndarray,
+            pitch_rad: np.ndarray) -> ReferenceErrors:
+    """Errors of an estimate (continuous GPS seconds, ECEF position, yaw and pitch relative to
+    local NED, e.g. a filter's solution) against the reference, the estimate interpolated
+    linearly to the reference's epochs (yaw unwrapped first)."""
+    gps_s = np.asarray(gps_s, dtype=np.float64)
+    if len(gps_s) < 2 or np.any(np.diff(gps_s) <= 0):
+        raise ValueError("estimate times must be at least two and strictly increasing")
+    tr = ref.gps_seconds()
+    k = (tr >= gps_s[0]) & (tr <= gps_s[-1])
+    t = tr[k]
+    r = np.stack([np.interp(t, gps_s, r_ecef_m[:, i]) for i in range(3)], axis=-1)
+    yaw = np.interp(t, gps_s, np.unwrap(yaw_rad))
+    pitch = np.interp(t, gps_s, pitch_rad)
+    r_ref = ref.r_ecef_m[k]
+    lat, lon = _lat_lon(np.where(np.isfinite(r_ref), r_ref, r))
+    d_ned = _ecef_to_ned(r - r_ref, lat, lon)
+    dh = np.mod(yaw - ref.heading_rad[k] + np.pi, 2.0 * np.pi) - np.pi
+    return ReferenceErrors(t, d_ned, ref.sigma_ned_m[k], dh, pitch - ref.pitch_rad[k], ref.sigma_heading_rad[k],
+                           ref.sigma_pitch_rad[k])
