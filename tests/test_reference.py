@@ -139,3 +139,23 @@ def test_compare_scores_an_estimate_against_the_reference(session):
     wrapped = np.mod(shifted.heading_rad[good] - e.heading_rad[good] + np.pi, 2 * np.pi) - np.pi
     assert np.allclose(np.degrees(wrapped), 179.0, atol=1e-6)
     assert np.all(np.abs(shifted.heading_rad[good]) <= np.pi)
+
+
+def test_replay_scores_a_session_against_its_reference_system(session, tmp_path):
+    """run.json's reference scoring equals the truth-based errors at the reference's epochs,
+    to within the reference's own centimetre-level error."""
+    from gpsins import replay
+
+    s, d, ref = session
+    res = replay.replay(d, tmp_path / "r")
+    got = res.summary["reference_system"]
+    z = np.load(tmp_path / "r" / "results.npz")
+    t_sol = z["t"] + int(z["week"]) * 604800.0
+    t_ref = ref.gps_seconds()[ref.position_ok]
+    t_ref = t_ref[(t_ref >= t_sol[0]) & (t_ref <= t_sol[-1])]
+    ok = np.all(np.isfinite(z["err_ned_m"]), axis=1)
+    e = np.stack([np.interp(t_ref, t_sol[ok], z["err_ned_m"][ok, i]) for i in range(3)], axis=-1)
+    h_truth = float(np.sqrt(np.mean(e[:, 0] ** 2 + e[:, 1] ** 2)))
+    assert got["position_epochs"] == len(t_ref)
+    assert abs(got["horizontal_rms_m"] - h_truth) < 0.05, (got, h_truth)
+    assert np.isfinite(got["heading_rms_deg"]) and got["attitude_epochs"] > 0

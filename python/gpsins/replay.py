@@ -43,7 +43,8 @@ from pathlib import Path
 
 import numpy as np
 
-from . import dataset as dataset_mod, evaluate, filter as flt, measurements, outages as outages_mod, timing
+from . import dataset as dataset_mod, evaluate, filter as flt, measurements, outages as outages_mod
+from . import reference as reference_mod, timing
 from .readers import rinex
 
 DEFAULT_GPS_LATENCY_S = 0.0205  # receiver's epoch-to-first-byte delay (assumed 20 ms) + the logger's
@@ -274,20 +275,23 @@ def _config_keys(config) -> list[str]:
     return list(data.get("filter", data))
 
 
-def _filter(inp: Inputs, cfg: dict, mode: str, fixes: np.ndarray, prs: np.ndarray | None
-            ) -> tuple[flt.Solution, list[float]]:
+def _filter(inp: Inputs, cfg: dict, mode: str, fixes: np.ndarray, prs: np.ndarray | None) -> flt.Solution:
     tight = {}
     if mode == "tight":
         tight = dict(pseudoranges=prs if prs is not None else np.zeros((0, 5)), ephemerides=inp.ephemerides,
                      klobuchar=inp.klobuchar, gps_time_offset_s=inp.week * measurements.SECONDS_PER_WEEK)
-    try:
-        return flt.run(inp.imu, fixes, cfg, mode=mode, covariance=True, **tight), []
-    except ValueError as e:
-        # Interim until the core re-initialises after long IMU gaps itself: run the filter
-        # on each stretch between them, each starting afresh.
-        if "gap longer than max_gap_s" not in str(e):
-            raise
-        return _run_stretches(inp.imu, fixes, cfg, mode, tight, float(cfg.get("max_gap_s", 0.5)))
+    return flt.run(inp.imu, fixes, cfg, mode=mode, covariance=True, **tight)
+
+
+def _score_reference_system(source: Path, week: int, sol: flt.Solution) -> dict:
+    """Errors against the session's own reference system (RTK position and dual-antenna heading
+    and pitch, ``reference.csv`` beside the session), as a real campaign scores without truth."""
+    if not (source.is_dir() and (source / reference_mod.FILE_NAME).exists()):
+        return {}
+    ref = reference_mod.load(source)
+    ypr = sol.ypr()
+    e = reference_mod.compare(ref, week * measurements.SECONDS_PER_WEEK + sol.t, sol.r_ecef, ypr[:, 0], ypr[:, 1])
+    return {"file": reference_mod.FILE_NAME, "damaged_lines": len(ref.damaged_lines), **e.summary()}
 
 
 def _ins_aiding_end(sol: flt.Solution, fixes: np.ndarray) -> float | None:
@@ -345,7 +349,7 @@ def replay(source: str | Path, out: str | Path, *, mode: str = "loose", config=N
         prs = prs[~outages_mod.inside(prs[:, 0], schedule)]
 
     t2 = time.perf_counter()
-    sol, split = _filter(inp, cfg, filter_mode, fixes, prs)
+    sol = _filter(inp, cfg, filter_mode, fixes, prs)
     free_from = None
     if mode == "ins":
         free_from = _ins_aiding_end(sol, fixes) if len(sol.t) else None
@@ -353,7 +357,7 @@ def replay(source: str | Path, out: str | Path, *, mode: str = "loose", config=N
             raise ValueError(f"{source}: --mode ins: the heading never became known, so free navigation never "
                              "started (set initial_yaw_deg, or use data that moves faster than heading_min_speed_mps)")
         fixes = fixes[fixes[:, 0] <= free_from]
-        sol, split = _filter(inp, cfg, filter_mode, fixes, prs)
+        sol = _filter(inp, cfg, filter_mode, fixes, prs)
     clock["filter_s"] = time.perf_counter() - t2
     if len(sol.t) == 0:
         raise measurements.logs.LogError(f"{source}: the filter never initialised (no usable fix after levelling)")
@@ -429,6 +433,7 @@ def replay(source: str | Path, out: str | Path, *, mode: str = "loose", config=N
         if mode == "ins":
             scoring["ins_free_from"] = free_from
     arrays["r_point_ecef"] = r_score if scored_point == "imu" else r_ant
+    reference_system = _score_reference_system(source, inp.week, sol)
 
     out.mkdir(parents=True, exist_ok=True)
     np.savez_compressed(out / "results.npz", **arrays)
@@ -439,12 +444,17 @@ def replay(source: str | Path, out: str | Path, *, mode: str = "loose", config=N
     clock["write_s"] = time.perf_counter() - t3
     clock["total_s"] = sum(v for v in clock.values())
     info = dict(inp.info)
+    events = sol.event_list()
     summary = {"session": info.pop("session", str(source)), "kind": inp.kind, "mode": mode,
                "alignment": info.pop("alignment", {}), "counters": sol.counters,
                "imu_gaps_longer_than_max_gap": info.pop("imu_gaps_longer_than_max_gap", []),
-               "reinitialisations": {"count": len(split), "at_t": split,
-                                     "how": "interim: the filter restarted on each stretch between IMU gaps"
-                                     if split else ""},
+               "reinitialisations": {"count": int(sol.counters.get("imu_gap_restarts", 0)),
+                                     "at_t": [e["t"] for e in events if e["kind"] == "imu_gap_restart"],
+                                     "how": "the filter restarted after an IMU gap longer than max_gap_s: attitude "
+                                            "and biases kept, heading unknown, covariance inflated"},
+               "gnss_resets": {"count": int(sol.counters.get("gnss_resets", 0)),
+                               "at_t": [e["t"] for e in events if e["kind"] == "gnss_reset"]},
+               "events": events,
                "warnings": info.pop("warnings", []),
                "skipped": info.pop("skipped", {}), "fixes_after_end": sol.extra["fixes_after_end"],
                "wall_time_s": clock, "imu_samples": int(len(inp.imu)), "errors": stats,
@@ -457,6 +467,8 @@ def replay(source: str | Path, out: str | Path, *, mode: str = "loose", config=N
                            "pseudoranges_removed": 0 if inp.pseudoranges is None else
                            int(len(inp.pseudoranges) - len(prs))},
                "scoring": scoring}
+    if reference_system:
+        summary["reference_system"] = reference_system
     if mode == "ins":
         summary["ins"] = {"aiding_until_t": free_from, "fixes_used": int(len(fixes)),
                           "how": "loose filter fed the fixes up to the one that completed the initialisation "
@@ -470,35 +482,6 @@ def replay(source: str | Path, out: str | Path, *, mode: str = "loose", config=N
 def _with_positions(sol: flt.Solution, r_ecef: np.ndarray) -> flt.Solution:
     import dataclasses
     return dataclasses.replace(sol, r_ecef=r_ecef)
-
-
-def _run_stretches(imu: np.ndarray, fixes: np.ndarray, cfg: dict, mode: str, tight: dict, max_gap: float
-                   ) -> tuple[flt.Solution, list[float]]:
-    """The filter run afresh on each stretch of IMU samples between gaps longer than max_gap;
-    the solutions concatenated. Returns it and the times at which the filter restarted."""
-    cut = np.flatnonzero(np.diff(imu[:, 0]) > max_gap) + 1
-    bounds = list(zip(np.concatenate([[0], cut]), np.concatenate([cut, [len(imu)]])))
-    parts = []
-    for j, (a, b) in enumerate(bounds):
-        t_lo = imu[a, 0] if j else -np.inf
-        t_hi = imu[b, 0] if b < len(imu) else np.inf
-        sel = (fixes[:, 0] > t_lo) & (fixes[:, 0] <= t_hi) if j else fixes[:, 0] <= t_hi
-        kw = dict(tight)
-        if "pseudoranges" in kw:
-            pr = kw["pseudoranges"]
-            kw["pseudoranges"] = pr[(pr[:, 0] > t_lo) & (pr[:, 0] <= t_hi)]
-        parts.append(flt.run(imu[a:b], fixes[sel], cfg, mode=mode, covariance=True, **kw))
-    first = parts[0]
-    cat = lambda name: np.concatenate([getattr(p, name) for p in parts])  # noqa: E731
-    updates = {k: np.concatenate([p.updates[k] for p in parts]) for k in first.updates}
-    counters = {k: sum(p.counters.get(k, 0) for p in parts) for k in first.counters}
-    sol = flt.Solution(first.mode, first.n_states, cat("t"), cat("r_ecef"), cat("v_ecef"), cat("q_eb"),
-                       cat("gyro_bias"), cat("accel_bias"), cat("sigma"), cat("standstill"), cat("heading_known"),
-                       updates, counters, None if first.scale_factors is None else cat("scale_factors"),
-                       None if first.clock is None else cat("clock"),
-                       None if first.covariance is None else cat("covariance"),
-                       {"fixes_after_end": parts[-1].extra["fixes_after_end"]})
-    return sol, [float(imu[a, 0]) for a, _ in bounds[1:]]
 
 
 def _fill(mask: np.ndarray, a: np.ndarray) -> np.ndarray:
