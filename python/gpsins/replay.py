@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import evaluate, filter as flt, measurements, timing
+from . import evaluate, filter as flt, measurements, measurements_ubx, timing
 from .readers import rinex
 
 DEFAULT_GPS_LATENCY_S = 0.0205  # receiver's epoch-to-first-byte delay (assumed 20 ms) + the logger's
@@ -98,7 +98,8 @@ def replay(session: str | Path, out: str | Path, *, mode: str = "loose", config=
            nav: str | Path | None = None) -> ReplayResult:
     session, out = Path(session), Path(out)
     clock = {"start": time.perf_counter()}
-    dec = measurements.decode_session(session)
+    dec = measurements_ubx.decode_session(session, flt.load_config(config, overrides or {})["fix_uere_m"]) \
+        if measurements_ubx.is_ublox(session) else measurements.decode_session(session)  # u-blox: issue 19
     clock["decode_s"] = time.perf_counter() - clock.pop("start")
     t1 = time.perf_counter()
     al = timing.align(dec.gps.tow, dec.gps.stamps, dec.gps.week, dec.imu.stamps, dec.imu.counter, dec.imu.rate_hz,
