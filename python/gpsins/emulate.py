@@ -536,6 +536,13 @@ class UbloxEmulator(DeviceEmulator):
                 return True
 
     def stream(self) -> None:
+        if self.serve_all:
+            # A capture is served from its start once the host listens (its first poll or
+            # configuration message), so nothing of it is lost to a late open.
+            while not self.host_requests:
+                if not self._wait_until(time.monotonic() + 0.02):
+                    return
+            self._start_mono = self._line_free = time.monotonic()
         for m in self.source.gps_messages():
             if not self._wait_until(self._mono_at(m.t)):
                 return
@@ -556,8 +563,9 @@ class UbloxEmulators(Emulators):
                  bp3010: bool = False, config_fault: str | None = None, serve_all: bool = False):
         directory = Path(directory)
         directory.mkdir(parents=True, exist_ok=True)
+        # A capture goes out in bigger chunks: it is dense, and served faster than real time.
         self.gps = UbloxEmulator(directory / "gps", source, gps_baud, config_fault=config_fault, serve_all=serve_all,
-                                 speed=speed, faults=gps_faults)
+                                 speed=speed, faults=gps_faults, chunk_bytes=256 if serve_all else 16)
         self.imu = ImuEmulator(directory / "imu", source, imu_baud, speed=speed, faults=imu_faults) if bp3010 else None
 
     @property

@@ -156,13 +156,16 @@ def esf_samples(files: logs.SensorFiles, skipped: Counter) -> EsfSamples | None:
                       np.array(accel) * ACCEL_LSB_MPS2)
 
 
-def esf_imu_log(e: EsfSamples) -> logs.ImuLog:
-    """The ESF samples as an IMU log: increments, and a counter made of the time tags."""
+def esf_imu_log(e: EsfSamples, gps_s_per_stamp_s: float = 1.0) -> logs.ImuLog:
+    """The ESF samples as an IMU log: increments, and a counter made of the time tags.
+    The sampling rate is counted against GPS time (the stamps' span scaled by
+    gps_s_per_stamp_s: 1 on a vehicle, the speed on a faster-than-real-time
+    emulation) and rounded to whole Hz."""
     step_raw = np.diff(e.tags) % (1 << 32)
     step = float(np.median(step_raw[step_raw > 0])) if np.any(step_raw > 0) else 1.0
     steps = np.round(step_raw / step).astype(np.int64)
     n = np.concatenate([[0], np.cumsum(steps)])
-    span = float(e.stamps[-1] - e.stamps[0])
+    span = float(e.stamps[-1] - e.stamps[0]) * gps_s_per_stamp_s
     rate = max(1, int(round(n[-1] / span))) if span > 0 else 1
     period = 1.0 / rate
     return logs.ImuLog(e.stamps, e.rate_rad_s * period, e.accel_mps2 * period,
@@ -194,5 +197,7 @@ def decode_session(directory: str | Path, fix_uere_m: float = 3.0) -> Decoded:
         esf = esf_samples(gps_files, skipped)
         if esf is None:
             raise logs.LogError(f"{directory}: no IMU: neither an imu sensor nor ESF-RAW records")
-        imu = esf_imu_log(esf)
+        # GPS seconds per stamp second from the RAWX epochs (their delays are small against the span).
+        ratio = float((gps.tow[-1] - gps.tow[0]) / (gps.stamps[-1] - gps.stamps[0])) if len(gps.tow) > 1 else 1.0
+        imu = esf_imu_log(esf, ratio if np.isfinite(ratio) and ratio > 0 else 1.0)
     return Decoded(gps, imu, skipped, session.sidecar, Path(directory))
