@@ -295,7 +295,7 @@ def test_walk_capture_served_and_recorded_gives_pyubx2s_frames(tmp_path, shared_
     want, nmea = _pyubx2_frames(path.read_bytes())
     assert src.ubx_frames == want  # the emulator serves the file as it is
     speed = 10.0
-    em, session, side, _ = _record(tmp_path, src, speed=speed)
+    em, session, side, _ = _record(tmp_path, src, speed=speed, serve_all=True)
     got = session.sensors["gps"].frames()
     replies = {ubx.ACK_ACK, ubx.MON_VER}
     assert [f for f in got if (f[2], f[3]) not in replies] == want
