@@ -331,3 +331,11 @@ def test_simulated_drive_replays_loose_and_tight_inside_3_sigma(tmp_path, imu):
             assert sm["counters"]["pseudoranges_used"] > 0
         else:
             assert sm["counters"]["fixes_accepted"] >= 25
+
+
+def test_example_config_loads():
+    root = Path(__file__).resolve().parents[1]
+    cfg = logger_config.load(root / "logger" / "logger.ublox.example.toml", check_ports=False)
+    assert cfg.gps.device == "ublox" and cfg.gps.baud == 460800 and "ESF-RAW" in cfg.gps.messages
+    (step,) = cfg.gps.setup().steps
+    assert step.settings["CFG-RATE-MEAS"] == 100
