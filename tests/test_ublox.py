@@ -339,3 +339,16 @@ def test_example_config_loads():
     assert cfg.gps.device == "ublox" and cfg.gps.baud == 460800 and "ESF-RAW" in cfg.gps.messages
     (step,) = cfg.gps.setup().steps
     assert step.settings["CFG-RATE-MEAS"] == 100
+
+
+def test_receiver_is_set_up_again_after_a_replug(tmp_path):
+    faults = Faults(disconnects=[(2.5, 0.5)])
+    em, session, side, err = _record(tmp_path, UbloxSimSource(_sim(STAND)), speed=1.0, faults=faults)
+    assert side["counts"]["gps"]["reconnects"] == 1
+    # The replug lost the receiver's RAM configuration; the logger sent it again and it was acknowledged.
+    assert em.gps.config_log == [("CFG-VALSET", "ack"), ("CFG-VALSET", "ack")]
+    assert side["sensors"]["gps"]["receiver"]["configuration"][0]["result"] == "ack"
+    st, frames = session.sensors["gps"].stamps, session.sensors["gps"].frames()
+    raw_t = np.array([t for t, f in zip(st, frames) if (f[2], f[3]) == ubx.RXM_RAWX])
+    back = em.gps.replugged_realtime[0]
+    assert np.sum(raw_t > back) >= 10 and np.sum(raw_t < back) >= 10

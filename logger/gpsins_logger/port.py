@@ -12,6 +12,10 @@ Port states (in the log and the sidecar's `port_state`):
   or new permissions); with `give_up_after_s` > 0 the thread stops after
   that long in this state (``gave_up``).
 
+A u-blox receiver is set up by a handshake after every open (ubx.Setup: each
+configuration message waits for its ACK, the read wakes every 0.1 s to time
+out an unanswered one); the NMEA sentences on its port are counted.
+
 The stamp of a frame is the system time (CLOCK_REALTIME) at which its first
 byte arrived, estimated from the return time of a read that delivered bytes
 of the frame minus the bytes after the first one at the line's byte time.

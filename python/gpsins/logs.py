@@ -7,6 +7,9 @@ then follows the chain of records from the start, resynchronising at the
 next valid candidate after damage, exactly as the logger's streaming finder
 does on a byte stream. Python loops only over damaged places, never over
 records. A truncated last record is accepted as the file's tail and reported.
+Layouts: Superstar II (header SOH, ID, ~ID, N), BP3010 (sync byte) and u-blox
+(header B5 62, class, id, length U2; the Fletcher checksum over class..length
+and the payload, the stamp between them left out).
 Stamps are checked against the session (see :func:`reject_bad_stamps`).
 Damaged input of any kind reads as records plus counted damage; only a file
 that cannot be read at all raises :class:`LogError`.
