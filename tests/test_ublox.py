@@ -314,9 +314,13 @@ def test_simulated_drive_replays_loose_and_tight_inside_3_sigma(tmp_path, imu):
     s = _sim(DRIVE)
     write_truth(s, tmp_path / "truth.npz")
     speed = 2.0
-    messages = '["RXM-RAWX", "RXM-SFRBX", "NAV-PVT", "NAV-TIMEGPS"' + (', "ESF-RAW"]' if imu == "esf" else "]")
-    em, session, _, _ = _record(tmp_path, UbloxSimSource(s, sensors=imu == "esf"), speed=speed,
-                                bp3010=imu == "bp3010", extra=f"messages = {messages}")
+    if imu == "esf":  # the main job's own path: gpsins run --device ublox
+        session = logs.read_session(mainjob.record_drive(s, tmp_path, speed, device="ublox"))
+    else:
+        messages = '["RXM-RAWX", "RXM-SFRBX", "NAV-PVT", "NAV-TIMEGPS"]'
+        _, session, _, _ = _record(tmp_path, UbloxSimSource(s, sensors=False), speed=speed, bp3010=True,
+                                   extra=f"messages = {messages}")
+    assert set(session.sensors) == ({"gps"} if imu == "esf" else {"gps", "imu"})
     lat = mainjob.replay_latencies("ublox", speed)
     if imu == "bp3010":
         lat = mainjob.replay_latencies("superstar2", speed) | {"gps_latency_s": lat["gps_latency_s"]}
@@ -352,3 +356,13 @@ def test_receiver_is_set_up_again_after_a_replug(tmp_path):
     raw_t = np.array([t for t, f in zip(st, frames) if (f[2], f[3]) == ubx.RXM_RAWX])
     back = em.gps.replugged_realtime[0]
     assert np.sum(raw_t > back) >= 10 and np.sum(raw_t < back) >= 10
+
+
+def test_command_line_offers_the_device():
+    from gpsins.cli import build_parser
+
+    a = build_parser().parse_args(["run", "--device", "ublox", "--speed", "4"])
+    assert a.device == "ublox" and a.speed == 4.0
+    a = build_parser().parse_args(["emulate", "--device", "ublox", "--ubx", "x.ubx", "--config-fault", "nak"])
+    assert (a.device, a.ubx, a.config_fault, a.baud) == ("ublox", "x.ubx", "nak", 460800)
+    assert build_parser().parse_args(["run"]).device == "superstar2"
