@@ -108,7 +108,8 @@ def main() -> None:
                 res = replay.replay(session, out / mode, mode=mode, **mainjob.replay_latencies(device, args.speed))
                 rows[(device, mode)] = res.summary["errors"]
         print(f"\nerrors against the truth (from the first known heading), drive of {s.scenario.duration_s:.0f} s:")
-        print(f"{'device':<11} {'mode':<6} {'h RMS m':>8} {'h max m':>8} {'v RMS m':>8} {'NEES9':>7} {'in 3 sigma':>10}")
+        print(f"{'device':<11} {'mode':<6} {'h RMS m':>8} {'h max m':>8} {'v RMS m':>8} {'NEES9':>7} "
+              f"{'in 3 sigma':>10}")
         for (device, mode), e in rows.items():
             print(f"{device:<11} {mode:<6} {e['horizontal_rms_m']:8.2f} {e['horizontal_max_m']:8.2f} "
                   f"{e['vertical_rms_m']:8.2f} {e['nees9_mean']:7.2f} {100 * e['inside_3_sigma']:9.1f}%")

@@ -598,9 +598,9 @@ def run_ublox(args) -> int:
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.update(now=True))
     em.start()
+    imu = f" and a BP3010 on {Path(args.dir) / 'imu'}" if args.bp3010 else ""
     print(f"serving {what} ({source.duration_s:.0f} s at speed {args.speed:g}) as a u-blox receiver on "
-          f"{Path(args.dir) / 'gps'} ({args.baud} Bd){' and a BP3010 on ' + str(Path(args.dir) / 'imu') if args.bp3010 else ''}",
-          flush=True)
+          f"{Path(args.dir) / 'gps'} ({args.baud} Bd){imu}", flush=True)
     try:
         while not stop["now"] and not em.wait(0.2):
             pass
