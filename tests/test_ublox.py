@@ -366,3 +366,64 @@ def test_command_line_offers_the_device():
     a = build_parser().parse_args(["emulate", "--device", "ublox", "--ubx", "x.ubx", "--config-fault", "nak"])
     assert (a.device, a.ubx, a.config_fault, a.baud) == ("ublox", "x.ubx", "nak", 460800)
     assert build_parser().parse_args(["run"]).device == "superstar2"
+
+
+# --- sessions written directly (no ptys): the decoding against the simulation -----------------
+
+
+def _write_session(directory: Path, s, names: set[str], t0: float = 1.7e9) -> Path:
+    """A u-blox session as the logger writes it, each message stamped at its emission time."""
+    from gpsins_logger.recorder import SensorInfo, Session
+
+    info = SensorInfo("ublox", ubx.HEADER_LEN, False, {"port": "sim", "baud": 460800})
+    session = Session(directory, {"gps": info})
+    session.start = {"realtime": t0 - 1.0, "monotonic": 0.0}
+    for m in sim_ublox.messages(s):
+        if m.msg_id in names:
+            session.record("gps", m.frame, t0 + m.t)
+    session.close()
+    side = json.loads((directory / "session.json").read_text())
+    side["start"]["realtime"], side["stop"]["realtime"] = t0 - 1.0, t0 + s.scenario.duration_s + 1.0
+    (directory / "session.json").write_text(json.dumps(side))
+    (directory / "clock.csv").write_text("realtime,monotonic\n")
+    return directory
+
+
+def test_decoded_ublox_session_equals_the_simulation(tmp_path):
+    s = _sim(DRIVE[:2])
+    d = _write_session(tmp_path / "session", s, {"RXM-RAWX", "RXM-SFRBX", "NAV-PVT", "ESF-RAW"})
+    dec = measurements_ubx.decode_session(d)
+    g = s.gnss
+    assert np.allclose(dec.gps.tow, g.tow_rx) and dec.gps.week == g.week
+    # IMU: every sample, increments within the ESF quantisation, indices consecutive.
+    period = np.median(np.diff(s.imu_t))
+    assert len(dec.imu) == len(s.imu_t) and dec.imu.rate_hz == s.imu_rate_hz
+    assert np.all(np.diff(dec.imu.counter.astype(int)) % 256 == 1)
+    assert np.max(np.abs(dec.imu.dtheta_rad - s.imu_dtheta * (1 / s.imu_rate_hz) / period)) \
+        <= np.radians(2.0 ** -12) / s.imu_rate_hz
+    # Fixes: the receiver's own, positions to the NAV-PVT resolution, sigmas its hAcc / vAcc.
+    good = [f for f in g.fixes if f.mode]
+    assert len(dec.gps.fixes) == len(good)
+    r = np.array([f.r_ecef for f in good])
+    assert np.max(np.abs(dec.gps.fixes[:, 1:4] - r)) < 0.02
+    assert np.allclose(dec.gps.fixes[:, 7] * 3.0, [sim_ublox.UERE_M * f.hdop for f in good], atol=2e-3)
+    # Tight inputs: pseudoranges of every tracked satellite, ephemerides of all of them, Klobuchar.
+    pr = dec.gps.pseudorange_table()
+    assert len(pr) == int(g.tracked.sum())
+    k = np.flatnonzero(g.tracked[3])[0]
+    row = pr[(np.isclose(pr[:, 0], g.tow_rx[3])) & (pr[:, 1] == k + 1)]
+    assert np.isclose(row[0, 2], g.pseudorange_m[3, k])
+    assert {e.prn for e in dec.gps.ephemerides} == set(good[0].prns)
+    assert np.allclose(dec.gps.iono.alpha, g.ion_alpha, rtol=1e-2, atol=1e-9)
+
+
+def test_session_without_rawx_replays_loose_on_nav_pvt_time(tmp_path):
+    s = _sim(DRIVE)
+    d = _write_session(tmp_path / "session", s, {"NAV-PVT", "ESF-RAW"})
+    write_truth(s, tmp_path / "truth.npz")
+    res = replay.replay(d, tmp_path / "loose", mode="loose", gps_latency_s=sim_ublox.FIX_DELAY_S,
+                        imu_latency_s=sim_ublox.ESF_DELAY_S)
+    sm = res.summary
+    assert any("no RXM-RAWX" in k for k in sm["skipped"])
+    assert sm["alignment"]["imu_frames_missing"] == 0
+    assert sm["errors"]["inside_3_sigma"] >= 0.95 and sm["errors"]["horizontal_rms_m"] < 5.0
