@@ -427,3 +427,15 @@ def test_session_without_rawx_replays_loose_on_nav_pvt_time(tmp_path):
     assert any("no RXM-RAWX" in k for k in sm["skipped"])
     assert sm["alignment"]["imu_frames_missing"] == 0
     assert sm["errors"]["inside_3_sigma"] >= 0.95 and sm["errors"]["horizontal_rms_m"] < 5.0
+
+
+def test_generation_8_set_up_with_cfg_rate_and_cfg_msg(tmp_path):
+    extra = 'generation = 8\nmeasurement_rate_hz = 5.0\nmessages = ["RXM-RAWX", "NAV-PVT"]'
+    em, session, side, _ = _record(tmp_path, UbloxSimSource(_sim(STAND)), speed=2.0, extra=extra)
+    steps = side["sensors"]["gps"]["receiver"]["configuration"]
+    assert [(x["message"], x["result"]) for x in steps] == [("CFG-RATE", "ack"), ("CFG-MSG", "ack"), ("CFG-MSG", "ack")]
+    assert em.gps.meas_rate_hz == 5.0 and em.gps.enabled == {"RXM-RAWX", "NAV-PVT"}
+    names = [ubx.name_of((f[2], f[3])) for f in session.sensors["gps"].frames()]
+    assert set(names) - {"ACK-ACK", "MON-VER"} == {"RXM-RAWX", "NAV-PVT"}
+    # RAWX at the set 5 Hz: the 6 s stand (served from the first configured epoch on).
+    assert 20 <= names.count("RXM-RAWX") <= 31
