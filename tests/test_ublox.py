@@ -294,7 +294,7 @@ def test_walk_capture_served_and_recorded_gives_pyubx2s_frames(tmp_path, shared_
     src = UbxCaptureSource(path)
     want, nmea = _pyubx2_frames(path.read_bytes())
     assert src.ubx_frames == want  # the emulator serves the file as it is
-    speed = 10.0
+    speed = 20.0
     em, session, side, _ = _record(tmp_path, src, speed=speed, serve_all=True)
     got = session.sensors["gps"].frames()
     replies = {ubx.ACK_ACK, ubx.MON_VER}
