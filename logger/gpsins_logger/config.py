@@ -10,7 +10,7 @@ import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from . import bp3010, superstar2
+from . import bp3010, superstar2, ubx
 
 STANDARD_BAUDS = (1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200, 230400, 460800, 921600)
 
@@ -35,6 +35,30 @@ class GpsConfig:
             out.append(superstar2.request_raw_rate(self.raw_rate_hz))
         out += [superstar2.request_message(m, continuous=True) for m in self.messages]
         return out
+
+
+@dataclass
+class UbloxConfig:
+    """[gps] with device = "ublox": a u-blox receiver speaking UBX."""
+
+    port: str
+    device: str = "ublox"
+    baud: int = 115200
+    generation: int = 9  # 9: CFG-VALSET (F9P, F9R); 8: CFG-RATE + CFG-MSG (M8T, NEO-M8L)
+    interface: str = "uart1"  # the receiver's port the logger is wired to (generation 9 keys)
+    measurement_rate_hz: float = 10.0
+    messages: list[str] = field(default_factory=lambda: ["RXM-RAWX", "RXM-SFRBX", "NAV-PVT", "NAV-TIMEGPS"])
+    ack_timeout_s: float = 1.0
+    poll_version: bool = True
+    raw_capture: bool = False
+
+    def requests(self) -> list[bytes]:
+        return []  # the set-up is a handshake (setup()), not fire-and-forget requests
+
+    def setup(self) -> ubx.Setup:
+        """The set-up handshake the GPS thread runs after every (re)open."""
+        steps = ubx.setup_steps(self.generation, self.interface, self.measurement_rate_hz, self.messages)
+        return ubx.Setup(steps, self.ack_timeout_s, self.poll_version)
 
 
 @dataclass
@@ -69,11 +93,11 @@ class ReconnectConfig:
 class LoggerConfig:
     session: SessionConfig = field(default_factory=SessionConfig)
     reconnect: ReconnectConfig = field(default_factory=ReconnectConfig)
-    gps: GpsConfig | None = None
+    gps: GpsConfig | UbloxConfig | None = None
     imu: ImuConfig | None = None
     source: str = "<defaults>"
 
-    def sensors(self) -> dict[str, GpsConfig | ImuConfig]:
+    def sensors(self) -> dict[str, GpsConfig | UbloxConfig | ImuConfig]:
         return {name: cfg for name, cfg in (("gps", self.gps), ("imu", self.imu)) if cfg is not None}
 
 
@@ -81,7 +105,8 @@ _TYPES = {"port": str, "baud": int, "link_open": bool, "raw_rate_hz": int, "mess
           "rate_hz": int, "root": str, "fsync_interval_s": (int, float), "clock_pair_interval_s": (int, float),
           "raw_reserve_mb": (int, float),
           "initial_backoff_s": (int, float), "max_backoff_s": (int, float), "poll_interval_s": (int, float),
-          "unopenable_retry_s": (int, float), "give_up_after_s": (int, float)}
+          "unopenable_retry_s": (int, float), "give_up_after_s": (int, float), "device": str, "generation": int,
+          "interface": str, "measurement_rate_hz": (int, float), "ack_timeout_s": (int, float), "poll_version": bool}
 
 
 def _section(cls, data: dict, name: str, where: str):
@@ -117,7 +142,11 @@ def from_dict(data: dict, where: str = "<config>", check_ports: bool = True) -> 
         cfg.session = _section(SessionConfig, data["session"], "session", where)
     if "reconnect" in data:
         cfg.reconnect = _section(ReconnectConfig, data["reconnect"], "reconnect", where)
-    if "gps" in data:
+    if "gps" in data and isinstance(data["gps"], dict) and data["gps"].get("device", "superstar2") != "superstar2":
+        cfg.gps = _ublox(data["gps"], where, check_ports)
+    elif "gps" in data:
+        if "device" in data["gps"]:
+            data = {**data, "gps": {k: v for k, v in data["gps"].items() if k != "device"}}
         cfg.gps = _section(GpsConfig, data["gps"], "gps", where)
         _check_port(cfg.gps, "gps", where, check_ports)
         if cfg.gps.raw_rate_hz and cfg.gps.raw_rate_hz not in superstar2.RAW_RATE_CODES:
@@ -148,6 +177,25 @@ def from_dict(data: dict, where: str = "<config>", check_ports: bool = True) -> 
     if cfg.reconnect.give_up_after_s < 0:
         raise ConfigError(f"{where}: 'reconnect.give_up_after_s' must be >= 0 (0 = never give up)")
     return cfg
+
+
+def _ublox(data: dict, where: str, check_ports: bool) -> UbloxConfig:
+    if data["device"] != "ublox":
+        raise ConfigError(f"{where}: 'gps.device' = {data['device']!r} is not one of superstar2, ublox")
+    gps = _section(UbloxConfig, data, "gps", where)
+    _check_port(gps, "gps", where, check_ports)
+    if gps.generation not in (8, 9):
+        raise ConfigError(f"{where}: 'gps.generation' = {gps.generation} is not 8 or 9")
+    if gps.interface not in ubx.INTERFACES:
+        raise ConfigError(f"{where}: 'gps.interface' = {gps.interface!r} is not one of {', '.join(ubx.INTERFACES)}")
+    if not 0.1 <= gps.measurement_rate_hz <= 25.0:
+        raise ConfigError(f"{where}: 'gps.measurement_rate_hz' = {gps.measurement_rate_hz} is not in 0.1..25")
+    for m in gps.messages:
+        if m not in ubx.OUTPUT_MESSAGES:
+            raise ConfigError(f"{where}: 'gps.messages' entry {m!r} is not one of {', '.join(ubx.OUTPUT_MESSAGES)}")
+    if not 0 < gps.ack_timeout_s <= 30:
+        raise ConfigError(f"{where}: 'gps.ack_timeout_s' must be in (0, 30]")
+    return gps
 
 
 def load(path: str | Path, check_ports: bool = True) -> LoggerConfig:

@@ -17,10 +17,11 @@ import time
 from pathlib import Path
 
 from . import __version__, config as config_mod
-from .port import SensorThread
+from .port import DEVICES, SensorThread
 from .recorder import SensorInfo, Session, StartupError, new_session_dir
 
 log = logging.getLogger("gpsins_logger")
+HEADER_LEN = {device: header_len for device, (_, header_len) in DEVICES.items()}
 
 
 class Daemon:
@@ -32,13 +33,16 @@ class Daemon:
         infos = {}
         settings_of = {}
         for name, sc in cfg.sensors().items():
-            device = "superstar2" if name == "gps" else "bp3010"
+            device = getattr(sc, "device", "superstar2") if name == "gps" else "bp3010"
             settings = {"port": sc.port, "baud": sc.baud}
-            if name == "gps":
+            if device == "ublox":
+                settings.update(generation=sc.generation, interface=sc.interface,
+                                measurement_rate_hz=sc.measurement_rate_hz, messages=sc.messages)
+            elif name == "gps":
                 settings.update(link_open=sc.link_open, raw_rate_hz=sc.raw_rate_hz, messages=sc.messages)
             else:
                 settings.update(rate_hz=sc.rate_hz)
-            infos[name] = SensorInfo(device, 4 if device == "superstar2" else 1, sc.raw_capture, settings)
+            infos[name] = SensorInfo(device, HEADER_LEN[device], sc.raw_capture, settings)
             settings_of[name] = (device, sc)
         directory = session_dir or new_session_dir(Path(cfg.session.root))
         self.session = Session(directory, infos, config=_config_record(cfg),
@@ -47,7 +51,8 @@ class Daemon:
         self.threads = [
             SensorThread(name, device, sc.port, sc.baud, sc.requests(), self.session, sc.raw_capture,
                          cfg.reconnect.initial_backoff_s, cfg.reconnect.max_backoff_s, cfg.reconnect.poll_interval_s,
-                         cfg.reconnect.unopenable_retry_s, cfg.reconnect.give_up_after_s)
+                         cfg.reconnect.unopenable_retry_s, cfg.reconnect.give_up_after_s,
+                         sc.setup() if device == "ublox" else None)
             for name, (device, sc) in settings_of.items()
         ]
 

@@ -12,6 +12,10 @@ Port states (in the log and the sidecar's `port_state`):
   or new permissions); with `give_up_after_s` > 0 the thread stops after
   that long in this state (``gave_up``).
 
+A u-blox receiver is set up by a handshake after every open (ubx.Setup: each
+configuration message waits for its ACK, the read wakes every 0.1 s to time
+out an unanswered one); the NMEA sentences on its port are counted.
+
 The stamp of a frame is the system time (CLOCK_REALTIME) at which its first
 byte arrived, estimated from the return time of a read that delivered bytes
 of the frame minus the bytes after the first one at the line's byte time.
@@ -34,7 +38,7 @@ import time
 
 import serial
 
-from . import bp3010, superstar2
+from . import bp3010, superstar2, ubx
 from .framing import FrameFinder
 from .recorder import Session
 
@@ -43,6 +47,7 @@ log = logging.getLogger(__name__)
 DEVICES = {
     "superstar2": (superstar2.FRAMING, superstar2.HEADER_LEN),
     "bp3010": (bp3010.FRAMING, 1),
+    "ublox": (ubx.FRAMING, ubx.HEADER_LEN),
 }
 BITS_PER_BYTE = 10  # 8N1: start bit, 8 data bits, stop bit
 # An open that fails with these means the device went away while opening.
@@ -54,7 +59,8 @@ _FLAP_S = 1.0
 class SensorThread(threading.Thread):
     def __init__(self, name: str, device: str, port: str, baud: int, requests: list[bytes], session: Session,
                  raw_capture: bool = False, initial_backoff_s: float = 0.2, max_backoff_s: float = 5.0,
-                 poll_interval_s: float = 0.05, unopenable_retry_s: float = 5.0, give_up_after_s: float = 0.0):
+                 poll_interval_s: float = 0.05, unopenable_retry_s: float = 5.0, give_up_after_s: float = 0.0,
+                 setup: ubx.Setup | None = None):
         super().__init__(name=f"sensor-{name}", daemon=True)
         self.sensor = name
         self.rule, self.header_len = DEVICES[device]
@@ -77,6 +83,11 @@ class SensorThread(threading.Thread):
         self._lock = threading.Lock()
         self._state = ""
         self._last_mono: float | None = None  # monotonic stamp of the last frame
+        # u-blox: the set-up handshake after every open, and the NMEA sentences skipped.
+        self.setup = setup
+        self.nmea = ubx.NmeaCounter() if device == "ublox" else None
+        if self.nmea is not None:
+            self.counts.update(nmea_sentences=0, nmea_bytes=0)
 
     def stop(self) -> None:
         self._stop_event.set()
@@ -179,8 +190,9 @@ class SensorThread(threading.Thread):
                 return
 
     def _open(self) -> None:
-        s = serial.Serial(self.port_name, self.baud, bytesize=8, parity="N", stopbits=1, timeout=None,
-                          exclusive=True)
+        # With a set-up handshake the read wakes now and then to time out unanswered messages.
+        s = serial.Serial(self.port_name, self.baud, bytesize=8, parity="N", stopbits=1,
+                          timeout=0.1 if self.setup else None, exclusive=True)
         with self._lock:
             self._serial = s
         if self._stop_event.is_set():  # stop() came while opening
@@ -190,6 +202,9 @@ class SensorThread(threading.Thread):
         for req in self.requests:
             s.write(req)
         s.flush()
+        if self.setup is not None:
+            self.setup.start(lambda frame: (s.write(frame), s.flush()))
+            self._note_setup()
 
     def _close(self) -> None:
         with self._lock:
@@ -208,6 +223,9 @@ class SensorThread(threading.Thread):
         try:
             while s is not None and not self._stop_event.is_set():
                 data = s.read(1)  # blocks until a byte arrives, or cancel_read()
+                if self.setup is not None and not self.setup.done:
+                    self.setup.tick()
+                    self._note_setup()
                 if not data:
                     continue
                 lost = None
@@ -222,8 +240,14 @@ class SensorThread(threading.Thread):
                 if self.raw_capture:
                     self.session.raw(self.sensor, data, monotonic, realtime)
                 reads.append((finder.stats.bytes_in + len(data), realtime, monotonic))
+                if self.nmea is not None:
+                    self.nmea.feed(data)
+                    self.counts.update(nmea_sentences=self.nmea.sentences, nmea_bytes=self.nmea.bytes)
                 for frame in finder.feed(data):
                     self.session.record(self.sensor, frame.data, self._stamp(frame.offset, reads))
+                    if self.setup is not None and not self.setup.done:
+                        self.setup.on_frame(frame.data)
+                        self._note_setup()
                 if lost is not None:
                     raise lost
         finally:
@@ -234,6 +258,10 @@ class SensorThread(threading.Thread):
             for key in ("discarded_bytes", "checksum_failures", "lock_losses"):
                 self.counts[key] += getattr(finder.stats, key)
             self.counts["unfinished_bytes"] += finder.stats.tail_bytes
+
+    def _note_setup(self) -> None:
+        """The receiver's version and the configuration's answers, for the sidecar."""
+        self.session.sensors[self.sensor].settings["receiver"] = self.setup.record()
 
     def _stamp(self, offset: int, reads) -> float:
         best, offset_real = float("inf"), 0.0

@@ -183,7 +183,7 @@ class StartupError(RuntimeError):
 class SensorInfo:
     """What the sidecar says about one sensor."""
 
-    device: str  # "superstar2" or "bp3010"
+    device: str  # "superstar2", "ublox" or "bp3010"
     header_len: int  # bytes of the device header before the stamp
     raw_capture: bool = False
     settings: dict = field(default_factory=dict)  # port, baud, requests, rate...

@@ -56,6 +56,10 @@ def _cmd_sim(args: argparse.Namespace) -> int:
 def _cmd_emulate(args: argparse.Namespace) -> int:
     from .sim import cli as sim_cli
 
+    if getattr(args, "device", "superstar2") == "ublox":
+        from . import emulate
+
+        return emulate.run_ublox(args)
     return sim_cli.run_emulate(args)
 
 
@@ -150,6 +154,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--scenario", default="default", help="built-in name or a TOML file")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--speed", type=float, default=1.0, help="time scale of the emulated drive (4 = four times faster)")
+    p.add_argument("--device", choices=("superstar2", "ublox"), default="superstar2",
+                   help="GPS hardware: the report's Superstar II + BP3010, or an F9R-like u-blox with its own IMU")
     p.set_defaults(func=_cmd_run)
 
     p = sub.add_parser("dump", help="summarise a session directory or a raw device capture")
@@ -175,6 +181,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--dir", default="dev", help="directory for the device links gps and imu (default: dev)")
     p.add_argument("--speed", type=float, default=1.0, help="time scale (2 = twice real time)")
+    p.add_argument("--device", choices=("superstar2", "ublox"), default="superstar2", help="the GPS receiver")
+    p.add_argument("--ubx", help="u-blox: serve this UBX capture at its own timing instead of a scenario")
+    p.add_argument("--baud", type=int, default=460800, help="u-blox: line rate (default 460800)")
+    p.add_argument("--bp3010", action="store_true", help="u-blox: no ESF-RAW; a BP3010 IMU at DIR/imu instead")
+    p.add_argument("--config-fault", choices=("nak", "silent"), help="u-blox: refuse or ignore configuration")
     p.set_defaults(func=_cmd_emulate)
 
     p = sub.add_parser("replay", help="replay a logger session or a data set through the filter")

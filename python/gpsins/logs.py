@@ -7,6 +7,9 @@ then follows the chain of records from the start, resynchronising at the
 next valid candidate after damage, exactly as the logger's streaming finder
 does on a byte stream. Python loops only over damaged places, never over
 records. A truncated last record is accepted as the file's tail and reported.
+Layouts: Superstar II (header SOH, ID, ~ID, N), BP3010 (sync byte) and u-blox
+(header B5 62, class, id, length U2; the Fletcher checksum over class..length
+and the payload, the stamp between them left out).
 Stamps are checked against the session (see :func:`reject_bad_stamps`).
 Damaged input of any kind reads as records plus counted damage; only a file
 that cannot be read at all raises :class:`LogError`.
@@ -22,6 +25,7 @@ import numpy as np
 
 from gpsins_logger import bp3010
 from gpsins_logger import superstar2 as ss2
+from gpsins_logger import ubx
 from gpsins_logger.recorder import CLOCK_STEP_THRESHOLD_S, RAW_HEADER
 
 STAMP_BYTES = 8
@@ -50,7 +54,10 @@ class Layout:
 SS2_RECORDS = Layout("superstar2", ss2.SOH, ss2.HEADER_LEN, True)
 BP_RECORDS = Layout("bp3010", bp3010.SYNC, 1, True)
 SS2_RAW = Layout("superstar2", ss2.SOH, ss2.HEADER_LEN, False)
-LAYOUTS = {"superstar2": SS2_RECORDS, "bp3010": BP_RECORDS}
+# u-blox: header = sync B5 62, class, id, length (U2); rest = payload and CK_A CK_B. Record length = length + 16.
+UBX_RECORDS = Layout("ublox", ubx.SYNC1, ubx.HEADER_LEN, True)
+UBX_RAW = Layout("ublox", ubx.SYNC1, ubx.HEADER_LEN, False)
+LAYOUTS = {"superstar2": SS2_RECORDS, "bp3010": BP_RECORDS, "ublox": UBX_RECORDS}
 
 
 @dataclass
@@ -97,6 +104,8 @@ def _candidates(buf: np.ndarray, lay: Layout, lo: float = STAMP_MIN, hi: float =
     and which pass the checksum but carry an impossible stamp."""
     size = len(buf)
     sl = lay.stamp_len
+    if lay.device == "ublox":
+        return _ubx_candidates(buf, lay, lo, hi)
     if lay.device == "superstar2":
         p = np.flatnonzero(buf[:max(size - 3, 0)] == ss2.SOH).astype(np.int64)
         p = p[buf[p + 2] == (buf[p + 1] ^ 0xFF)]
@@ -131,6 +140,51 @@ def _candidates(buf: np.ndarray, lay: Layout, lo: float = STAMP_MIN, hi: float =
                 plausible = np.isfinite(st) & (st > lo) & (st < hi)
             bad_stamp[complete] = good & ~plausible
             good &= plausible
+        ok[complete] = good
+    return p, length, ok, bad_stamp
+
+
+def _ubx_candidates(buf: np.ndarray, lay: Layout, lo: float, hi: float):
+    """UBX candidates: B5 62 and a plausible length; the Fletcher checksum over
+    class..length and the payload (the stamp between them left out) from
+    running sums modulo 256: with C[k] the sum of the first k bytes and D[k]
+    the sum of C[1..k], a stretch [a, b) has CK_A = C[b] - C[a] and CK_B =
+    D[b] - D[a] - (b - a) C[a]; two stretches chain as A2 = A1 + A', B2 = B1 +
+    B' + len' A1."""
+    size, sl = len(buf), lay.stamp_len
+    p = np.flatnonzero(buf[:max(size - lay.header_len + 1, 0)] == ubx.SYNC1).astype(np.int64)
+    p = p[buf[p + 1] == ubx.SYNC2]
+    n_payload = buf[p + 4].astype(np.int64) | buf[p + 5].astype(np.int64) << 8
+    plausible_len = n_payload <= ubx.MAX_PAYLOAD
+    p, n_payload = p[plausible_len], n_payload[plausible_len]
+    length = n_payload + 8 + sl
+    complete = p + length <= size
+    ok = np.zeros(len(p), dtype=bool)
+    bad_stamp = np.zeros(len(p), dtype=bool)
+    pc, npc = p[complete], n_payload[complete]
+    if len(pc):
+        c = np.zeros(size + 1, dtype=np.uint8)
+        np.cumsum(buf, dtype=np.uint8, out=c[1:])
+        d = np.zeros(size + 1, dtype=np.uint8)
+        np.cumsum(c[1:], dtype=np.uint8, out=d[1:])
+
+        def stretch(a, b):
+            ca = c[a]
+            return c[b] - ca, d[b] - d[a] - ((b - a) & 0xFF).astype(np.uint8) * ca
+
+        a1, b1 = stretch(pc + 2, pc + ubx.HEADER_LEN)
+        body = pc + ubx.HEADER_LEN + sl
+        a2, b2 = stretch(body, body + npc)
+        ck_a = a1 + a2
+        ck_b = b1 + b2 + (npc & 0xFF).astype(np.uint8) * a1
+        end = body + npc
+        good = (ck_a == buf[end]) & (ck_b == buf[end + 1])
+        if lay.stamped:
+            st = _gather(buf, pc + lay.header_len, STAMP_BYTES).view("<f8").reshape(-1)
+            with np.errstate(invalid="ignore"):
+                fine = np.isfinite(st) & (st > lo) & (st < hi)
+            bad_stamp[complete] = good & ~fine
+            good &= fine
         ok[complete] = good
     return p, length, ok, bad_stamp
 
@@ -323,6 +377,11 @@ def read_record_file(path: str | Path, device: str, limits: StampLimits | None =
 def message_ids(s: Scan) -> np.ndarray:
     """Superstar II message ID of every record."""
     return s.data[s.starts + 1] & 0x7F
+
+
+def ubx_class_ids(s: Scan) -> np.ndarray:
+    """(n, 2) UBX class and id of every record."""
+    return np.column_stack([s.data[s.starts + 2], s.data[s.starts + 3]])
 
 
 # --- BP3010 -----------------------------------------------------------------------

@@ -14,29 +14,48 @@ import time
 from pathlib import Path
 
 from . import dump, logs, sim
-from .emulate import Emulators
+from .emulate import Emulators, UbloxEmulators
+from .sim import ublox as sim_ublox
 from .sim.messages import MEASUREMENT_DELAY_S, SimSource
+from .sources import UbloxSimSource
 
 MODES = ("loose", "tight")
 
 
-def _logger_config(path: Path, devdir: Path, root: Path) -> Path:
-    path.write_text(f"""# written by gpsins run
-[session]
-root = "{root}"
-[gps]
+DEVICES = ("superstar2", "ublox")
+UBLOX_BAUD = 460800
+UBLOX_MESSAGES = ["RXM-RAWX", "RXM-SFRBX", "NAV-PVT", "NAV-TIMEGPS", "ESF-RAW"]
+
+
+def _logger_config(path: Path, devdir: Path, root: Path, device: str = "superstar2") -> Path:
+    if device == "ublox":  # an F9R-like receiver: its own IMU (ESF-RAW) on the same port
+        sensors = f"""[gps]
+device = "ublox"
+port = "{devdir / 'gps'}"
+baud = {UBLOX_BAUD}
+messages = {json.dumps(UBLOX_MESSAGES)}
+"""
+    else:
+        sensors = f"""[gps]
 port = "{devdir / 'gps'}"
 [imu]
 port = "{devdir / 'imu'}"
-""", encoding="utf-8")
+"""
+    path.write_text(f"""# written by gpsins run
+[session]
+root = "{root}"
+{sensors}""", encoding="utf-8")
     return path
 
 
-def record_drive(simulation: sim.Simulation, out: Path, speed: float = 1.0) -> Path:
+def record_drive(simulation: sim.Simulation, out: Path, speed: float = 1.0, device: str = "superstar2") -> Path:
     """Serve a simulation on ptys and record it with the logger daemon; returns the session directory."""
     devdir, session = out / "dev", out / "session"
-    cfg = _logger_config(out / "logger.toml", devdir, out / "sessions")
-    em = Emulators(devdir, SimSource(simulation), speed=speed)
+    cfg = _logger_config(out / "logger.toml", devdir, out / "sessions", device)
+    if device == "ublox":
+        em = UbloxEmulators(devdir, UbloxSimSource(simulation), speed=speed, gps_baud=UBLOX_BAUD)
+    else:
+        em = Emulators(devdir, SimSource(simulation), speed=speed)
     proc = subprocess.Popen([sys.executable, "-m", "gpsins_logger.daemon", "--config", str(cfg), "--session-dir",
                              str(session)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
@@ -68,6 +87,17 @@ def record_drive(simulation: sim.Simulation, out: Path, speed: float = 1.0) -> P
     return session
 
 
+def replay_latencies(device: str, speed: float) -> dict:
+    """The emulated devices' delays from the measurement to its first byte (shrunk on a faster
+    than real-time drive), plus the logger's."""
+    from . import replay
+
+    if device == "ublox":
+        return {"gps_latency_s": sim_ublox.MEASUREMENT_DELAY_S / speed + replay.DEFAULT_IMU_LATENCY_S,
+                "imu_latency_s": sim_ublox.ESF_DELAY_S / speed + replay.DEFAULT_IMU_LATENCY_S}
+    return {"gps_latency_s": MEASUREMENT_DELAY_S / speed + replay.DEFAULT_IMU_LATENCY_S}
+
+
 def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -81,13 +111,19 @@ def run(args: argparse.Namespace) -> int:
 
     write_truth(simulation, out / "truth.npz")
     print(f"2. serving it on emulated serial devices at {args.speed:g}x real time, recording with the logger daemon")
-    session = record_drive(simulation, out, args.speed)
+    device = getattr(args, "device", "superstar2")
+    session = record_drive(simulation, out, args.speed, device)
     summary = dump.session_summary(session)
     dump.print_summary(summary, sys.stdout)
-    offered = len(list(SimSource(simulation).gps_messages()))
     got = logs.read_session(session)
-    print(f"3. recorded {got.sensors['gps'].count} GPS frames (the receiver offered {offered}, sending what the "
-          f"logger requested) and {got.sensors['imu'].count} IMU frames of {len(simulation.imu_t)}")
+    if device == "ublox":
+        offered = len(list(UbloxSimSource(simulation).gps_messages()))
+        print(f"3. recorded {got.sensors['gps'].count} UBX frames from the u-blox receiver (it offered {offered} "
+              f"messages and NMEA, sending what the logger enabled; its IMU is in ESF-RAW)")
+    else:
+        offered = len(list(SimSource(simulation).gps_messages()))
+        print(f"3. recorded {got.sensors['gps'].count} GPS frames (the receiver offered {offered}, sending what the "
+              f"logger requested) and {got.sensors['imu'].count} IMU frames of {len(simulation.imu_t)}")
     from . import replay, report
 
     results = []
@@ -96,8 +132,7 @@ def run(args: argparse.Namespace) -> int:
         # The emulated receiver sends ID 23 its measurement delay after the epoch; on a
         # faster-than-real-time drive that delay shrinks with the speed.
         try:
-            res = replay.replay(session, out / mode, mode=mode,
-                                gps_latency_s=MEASUREMENT_DELAY_S / args.speed + replay.DEFAULT_IMU_LATENCY_S)
+            res = replay.replay(session, out / mode, mode=mode, **replay_latencies(device, args.speed))
         except ValueError as e:  # name the recorded session in the one-line message
             raise type(e)(f"{session}: {e}") from e
         wall = res.summary["wall_time_s"]["total_s"]

@@ -44,7 +44,7 @@ from pathlib import Path
 import numpy as np
 
 from . import dataset as dataset_mod, evaluate, filter as flt, measurements, outages as outages_mod
-from . import reference as reference_mod, timing
+from . import measurements_ubx, reference as reference_mod, timing
 from .readers import rinex
 
 DEFAULT_GPS_LATENCY_S = 0.0205  # receiver's epoch-to-first-byte delay (assumed 20 ms) + the logger's
@@ -158,7 +158,10 @@ def is_dataset(source: str | Path) -> bool:
 def _session_inputs(session: Path, mode: str, config, timing_method: str, gps_latency_s: float,
                     imu_latency_s: float, truth: bool, nav, overrides: dict) -> Inputs:
     t0 = time.perf_counter()
-    dec = measurements.decode_session(session)
+    if measurements_ubx.is_ublox(session):  # a u-blox receiver: NAV-PVT fixes carry its own accuracy
+        dec = measurements_ubx.decode_session(session, flt.load_config(config, overrides or {})["fix_uere_m"])
+    else:
+        dec = measurements.decode_session(session)
     decode_s = time.perf_counter() - t0
     t1 = time.perf_counter()
     al = timing.align(dec.gps.tow, dec.gps.stamps, dec.gps.week, dec.imu.stamps, dec.imu.counter, dec.imu.rate_hz,

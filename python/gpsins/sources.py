@@ -15,6 +15,7 @@ simulator's scenario source plugs in through the same two methods.
 from __future__ import annotations
 
 import math
+import struct
 from dataclasses import dataclass
 from typing import Iterator, Protocol
 
@@ -152,3 +153,66 @@ class SessionSource:
         for k in np.flatnonzero(t >= t0 - 1e-9):
             yield TimedSample(float(t[k]), bp3010.ImuSample(tuple(imu.dtheta_rad[k]), tuple(imu.dv_mps[k]),
                                                             int(imu.status[k])))
+
+
+class UbloxSimSource:
+    """A simulation as a u-blox receiver's messages (see ``sim.ublox``); the
+    IMU samples stay available for a BP3010 on another port."""
+
+    def __init__(self, simulation, sensors: bool = True):
+        from .sim import ublox
+        from .sim.messages import SimSource
+
+        self.duration_s = float(simulation.scenario.duration_s)
+        self._messages = ublox.messages(simulation, sensors)
+        self._imu = SimSource.__new__(SimSource)
+        self._imu.sim, self._imu.duration_s = simulation, self.duration_s
+
+    def gps_messages(self) -> Iterator[TimedMessage]:
+        return iter(self._messages)
+
+    def imu_samples(self, rate_hz: int, t0: float = 0.0) -> Iterator[TimedSample]:
+        return self._imu.imu_samples(rate_hz, t0)
+
+
+class UbxCaptureSource:
+    """A recorded UBX stream (a receiver's capture file, NMEA included) served
+    at its own timing, as gpsfake does: each UBX frame and each stretch of other
+    bytes at the GPS time of the latest epoch seen (RAWX receiver time, else
+    NAV-PVT iTOW), relative to the first. Stretches between frames (NMEA) are
+    served as they are, so the file goes out byte for byte."""
+
+    def __init__(self, path):
+        from .readers import ubx as ubx_reader
+        from .readers.common import read_bytes
+
+        data = read_bytes(path)
+        frames, _ = ubx_reader.split_frames(data)
+        items, pos = [], 0
+        t_now = None
+        for p, cls, mid, start, length in frames:
+            if p > pos:
+                items.append((t_now, "other", data[pos:p]))
+            if (cls, mid) == (0x02, 0x15) and length >= 16:
+                t_now = struct.unpack_from("<d", data, start)[0]
+            elif (cls, mid) == (0x01, 0x07) and length >= 4 and t_now is None:
+                t_now = struct.unpack_from("<I", data, start)[0] * 1e-3
+            items.append((t_now, "ubx", data[p:start + length + 2]))
+            pos = start + length + 2
+        if pos < len(data):
+            items.append((t_now, "other", data[pos:]))
+        t = np.array([np.nan if x is None else x for x, _, _ in items], dtype=float)
+        first = t[np.isfinite(t)][0] if np.isfinite(t).any() else 0.0
+        # A week rollover inside the capture keeps the times increasing.
+        t = np.where(np.isfinite(t), t, first) - first
+        t = np.where(t < -SECONDS_PER_WEEK / 2, t + SECONDS_PER_WEEK, t)
+        self._items = [(float(x), kind, b) for x, (_, kind, b) in zip(np.maximum.accumulate(t), items)]
+        self.duration_s = self._items[-1][0] if self._items else 0.0
+        self.ubx_frames = [b for _, kind, b in self._items if kind == "ubx"]
+
+    def gps_messages(self) -> Iterator[TimedMessage]:
+        for t, kind, b in self._items:
+            yield TimedMessage(t, "NMEA" if kind == "other" else (b[2], b[3]), b)
+
+    def imu_samples(self, rate_hz: int, t0: float = 0.0) -> Iterator[TimedSample]:
+        return iter(())
