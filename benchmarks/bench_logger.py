@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-from ptyrig import run_rig, sent_ok  # noqa: E402
+from ptyrig import run_rig  # noqa: E402
 
 
 def main() -> None:

@@ -2,7 +2,6 @@
 bad samples, a dead accelerometer, long IMU gaps; and its NEES over a whole drive, the
 unknown-heading start included. Truth from the simulator."""
 
-import dataclasses
 
 import numpy as np
 import pytest

@@ -12,7 +12,7 @@ import pytest
 from gpsins import logs
 from gpsins.emulate import Faults
 from gpsins_logger import superstar2 as ss2
-from ptyrig import faulted_bytes, run_rig, sent_ok, write_config
+from ptyrig import faulted_bytes, run_rig, sent_ok
 
 
 def test_frames_arrive_byte_for_byte_at_nominal_rates(tmp_path):

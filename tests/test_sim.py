@@ -8,7 +8,6 @@ import re
 import allantools
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
 
 from gpsins import logs, sim
 from gpsins.sim import atmosphere, earth, ephemeris, gnss, imu, trajectory

@@ -573,9 +573,25 @@ class UbloxEmulators(Emulators):
         return [d for d in (self.gps, self.imu) if d is not None]
 
 
+def serve_until_signalled(em, banner: str) -> int:
+    """Start the emulators, say what they serve, and serve until the source ends or SIGINT/SIGTERM."""
+    import signal
+
+    stop = {"now": False}
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.update(now=True))
+    em.start()
+    print(banner, flush=True)
+    try:
+        while not stop["now"] and not em.wait(0.2):
+            pass
+    finally:
+        em.stop()
+    return 0
+
+
 def run_ublox(args) -> int:
     """`gpsins emulate --device ublox`: a simulated F9R-like receiver, or a recorded UBX capture (--ubx)."""
-    import signal
     import sys
 
     if args.ubx:
@@ -594,16 +610,6 @@ def run_ublox(args) -> int:
         source, what = UbloxSimSource(simulate(sc, args.seed), sensors=not args.bp3010), f"scenario {sc.name}"
     em = UbloxEmulators(Path(args.dir), source, speed=args.speed, gps_baud=args.baud, bp3010=args.bp3010,
                         config_fault=args.config_fault, serve_all=bool(args.ubx))
-    stop = {"now": False}
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.update(now=True))
-    em.start()
     imu = f" and a BP3010 on {Path(args.dir) / 'imu'}" if args.bp3010 else ""
-    print(f"serving {what} ({source.duration_s:.0f} s at speed {args.speed:g}) as a u-blox receiver on "
-          f"{Path(args.dir) / 'gps'} ({args.baud} Bd){imu}", flush=True)
-    try:
-        while not stop["now"] and not em.wait(0.2):
-            pass
-    finally:
-        em.stop()
-    return 0
+    return serve_until_signalled(em, f"serving {what} ({source.duration_s:.0f} s at speed {args.speed:g}) as a u-blox "
+                                     f"receiver on {Path(args.dir) / 'gps'} ({args.baud} Bd){imu}")

@@ -167,7 +167,8 @@ def _nav_user_times(nav_user: list, nav_ecef: list, ecef_t: np.ndarray, leap: in
     return utc + (leap or 0)
 
 
-def decode_session(directory: str | Path) -> Decoded:
+def read_counting_damage(directory: str | Path) -> tuple[logs.SessionLog, Counter]:
+    """A session's record files, and what the readers skipped in them, by reason."""
     session = logs.read_session(directory)
     skipped: Counter = Counter()
     for name, sensor in session.sensors.items():
@@ -178,6 +179,11 @@ def decode_session(directory: str | Path) -> Decoded:
             skipped[f"{name}: records with impossible stamps (their bytes are counted above)"] += st["bad_stamps"]
         if st["truncated_tail_bytes"]:
             skipped[f"{name}: truncated last record, bytes"] += st["truncated_tail_bytes"]
+    return session, skipped
+
+
+def decode_session(directory: str | Path) -> Decoded:
+    session, skipped = read_counting_damage(directory)
     if "gps" not in session.sensors or not session.sensors["gps"].count:
         raise logs.LogError(f"{directory}: no GPS records")
     if "imu" not in session.sensors or not session.sensors["imu"].count:

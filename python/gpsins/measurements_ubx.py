@@ -33,7 +33,7 @@ import numpy as np
 from gpsins_logger import ubx
 
 from . import logs
-from .measurements import SECONDS_PER_WEEK, Decoded, _bad_imu
+from .measurements import SECONDS_PER_WEEK, Decoded, _bad_imu, read_counting_damage
 from .readers import ubx as ubx_reader
 
 ESF_GYRO = {14: 0, 13: 1, 5: 2}
@@ -186,14 +186,7 @@ def esf_imu_log(e: EsfSamples, gps_s_per_stamp_s: float = 1.0) -> logs.ImuLog:
 
 
 def decode_session(directory: str | Path, fix_uere_m: float = 3.0) -> Decoded:
-    session = logs.read_session(directory)
-    skipped: Counter = Counter()
-    for name, sensor in session.sensors.items():
-        st = sensor.stats()
-        if st["discarded_bytes"]:
-            skipped[f"{name}: bytes between frames (garbage or damaged frames)"] += st["discarded_bytes"]
-        if st["truncated_tail_bytes"]:
-            skipped[f"{name}: truncated last record, bytes"] += st["truncated_tail_bytes"]
+    session, skipped = read_counting_damage(directory)
     gps_files = session.sensors.get("gps")
     if gps_files is None or not gps_files.count:
         raise logs.LogError(f"{directory}: no GPS records")

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import signal
 import sys
 import time
 from pathlib import Path
@@ -48,7 +47,7 @@ def run_sim(args) -> int:
 
 
 def run_emulate(args) -> int:
-    from ..emulate import Emulators
+    from ..emulate import Emulators, serve_until_signalled
 
     if args.session:
         from ..sources import SessionSource
@@ -69,15 +68,6 @@ def run_emulate(args) -> int:
         source = SimSource(simulate(sc, args.seed))
         what = f"scenario {sc.name}"
     em = Emulators(Path(args.dir), source, speed=args.speed)
-    stop = {"now": False}
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.update(now=True))
-    em.start()
-    print(f"serving {what} ({source.duration_s:.0f} s at speed {args.speed:g}) on {Path(args.dir) / 'gps'} and "
-          f"{Path(args.dir) / 'imu'}; the IMU starts when the host sends its rate command", flush=True)
-    try:
-        while not stop["now"] and not em.wait(0.2):
-            pass
-    finally:
-        em.stop()
-    return 0
+    return serve_until_signalled(em, f"serving {what} ({source.duration_s:.0f} s at speed {args.speed:g}) on "
+                                     f"{Path(args.dir) / 'gps'} and {Path(args.dir) / 'imu'}; the IMU starts when "
+                                     "the host sends its rate command")
