@@ -356,8 +356,15 @@ def replay(source: str | Path, out: str | Path, *, mode: str = "loose", config=N
         if free_from is None:
             raise ValueError(f"{source}: --mode ins: the heading never became known, so free navigation never "
                              "started (set initial_yaw_deg, or use data that moves faster than heading_min_speed_mps)")
+        found = sol.extra.get("heading_search")
+        if found and found["yaw_deg"] is not None:  # the searched heading: aided over the search's fixes
+            cfg = flt._merge(cfg, {"initial_yaw_deg": found["yaw_deg"], "heading_sigma_deg": found["sigma_deg"]})
+            used = fixes[(fixes[:, 0] <= found["t_end"]) & np.isin(fixes[:, 9], (2, 3))]
+            free_from = float(used[-1, 0]) if len(used) else free_from
         fixes = fixes[fixes[:, 0] <= free_from]
         sol, split = _filter(inp, cfg, filter_mode, fixes, prs)
+        if found:
+            sol.extra["heading_search"] = found
     clock["filter_s"] = time.perf_counter() - t2
     if len(sol.t) == 0:
         raise measurements.logs.LogError(f"{source}: the filter never initialised (no usable fix after levelling)")
