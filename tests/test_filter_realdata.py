@@ -186,10 +186,18 @@ def test_nonholonomic_constraint_reduces_outage_drift_on_a_simulated_car(car_set
 
 # --- the real walk -------------------------------------------------------------------------------
 
-def test_walk_replays_loose_with_the_heading_searched(tmp_path):
-    res = replay.replay(WALK, tmp_path / "walk").summary
+@pytest.mark.parametrize("name", ["walk_0827.toml", "walk_0827_ubx.toml"])
+def test_walk_replays_loose_with_the_heading_searched(tmp_path, name):
+    """Measured: .pos 1.33 m drift RMS, 0.080 m outside; NAV-PVT 1.23 m, 0.064 m (before: 96 m, 3.8 / 0.08 m).
+    The goal (2.3 m) is asserted for the drift; outside the outages the issue's 0.05 m is not reached."""
+    res = replay.replay(WALK.parent / name, tmp_path / "walk").summary
     h = res["scoring"]["horizontal_m"]
     outside = res["scoring"]["outside"]["rms_h_m"]
-    print(f"\nwalk: drift RMS {h['rms']:.2f} m (worst {h['worst']:.2f} m), outside RMS {outside:.3f} m, "
-          f"heading search {res.get('heading_search')}")
-    assert h["rms"] < 0.1 * WALK_BASELINE_DRIFT_M
+    found = res["heading_search"]
+    print(f"\n{name}: drift RMS {h['rms']:.2f} m (worst {h['worst']:.2f} m), outside RMS {outside:.3f} m, "
+          f"heading {found['yaw_deg']} deg (dominance {found['dominance']:.0f})")
+    # The device points far from where it goes (course about -90 deg; hand-tuned runs used 160 deg).
+    assert abs(_wrap(found["yaw_deg"] + 90.0)) > 45.0 and abs(_wrap(found["yaw_deg"] - 160.0)) < 45.0
+    assert h["rms"] < 2.3 < 0.1 * WALK_BASELINE_DRIFT_M
+    assert outside < 0.2
+    assert res["counters"]["gnss_resets"] == 0
