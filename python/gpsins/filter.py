@@ -161,7 +161,8 @@ def parse_overrides(pairs: list[str]) -> dict:
 # spreads, noise densities, times and rates, which may not.
 _SIGNED = ("_cal", "lever_arm", "initial_yaw", "gps_time_offset_s", "pseudorange_sigma_m", "body_to_vehicle_ypr",
            "vehicle_point_body_m")
-_POSITIVE = {"imu_rate_hz", "heading_search_s", "nhc_interval_s", "fix_uere_m", "bias_tau_s", "zero_velocity_sigma_mps", "zero_rate_sigma_rad_per_s",
+_POSITIVE = {"imu_rate_hz", "heading_search_s", "nhc_interval_s", "fix_uere_m", "bias_tau_s",
+             "zero_velocity_sigma_mps", "zero_rate_sigma_rad_per_s",
              "standstill_window_s", "pseudorange_decimation", "gm_tau_s", "standstill_block_s",
              "gyro_range_rad_per_s", "gyro_range_deg_per_s", "accel_range_mps2"}
 _RANGES = {"gate_probability": (0.0, 1.0), "pseudorange_elevation_mask_deg": (0.0, 90.0),
@@ -535,7 +536,8 @@ def search_heading(imu: np.ndarray, fixes: np.ndarray, cfg: dict, window_s: floa
     Hypotheses of the initial yaw every 30 deg, each a filter run from the start to ``window_s`` seconds
     after motion begins, with a heading sigma of half the spacing (the linear model holds within it),
     scored by the likelihood of their GNSS updates (-2 log L: NIS plus log det S); then every 5 deg
-    around the best with a 5 deg sigma. The run then starts at the best with the coarse 15 deg sigma. The gate is off in these runs so that every hypothesis is scored
+    around the best with a 5 deg sigma. The run then starts at the best with the coarse 15 deg sigma.
+    The gate is off in these runs so that every hypothesis is scored
     on the same updates. The search decides only when the best coarse hypothesis beats every one 90 deg
     or more away by ``DOMINANCE`` (a likelihood ratio of e^10); otherwise (no motion, too few fixes) the
     yaw is None and the filter takes its heading from the course as for a vehicle.

@@ -22,8 +22,8 @@ Measurement<3, Eskf<NB, NC>::N> vehicle_velocity(const Eskf<NB, NC>& f, const Ma
   Measurement<3, Eskf<NB, NC>::N> m;
   const Mat3 c_be = f.nav.q_eb.toRotationMatrix().transpose();
   const Vec3 w_ie_b = c_be * earth_rate_ecef();
-  const Vec3 w = (w_ib_body_rad_per_s - f.imu.gyro_bias_rad_per_s).cwiseQuotient(Vec3::Ones() + f.imu.gyro_scale_factor) -
-                 w_ie_b;
+  const Vec3 w_ib = (w_ib_body_rad_per_s - f.imu.gyro_bias_rad_per_s).cwiseQuotient(Vec3::Ones() + f.imu.gyro_scale_factor);
+  const Vec3 w = w_ib - w_ie_b;
   const Vec3 v_b = c_be * f.nav.v_ecef_mps;
   m.y = -(c_vb * (v_b + w.cross(point_body_m)));  // y = z - h with z = 0; the caller sets the rows' z
   m.H.template block<3, 3>(0, es::vel) = c_vb * c_be;
