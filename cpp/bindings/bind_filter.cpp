@@ -6,6 +6,7 @@
 #include <pybind11/pybind11.h>
 #include <pybind11/stl.h>
 
+#include <limits>
 #include <string>
 #include <variant>
 #include <vector>
@@ -32,9 +33,10 @@ AnyFilter make_filter(const InsConfig& cfg, bool tight) {
 
 constexpr int kImuCols = 7;   // t, dtheta xyz, dv xyz
 constexpr int kFixCols = 10;  // t, r xyz, v xyz, hdop, vdop, mode
+constexpr int kFixColsSigma = 16;  // then sigma n, e, d (m) and sigma vn, ve, vd (m/s): NaN or <= 0 none
 constexpr int kPrCols = 5;    // t, prn, pseudorange, C/N0, lock count
 
-FixInput fix_of(const double* p) {
+FixInput fix_of(const double* p, int cols) {
   FixInput f;
   f.t_s = p[0];
   f.r_ecef_m = Vec3(p[1], p[2], p[3]);
@@ -42,6 +44,10 @@ FixInput fix_of(const double* p) {
   f.hdop = p[7];
   f.vdop = p[8];
   f.mode = std::isfinite(p[9]) ? static_cast<int>(p[9]) : 0;
+  if (cols == kFixColsSigma) {
+    f.sigma_ned_m = Vec3(p[10], p[11], p[12]);
+    f.sigma_v_ned_mps = Vec3(p[13], p[14], p[15]);
+  }
   return f;
 }
 
@@ -50,11 +56,13 @@ FixInput fix_of(const double* p) {
                         " s): " + input_status_text(s));
 }
 
-Array table(py::handle obj, int cols, const char* name) {
+Array table(py::handle obj, int cols, const char* name, int alt_cols = -1) {
   Array a = Array::ensure(obj);
   if (!a) throw py::type_error(std::string(name) + ": not convertible to a float array");
+  if (a.ndim() == 2 && alt_cols > 0 && a.shape(1) == alt_cols) return a;
   if (a.ndim() != 2 || a.shape(1) != cols)
-    throw py::value_error(std::string(name) + ": expected shape (n, " + std::to_string(cols) + "), got ndim " +
+    throw py::value_error(std::string(name) + ": expected shape (n, " + std::to_string(cols) +
+                          (alt_cols > 0 ? ") or (n, " + std::to_string(alt_cols) : std::string()) + "), got ndim " +
                           std::to_string(a.ndim()) + (a.ndim() == 2 ? ", " + std::to_string(a.shape(1)) + " columns" : ""));
   return a;
 }
@@ -75,6 +83,7 @@ py::dict counters_dict(const Counters& c) {
   d["fixes_late"] = c.fixes_late;
   d["zero_velocity_updates"] = c.zero_velocity_updates;
   d["zero_rate_updates"] = c.zero_rate_updates;
+  d["nonholonomic_updates"] = c.nonholonomic_updates;
   d["updates_rejected"] = c.updates_rejected;
   d["updates_guarded"] = c.updates_guarded;
   d["standstill_samples"] = c.standstill_samples;
@@ -160,6 +169,7 @@ py::dict run_batch(InsFilter<NB, NC>& f, const Array& imu, const Array& fixes, c
                    bool with_cov) {
   using Row = StateRow<NB, NC>;
   const py::ssize_t n = imu.shape(0), m = fixes.shape(0);
+  const int fc = static_cast<int>(fixes.shape(1));
   std::vector<double> rows;
   rows.reserve(static_cast<std::size_t>((n / output_every + 1) * Row::kCols));
   constexpr int N = Row::N;
@@ -184,10 +194,10 @@ py::dict run_batch(InsFilter<NB, NC>& f, const Array& imu, const Array& fixes, c
       const double* r = pi + k * kImuCols;
       // Fixes up to this sample's time go first: the filter holds them until the
       // increment that spans their time arrives, and splits it there.
-      while (j < m && pf[j * kFixCols] <= r[0]) {
-        const InputStatus s = f.push_fix(fix_of(pf + j * kFixCols));
+      while (j < m && pf[j * fc] <= r[0]) {
+        const InputStatus s = f.push_fix(fix_of(pf + j * fc, fc));
         if (s != InputStatus::Ok) {
-          bad = s; bad_row = j; bad_what = "fixes"; bad_t = pf[j * kFixCols];
+          bad = s; bad_row = j; bad_what = "fixes"; bad_t = pf[j * fc];
           break;
         }
         ++j;
@@ -299,8 +309,11 @@ class PyFilter {
     if (s != InputStatus::Ok) input_error("imu", imu_count_, t, s);
     ++imu_count_;
   }
-  void push_fix(double t, const Vec3& r, const Vec3& v, double hdop, double vdop, int mode) {
+  void push_fix(double t, const Vec3& r, const Vec3& v, double hdop, double vdop, int mode, const Vec3& sigma_ned,
+                const Vec3& sigma_v_ned) {
     FixInput fix;
+    fix.sigma_ned_m = sigma_ned;
+    fix.sigma_v_ned_mps = sigma_v_ned;
     fix.t_s = t;
     fix.r_ecef_m = r;
     fix.v_ecef_mps = v;
@@ -313,7 +326,7 @@ class PyFilter {
   }
   py::dict run(py::handle imu, py::handle fixes, py::handle prs, int output_every, bool with_cov) {
     if (output_every < 1) throw py::value_error("output_every must be >= 1");
-    const Array a = table(imu, kImuCols, "imu"), b = table(fixes, kFixCols, "fixes");
+    const Array a = table(imu, kImuCols, "imu"), b = table(fixes, kFixCols, "fixes", kFixColsSigma);
     const Array c = table(prs.is_none() ? py::handle(Array(std::vector<py::ssize_t>{0, kPrCols})) : prs, kPrCols,
                           "pseudoranges");
     if (c.shape(0) > 0 && !tight_)
@@ -438,6 +451,12 @@ void bind_filter(py::module_& m) {
   GPSINS_FIELD(standstill_max_speed_mps);
   GPSINS_FIELD(zero_velocity_sigma_mps);
   GPSINS_FIELD(zero_rate_sigma_rad_per_s);
+  GPSINS_FIELD(nonholonomic_constraint);
+  GPSINS_FIELD(body_to_vehicle_ypr_rad);
+  GPSINS_FIELD(vehicle_point_body_m);
+  GPSINS_FIELD(nhc_sigma_mps);
+  GPSINS_FIELD(nhc_min_speed_mps);
+  GPSINS_FIELD(nhc_interval_s);
   GPSINS_FIELD(gate_probability);
   GPSINS_FIELD(update_check);
   GPSINS_FIELD(max_attitude_correction_rad);
@@ -449,7 +468,9 @@ void bind_filter(py::module_& m) {
       .def(py::init<const InsConfig&, const std::string&>(), py::arg("config"), py::arg("mode") = "loose")
       .def("push_imu", &PyFilter::push_imu, py::arg("t"), py::arg("dtheta"), py::arg("dv"))
       .def("push_fix", &PyFilter::push_fix, py::arg("t"), py::arg("r_ecef"), py::arg("v_ecef"), py::arg("hdop"),
-           py::arg("vdop"), py::arg("mode") = 2)
+           py::arg("vdop"), py::arg("mode") = 2,
+           py::arg("sigma_ned") = Vec3::Constant(std::numeric_limits<double>::quiet_NaN()),
+           py::arg("sigma_v_ned") = Vec3::Constant(std::numeric_limits<double>::quiet_NaN()))
       .def("run", &PyFilter::run, py::arg("imu"), py::arg("fixes"), py::arg("pseudoranges") = py::none(),
            py::arg("output_every") = 1, py::arg("covariance") = false,
            "Batch: imu (n, 7) [t, dtheta xyz, dv xyz], fixes (m, 10) [t, r xyz, v xyz, hdop, vdop, mode], "

@@ -4,6 +4,7 @@
 #include <cmath>
 
 #include "gpsins/aiding/measurement.hpp"
+#include "gpsins/aiding/nonholonomic.hpp"
 #include "gpsins/aiding/position_fix.hpp"
 #include "gpsins/aiding/pseudorange.hpp"
 #include "gpsins/gnss/spp.hpp"
@@ -68,6 +69,14 @@ StandstillThresholds thresholds_of(const InsConfig& c) {
   return t;
 }
 
+// Per axis: the stated sigma when it is one (finite, > 0), else the fallback.
+Vec3 stated_or(const Vec3& stated, const Vec3& fallback) {
+  Vec3 s = fallback;
+  for (int i = 0; i < 3; ++i)
+    if (std::isfinite(stated(i)) && stated(i) > 0.0) s(i) = stated(i);
+  return s;
+}
+
 Euler levelled(const Vec3& f_mean) {
   Euler e;  // at rest f = -g in body axes (forward-right-down)
   e.roll_rad = std::atan2(-f_mean.y(), -f_mean.z());
@@ -86,6 +95,11 @@ InsFilter<NB, NC>::InsFilter(const InsConfig& cfg) : cfg_(cfg), detector_(thresh
   for (int d = 1; d < static_cast<int>(gates_.size()); ++d)
     gates_[static_cast<std::size_t>(d)] = gating ? chi2_quantile(cfg.gate_probability, d) : 0.0;
   heading_known_ = std::isfinite(cfg.initial_yaw_rad);
+  Euler v;
+  v.yaw_rad = cfg.body_to_vehicle_ypr_rad.x();
+  v.pitch_rad = cfg.body_to_vehicle_ypr_rad.y();
+  v.roll_rad = cfg.body_to_vehicle_ypr_rad.z();
+  c_vb_ = dcm_from_euler(v);
 }
 
 template <int NB, int NC>
@@ -98,9 +112,17 @@ Increment InsFilter<NB, NC>::calibrated(double dt, const Vec3& dtheta, const Vec
 }
 
 template <int NB, int NC>
-InputStatus InsFilter<NB, NC>::push_fix(const FixInput& fix) {
+InputStatus InsFilter<NB, NC>::push_fix(const FixInput& given) {
+  FixInput fix = given;
   if (!std::isfinite(fix.t_s)) return InputStatus::NonFinite;
   const bool solution = fix.mode == 2 || fix.mode == 3;
+  // A fix that states its sigmas needs no DOP: the DOP (used when a reset has no
+  // other figure) is then the one those sigmas stand for.
+  auto stated = [](double s) { return std::isfinite(s) && s > 0.0; };
+  if (!(std::isfinite(fix.hdop) && fix.hdop > 0.0) && stated(fix.sigma_ned_m.x()) && stated(fix.sigma_ned_m.y()))
+    fix.hdop = std::hypot(fix.sigma_ned_m.x(), fix.sigma_ned_m.y()) / cfg_.fix_uere_m;
+  if (!(std::isfinite(fix.vdop) && fix.vdop > 0.0) && stated(fix.sigma_ned_m.z()))
+    fix.vdop = fix.sigma_ned_m.z() / cfg_.fix_uere_m;
   if (solution && (!fix.r_ecef_m.allFinite() || !std::isfinite(fix.hdop) || !std::isfinite(fix.vdop)))
     return InputStatus::NonFinite;
   if (solution && (fix.hdop <= 0.0 || fix.vdop <= 0.0)) return InputStatus::BadValue;
@@ -375,11 +397,25 @@ void InsFilter<NB, NC>::propagate_to(const Increment& inc) {
   if (!heading_known_) {
     if (!standstill_) inflate_unknown_heading(rest);
     decouple_yaw();
+  } else if (cfg_.nonholonomic_constraint) {
+    constrain_vehicle(rest);
   }
   const double pos_var = core_.P.template block<3, 3>(es::pos, es::pos).trace();
   if (!std::isfinite(pos_var) || pos_var > 3.0 * cfg_.max_position_sigma_m * cfg_.max_position_sigma_m ||
       !core_.nav.r_ecef_m.allFinite())
     counters_.diverged = true;
+}
+
+// The land-vehicle constraint while moving (standing, the zero-velocity update
+// says more); at most every nhc_interval_s.
+template <int NB, int NC>
+void InsFilter<NB, NC>::constrain_vehicle(const Increment& inc) {
+  if (!(inc.dt_s > 0.0) || standstill_ || t_last_ - last_nhc_t_ < cfg_.nhc_interval_s - 1e-9) return;
+  if (core_.nav.v_ecef_mps.norm() < cfg_.nhc_min_speed_mps) return;
+  last_nhc_t_ = t_last_;
+  const auto m = nonholonomic(core_, c_vb_, cfg_.vehicle_point_body_m, inc.dtheta_rad / inc.dt_s, cfg_.nhc_sigma_mps);
+  record(kNonholonomic, apply(m, 2), 2);
+  ++counters_.nonholonomic_updates;
 }
 
 template <int NB, int NC>
@@ -639,7 +675,8 @@ void InsFilter<NB, NC>::process_fix(const FixInput& fix) {
     r_cov = square(cfg_.fix_sigma_ecef_m).asDiagonal();
   } else {
     const double sh = cfg_.fix_uere_m * fix.hdop / std::sqrt(2.0), sv = cfg_.fix_uere_m * fix.vdop;
-    r_cov = c_en * Vec3(sh * sh, sh * sh, sv * sv).asDiagonal() * c_en.transpose();
+    const Vec3 s = stated_or(fix.sigma_ned_m, Vec3(sh, sh, sv));
+    r_cov = c_en * square(s).asDiagonal() * c_en.transpose();
   }
   const auto m = position_fix(core_, fix.r_ecef_m, r_cov, cfg_.lever_arm_body_m);
   bool accepted;
@@ -669,7 +706,9 @@ void InsFilter<NB, NC>::process_fix(const FixInput& fix) {
     const Vec3 w_eb = last_inc_.dtheta_rad / last_inc_.dt_s - core_.imu.gyro_bias_rad_per_s -
                       core_.nav.q_eb.conjugate() * earth_rate_ecef();
     const double s = cfg_.fix_velocity_sigma_mps * (cfg_.fix_velocity_sigma_hdop_scaled ? fix.hdop : 1.0);
-    const auto mv = gnss_velocity(core_, fix.v_ecef_mps, Mat3::Identity() * s * s, cfg_.lever_arm_body_m, w_eb);
+    const Vec3 sv = stated_or(fix.sigma_v_ned_mps, Vec3::Constant(s));
+    const Mat3 r_v = c_en * square(sv).asDiagonal() * c_en.transpose();
+    const auto mv = gnss_velocity(core_, fix.v_ecef_mps, r_v, cfg_.lever_arm_body_m, w_eb);
     record(kFixVelocity, apply(mv, 3), 3);
   }
 }

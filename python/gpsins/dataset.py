@@ -96,17 +96,20 @@ def fix_sigmas(fixes: Fixes, floor_m: dict | None = None, default_m: dict | None
 
 
 def fix_table(fixes: Fixes, t0: float, fix_uere_m: float, floor_m: dict | None = None,
-              default_m: dict | None = None) -> np.ndarray:
-    """The filter's (m, 10) fixes [t - t0, r xyz, v xyz (NaN: none), hdop, vdop, 2 (3D)].
+              default_m: dict | None = None, velocity_floor_mps: float = VELOCITY_SIGMA_FLOOR_MPS) -> np.ndarray:
+    """The filter's (m, 16) fixes [t - t0, r xyz, v xyz (NaN: none), hdop, vdop, 2 (3D), sigma n e d (m),
+    sigma vn ve vd (m/s)].
 
-    The core weighs a fix with sigma_h = fix_uere_m hdop / sqrt(2) per horizontal axis and
-    sigma_v = fix_uere_m vdop, so the per-fix sigmas travel as hdop = sqrt(2) sigma_h / uere and
-    vdop = sigma_v / uere (exact for equal north and east sigmas; the north-east difference
-    and the covariance terms are lost)."""
+    Position sigmas from ``fix_sigmas`` (north and east pooled, floored); hdop/vdop are the DOPs those
+    stand for with this UERE (sqrt(2) sigma_h / uere, sigma_v / uere). Velocity sigmas per fix as stated,
+    floored (NaN where none is stated: the filter's ``fix_velocity_sigma_mps`` then)."""
     h, v = fix_sigmas(fixes, floor_m, default_m)
     n = len(fixes)
+    sv = np.full((n, 3), np.nan) if fixes.sigma_v_ned_mps is None else \
+        np.abs(np.asarray(fixes.sigma_v_ned_mps, float).reshape(-1, 3))
+    sv = np.where(np.isfinite(sv), np.maximum(sv, velocity_floor_mps), np.nan)
     return np.column_stack([fixes.t_abs - t0, fixes.r_ecef, fixes.v_ecef(), np.sqrt(2.0) * h / fix_uere_m,
-                            v / fix_uere_m, np.full(n, 2.0)]).reshape(-1, 10)
+                            v / fix_uere_m, np.full(n, 2.0), h, h, v, sv]).reshape(-1, 16)
 
 
 def velocity_sigma(fixes: Fixes, floor_mps: float = VELOCITY_SIGMA_FLOOR_MPS) -> float | None:

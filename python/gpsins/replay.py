@@ -19,8 +19,8 @@ table nor ``--set`` names the key itself): ``lever_arm_body_m`` from ``[gnss] an
 window use it); ``use_fix_velocity`` when the fixes carry velocities and
 ``fix_velocity_sigma_mps`` from their stated sigmas (``dataset.velocity_sigma``: the core
 has one velocity sigma, not one per fix); ``pseudorange_decimation`` so that the tight
-filter uses about one epoch per second whatever the receiver's rate. Fix sigmas travel
-per fix through the hdop/vdop columns (``dataset.fix_table``). The mounting rotation and
+filter uses about one epoch per second whatever the receiver's rate. Fix position and velocity
+sigmas travel per fix in the fix table's sigma columns (``dataset.fix_table``). The mounting rotation and
 the IMU time offset are applied by ``dataset.load``.
 
 Modes: ``loose`` (fixes), ``tight`` (pseudoranges; fixes only start the filter and give
@@ -57,7 +57,8 @@ RESULT_ARRAYS = {
     "gyro_bias": "rad/s", "accel_bias": "m/s^2", "sigma": "error-state standard deviations",
     "sigma_ned_m": "position sigma north, east, down", "sigma_ypr_deg": "attitude sigma about N, E, D axes",
     "standstill": "standstill detected", "heading_known": "heading initialised",
-    "fixes": "receiver fixes [t, r xyz, v xyz, hdop, vdop, mode]", "fix_sats": "satellites used per fix",
+    "fixes": "receiver fixes [t, r xyz, v xyz, hdop, vdop, mode] (data sets: then sigma n e d, vn ve vd)",
+    "fix_sats": "satellites used per fix",
     "upd_*": "updates: t, kind, id, dof, nis, gate, accepted, innovation (3), innovation_sigma (3)",
     "err_ned_m": "position error (estimate - truth) NED", "err_ypr_deg": "attitude error",
     "err_v_ned_mps": "velocity error NED", "nees9": "NEES of the 9 navigation states",
@@ -225,11 +226,12 @@ def _dataset_inputs(path: Path, config, overrides: dict) -> Inputs:
         derived["imu_rate_hz"] = float(1.0 / np.median(dt))
     uere = float(cfg0["fix_uere_m"])
     if ds.fixes is not None and len(ds.fixes):
-        fixes = dataset_mod.fix_table(ds.fixes, t_week, uere, ds.sigma_floor_m, ds.sigma_default_m)
+        fixes = dataset_mod.fix_table(ds.fixes, t_week, uere, ds.sigma_floor_m, ds.sigma_default_m,
+                                      ds.velocity_sigma_floor_mps)
         sats = ds.fixes.ns.astype(int)
         vs = dataset_mod.velocity_sigma(ds.fixes, ds.velocity_sigma_floor_mps)
         if vs is not None:
-            # The stated sigma, not one scaled by DOP: here the DOP columns carry the position sigmas.
+            # Per-fix velocity sigmas travel in the fix table; this median only stands in where a fix has none.
             derived.update(use_fix_velocity=True, fix_velocity_sigma_mps=vs, fix_velocity_sigma_hdop_scaled=False)
     elif ds.pseudoranges is not None:
         fixes, sats = _spp_fixes(ds.pseudoranges, ds.navigation, t_week)
@@ -247,6 +249,11 @@ def _dataset_inputs(path: Path, config, overrides: dict) -> Inputs:
         if len(ep) > 1:
             rate = 1.0 / float(np.median(np.diff(ep)))
             derived["pseudorange_decimation"] = max(1, int(round(rate)))  # about one epoch per second
+    # A car's body axes are its vehicle axes (dataset spec): its heading is its course, and it takes the
+    # non-holonomic constraint; anything else may point away from where it goes (handheld).
+    derived["platform"] = "vehicle" if ds.vehicle_kind == "car" else "handheld"
+    if ds.vehicle_kind == "car":
+        derived["nonholonomic_constraint"] = True
     inp.data_config = {k: v for k, v in derived.items() if k not in explicit}
     if ds.reference is not None:
         inp.reference = (ds.reference.t_abs - t_week, ds.reference.r_ecef, ds.reference.source)
@@ -258,9 +265,6 @@ def _dataset_inputs(path: Path, config, overrides: dict) -> Inputs:
                 "gnss_format": ds.gnss_format, "vehicle_kind": ds.vehicle_kind, "fix_quality": n_fix_q,
                 "from_data": inp.data_config,
                 "ephemerides_prn": ds.navigation.prns() if ds.navigation is not None else []}
-    if ds.vehicle_kind != "none":
-        inp.info["warnings"].append(f"[vehicle] kind = {ds.vehicle_kind!r}: the non-holonomic constraint is not in "
-                                    "the core yet; replayed without it")
     return inp
 
 
@@ -359,8 +363,15 @@ def replay(source: str | Path, out: str | Path, *, mode: str = "loose", config=N
         if free_from is None:
             raise ValueError(f"{source}: --mode ins: the heading never became known, so free navigation never "
                              "started (set initial_yaw_deg, or use data that moves faster than heading_min_speed_mps)")
+        found = sol.extra.get("heading_search")
+        if found and found["yaw_deg"] is not None:  # the searched heading: aided over the search's fixes
+            cfg = flt._merge(cfg, {"initial_yaw_deg": found["yaw_deg"], "heading_sigma_deg": found["sigma_deg"]})
+            used = fixes[(fixes[:, 0] <= found["t_end"]) & np.isin(fixes[:, 9], (2, 3))]
+            free_from = float(used[-1, 0]) if len(used) else free_from
         fixes = fixes[fixes[:, 0] <= free_from]
         sol = _filter(inp, cfg, filter_mode, fixes, prs)
+        if found:
+            sol.extra["heading_search"] = found
     clock["filter_s"] = time.perf_counter() - t2
     if len(sol.t) == 0:
         raise measurements.logs.LogError(f"{source}: the filter never initialised (no usable fix after levelling)")
@@ -472,6 +483,8 @@ def replay(source: str | Path, out: str | Path, *, mode: str = "loose", config=N
                "scoring": scoring}
     if reference_system:
         summary["reference_system"] = reference_system
+    if "heading_search" in sol.extra:
+        summary["heading_search"] = sol.extra["heading_search"]
     if mode == "ins":
         summary["ins"] = {"aiding_until_t": free_from, "fixes_used": int(len(fixes)),
                           "how": "loose filter fed the fixes up to the one that completed the initialisation "

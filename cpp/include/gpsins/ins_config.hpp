@@ -69,12 +69,13 @@ struct InsConfig {
   double heading_min_speed_mps = 3.0;
   double heading_sigma_rad = 0.05;
 
-  // GNSS fix. R from HDOP/VDOP times the UERE, or fixed ECEF sigmas when set (> 0).
+  // GNSS fix. R from the fix's own sigmas when it states them, else from HDOP/VDOP
+  // times the UERE; fixed ECEF sigmas (> 0) override both.
   Vec3 lever_arm_body_m = Vec3::Zero();
   double fix_uere_m = 3.0;
   Vec3 fix_sigma_ecef_m = Vec3::Zero();
   bool use_fix_velocity = false;
-  double fix_velocity_sigma_mps = 0.1;  // per axis; times the fix's HDOP when scaled
+  double fix_velocity_sigma_mps = 0.1;  // per axis (unless the fix states its own); times HDOP when scaled
   bool fix_velocity_sigma_hdop_scaled = false;
 
   // Pseudoranges (tight coupling). Variance from the elevation model when the
@@ -108,6 +109,16 @@ struct InsConfig {
   double standstill_max_gnss_speed_mps = 0.3;
   double zero_velocity_sigma_mps = 0.02;
   double zero_rate_sigma_rad_per_s = 1e-4;
+
+  // Land vehicle (aiding/nonholonomic.hpp): no lateral and no vertical velocity
+  // at the vehicle point, while moving with a known heading, every nhc_interval_s
+  // (the constraint's errors, bumps and skids, are correlated over a wheel turn).
+  bool nonholonomic_constraint = false;
+  Vec3 body_to_vehicle_ypr_rad = Vec3::Zero();  // v_vehicle = Rz(y) Ry(p) Rx(r) v_body
+  Vec3 vehicle_point_body_m = Vec3::Zero();     // where the constraint holds, from the IMU
+  double nhc_sigma_mps = 0.1;
+  double nhc_min_speed_mps = 1.0;
+  double nhc_interval_s = 0.1;
 
   // Innovation gate: chi-square probability (<= 0 or >= 1 disables gating).
   double gate_probability = 0.9999;

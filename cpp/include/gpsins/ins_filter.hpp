@@ -9,6 +9,7 @@
 
 #include <array>
 #include <cstdint>
+#include <limits>
 #include <vector>
 
 #include "gpsins/aiding/measurement.hpp"
@@ -38,6 +39,10 @@ struct FixInput {
   double hdop = 1.0;
   double vdop = 1.0;
   int mode = 2;
+  // The receiver's stated sigmas, north, east, down; an axis NaN or <= 0 falls
+  // back to fix_uere_m x DOP (position) or fix_velocity_sigma_mps (velocity).
+  Vec3 sigma_ned_m = Vec3::Constant(std::numeric_limits<double>::quiet_NaN());
+  Vec3 sigma_v_ned_mps = Vec3::Constant(std::numeric_limits<double>::quiet_NaN());
 };
 
 // One measurement epoch of the receiver: pseudoranges at receiver time t_s (the
@@ -59,6 +64,7 @@ enum UpdateKind : int {
   kZeroVelocity = 4,
   kZeroRate = 5,
   kPseudorange = 6,
+  kNonholonomic = 7,
 };
 
 struct UpdateRecord {
@@ -103,6 +109,7 @@ struct Counters {
   std::int64_t fixes_late = 0;
   std::int64_t zero_velocity_updates = 0;
   std::int64_t zero_rate_updates = 0;
+  std::int64_t nonholonomic_updates = 0;
   std::int64_t updates_rejected = 0;
   std::int64_t updates_guarded = 0;
   std::int64_t standstill_samples = 0;
@@ -163,6 +170,7 @@ class InsFilter {
   void reset_to_fix(const FixInput& fix);
   void event(int kind, double value);
   void inflate_unknown_heading(const Increment& inc);
+  void constrain_vehicle(const Increment& inc);
   template <int M>
   void record(int kind, const UpdateResult<M>& r, int dof, int id = 0);
   template <int M, int K>
@@ -221,6 +229,8 @@ class InsFilter {
   double last_fix_t_ = 0.0;
   bool have_prev_fix_ = false;
   FixInput prev_fix_;
+  Mat3 c_vb_ = Mat3::Identity();
+  double last_nhc_t_ = -1e300;
 };
 
 extern template class InsFilter<5, 0>;

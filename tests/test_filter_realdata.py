@@ -1,0 +1,203 @@
+"""What real data needs from the core: the heading of a handheld device found from its first seconds
+of fixes, per-fix measurement noise (16-column fixes), the land-vehicle constraint, and the walk
+(real u-blox + MEMS data) replayed loosely against its RTK reference with outages."""
+
+import re
+import tomllib
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from gpsins import _core, filter as flt, replay, sim
+from gpsins.sim import dataset_writer as dw, scenario
+
+WALK = Path(__file__).parent / "data" / "walk_0827" / "walk_0827.toml"
+WALK_BASELINE_DRIFT_M = 96.4  # RMS of per-outage max drift before the heading search (course taken as heading)
+
+
+def _cut(name: str, seconds: float, stand_s: float, rate_hz: int | None = None) -> scenario.Scenario:
+    data = tomllib.loads((resources.files("gpsins.sim") / "scenarios" / f"{name}.toml").read_text())
+    keep, total = [], 0.0
+    for seg in data["segment"]:
+        seg = dict(seg)
+        if seg.get("speed_mps", None) == 0 and not keep:
+            seg["duration_s"] = stand_s
+        keep.append(seg)
+        total += seg["duration_s"]
+        if total > seconds:
+            break
+    labels = {s["label"] for s in keep}
+    data["segment"] = keep
+    data.pop("repeat", None)
+    data["obstruction"] = [o for o in data.get("obstruction", []) if o.get("segment", keep[0]["label"]) in labels]
+    if rate_hz:
+        data.setdefault("imu", {})["rate_hz"] = rate_hz
+    return scenario.parse(data, name)
+
+
+def _yaw_deg(q_eb: np.ndarray, r_ecef: np.ndarray) -> float:
+    llh = _core.ecef_to_geodetic(r_ecef)
+    return float(np.degrees(_core.euler_from_body_to_ecef(q_eb, llh)[0]))
+
+
+def _true_yaw_deg(s, t_run: np.ndarray) -> np.ndarray:
+    """The simulated vehicle's yaw at run times (nearest truth sample)."""
+    k = np.clip(np.searchsorted(s.truth.t, t_run), 0, len(s.truth.t) - 1)
+    return np.array([_yaw_deg(s.truth.q_eb[i], s.truth.r_ecef[i]) for i in k])
+
+
+def _wrap(a):
+    return (np.asarray(a) + 180.0) % 360.0 - 180.0
+
+
+# --- per-fix noise -------------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def short_drive():
+    s = sim.simulate(_cut("default", 60, 10), seed=2)
+    cfg = flt.load_config(None, sim.imu_noise_truth(s.scenario.imu))
+    return s, cfg, sim.imu_table(s), sim.fix_table(s)
+
+
+def _states(sol):
+    return np.column_stack([sol.t, sol.r_ecef, sol.v_ecef, sol.q_eb, sol.sigma])
+
+
+def test_sixteen_column_fixes_with_nan_sigmas_equal_ten_columns(short_drive):
+    s, cfg, imu, fixes = short_drive
+    ten = flt.run(imu, fixes, cfg)
+    sixteen = flt.run(imu, np.column_stack([fixes, np.full((len(fixes), 6), np.nan)]), cfg)
+    np.testing.assert_array_equal(_states(ten), _states(sixteen))
+
+
+def test_stated_sigmas_replace_the_dop_model(short_drive):
+    s, cfg, imu, fixes = short_drive
+    uere = cfg["fix_uere_m"]
+    # The sigmas the DOP model gives, stated per fix: the same run (to rounding).
+    sh, sv = uere * fixes[:, 7] / np.sqrt(2.0), uere * fixes[:, 8]
+    same = np.column_stack([fixes, sh, sh, sv, np.full((len(fixes), 3), np.nan)])
+    ref = flt.run(imu, fixes, cfg)
+    np.testing.assert_allclose(_states(flt.run(imu, same, cfg)), _states(ref), rtol=0, atol=1e-6)
+    # Ten times smaller stated sigmas: the fixes' innovation sigmas shrink accordingly.
+    tight = same.copy()
+    tight[:, 10:13] /= 10.0
+    u_ref, u_tight = ref.updates, flt.run(imu, tight, cfg).updates
+    k_ref, k_tight = u_ref["kind"] == 1, u_tight["kind"] == 1
+    assert np.median(u_tight["innovation_sigma"][k_tight][:, 0]) < 0.5 * np.median(
+        u_ref["innovation_sigma"][k_ref][:, 0])
+
+
+def test_zero_or_negative_sigmas_fall_back_and_a_stated_sigma_replaces_a_missing_dop(short_drive):
+    s, cfg, imu, fixes = short_drive
+    ref = flt.run(imu, fixes, cfg)
+    zeros = np.column_stack([fixes, np.zeros((len(fixes), 3)), np.full((len(fixes), 3), -1.0)])
+    np.testing.assert_array_equal(_states(flt.run(imu, zeros, cfg)), _states(ref))
+    no_dop = np.column_stack([fixes, np.full((len(fixes), 3), 2.0), np.full((len(fixes), 3), np.nan)])
+    no_dop[:, 7:9] = np.nan
+    sol = flt.run(imu, no_dop, cfg)
+    assert sol.counters["fixes_accepted"] > 0.9 * len(fixes) and np.all(np.isfinite(sol.r_ecef))
+    with pytest.raises(ValueError, match=r"fixes: expected shape \(n, 10\) or \(n, 16\)"):
+        flt.run(imu, fixes[:, :9], cfg)
+
+
+# --- heading of a handheld device ----------------------------------------------------------------
+
+HANDHELD_OFFSET_DEG = 115.0  # the device points this far to the right of where it goes
+
+
+@pytest.fixture(scope="module")
+def handheld_walk(tmp_path_factory):
+    """A simulated walk whose device points away from the course: written with the IMU turned by the
+    offset, the data set then declares no mounting, so the filter's body axes are the device's."""
+    s = sim.simulate(_cut("walk", 100, 8), seed=5)
+    d = tmp_path_factory.mktemp("handheld")
+    path = dw.write_dataset(s, d, imu_to_body_ypr_deg=(HANDHELD_OFFSET_DEG, 0.0, 0.0), antenna_m=(0.0, 0.0, 0.0),
+                            imu_time_offset_s=0.0)
+    text = re.sub(r"imu_to_body_ypr_deg = .*", "imu_to_body_ypr_deg = [0.0, 0.0, 0.0]", path.read_text())
+    # The device's calibration in its own axes (the simulated unit's biases are the preset's, in body axes).
+    m = dw.ypr_matrix(HANDHELD_OFFSET_DEG, 0.0, 0.0)
+    preset = flt.load_config(None)
+    cal = "".join(f"\n{k} = {(m.T @ np.asarray(preset[k], float)).tolist()}"
+                  for k in ("gyro_bias_cal_rad_per_s", "accel_bias_cal_mps2"))
+    path.write_text(text.replace('preset = "default"', 'preset = "default"' + cal))
+    return s, path
+
+
+def test_heading_search_finds_a_handheld_devices_heading(handheld_walk):
+    s, path = handheld_walk
+    inp = replay._dataset_inputs(path, None, {})
+    # The simulated walk has no gait: its heading shows only while it speeds up or turns, and the first
+    # corner comes 38 s after it sets off (the real walk's steps show it within seconds).
+    cfg = flt.load_config(inp.base_config, {**inp.data_config, "heading_search_s": 45.0})
+    assert cfg["platform"] == "handheld"  # kind = "none"
+    sol = flt.run(inp.imu, inp.fixes, cfg, output_every=10)
+    found = sol.extra["heading_search"]
+    # Truth: the vehicle's yaw at the filter's start plus the device's offset (C_e,device = C_eb Rz(offset)).
+    t_run = sol.t - (inp.imu[0, 0] - s.imu_t[0])
+    true_start = _true_yaw_deg(s, t_run[:1])[0] + HANDHELD_OFFSET_DEG
+    print(f"\nhandheld: search {found['yaw_deg']:.1f} deg, truth {_wrap(true_start):.1f} deg, "
+          f"dominance {found['dominance']:.0f}")
+    assert abs(_wrap(found["yaw_deg"] - true_start)) < found["sigma_deg"]  # within the sigma it starts with
+    # After the window the filter's heading is within a few degrees of the truth all along.
+    late = t_run > t_run[0] + found["window_s"] + 10.0
+    true_yaw = _true_yaw_deg(s, t_run[late]) + HANDHELD_OFFSET_DEG
+    est = np.array([_yaw_deg(q, r) for q, r in zip(sol.q_eb[late], sol.r_ecef[late])])
+    err = _wrap(est - true_yaw)
+    print(f"handheld: yaw error after the window RMS {np.sqrt(np.mean(err ** 2)):.2f} deg, max {np.abs(err).max():.2f}")
+    assert np.sqrt(np.mean(err ** 2)) < 3.0
+
+
+def test_no_search_without_motion_or_for_a_vehicle(short_drive):
+    s, cfg, imu, fixes = short_drive
+    standing = fixes[fixes[:, 0] < 9.0]  # the drive's first seconds stand still
+    found = flt.search_heading(imu[imu[:, 0] < 9.0], standing, cfg)
+    assert found["yaw_deg"] is None
+    assert not flt.needs_heading_search(cfg)  # the default platform is a vehicle
+    assert "heading_search" not in flt.run(imu, fixes, cfg).extra
+    with pytest.raises(flt.ConfigError, match="platform"):
+        flt.load_config(None, {"platform": "bicycle"})
+
+
+# --- land-vehicle constraint ---------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def car_set(tmp_path_factory):
+    s = sim.simulate(_cut("default", 150, 10, rate_hz=100), seed=3)
+    d = tmp_path_factory.mktemp("car")
+    path = dw.write_dataset(s, d, imu_format="rates")
+    path.write_text(path.read_text().replace('kind = "none"', 'kind = "car"'))
+    return s, path
+
+
+def test_nonholonomic_constraint_reduces_outage_drift_on_a_simulated_car(car_set, tmp_path):
+    s, path = car_set
+    on = replay.replay(path, tmp_path / "nhc", outages="30:15:30").summary
+    off = replay.replay(path, tmp_path / "free", outages="30:15:30",
+                        overrides={"nonholonomic_constraint": False}).summary
+    d_on, d_off = on["scoring"]["horizontal_m"]["rms"], off["scoring"]["horizontal_m"]["rms"]
+    print(f"\ncar: drift RMS with NHC {d_on:.2f} m, without {d_off:.2f} m; "
+          f"{on['counters']['nonholonomic_updates']} NHC updates")
+    assert on["counters"]["nonholonomic_updates"] > 100 and off["counters"]["nonholonomic_updates"] == 0
+    assert d_on < 0.8 * d_off
+    assert not any("non-holonomic" in w for w in on["warnings"])
+
+
+# --- the real walk -------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("name", ["walk_0827.toml", "walk_0827_ubx.toml"])
+def test_walk_replays_loose_with_the_heading_searched(tmp_path, name):
+    """Measured: .pos 1.33 m drift RMS, 0.080 m outside; NAV-PVT 1.23 m, 0.064 m (before: 96 m, 3.8 / 0.08 m).
+    The goal (2.3 m) is asserted for the drift; outside the outages the issue's 0.05 m is not reached."""
+    res = replay.replay(WALK.parent / name, tmp_path / "walk").summary
+    h = res["scoring"]["horizontal_m"]
+    outside = res["scoring"]["outside"]["rms_h_m"]
+    found = res["heading_search"]
+    print(f"\n{name}: drift RMS {h['rms']:.2f} m (worst {h['worst']:.2f} m), outside RMS {outside:.3f} m, "
+          f"heading {found['yaw_deg']} deg (dominance {found['dominance']:.0f})")
+    # The device points far from where it goes (course about -90 deg; hand-tuned runs used 160 deg).
+    assert abs(_wrap(found["yaw_deg"] + 90.0)) > 45.0 and abs(_wrap(found["yaw_deg"] - 160.0)) < 45.0
+    assert h["rms"] < 2.3 < 0.1 * WALK_BASELINE_DRIFT_M
+    assert outside < 0.2
+    assert res["counters"]["gnss_resets"] == 0
