@@ -274,14 +274,14 @@ def _config_keys(config) -> list[str]:
     return list(data.get("filter", data))
 
 
-def _filter(inp: Inputs, cfg: dict, mode: str, fixes: np.ndarray, prs: np.ndarray | None
+def _filter(inp: Inputs, cfg: dict, mode: str, fixes: np.ndarray, prs: np.ndarray | None, smooth: bool = False
             ) -> tuple[flt.Solution, list[float]]:
     tight = {}
     if mode == "tight":
         tight = dict(pseudoranges=prs if prs is not None else np.zeros((0, 5)), ephemerides=inp.ephemerides,
                      klobuchar=inp.klobuchar, gps_time_offset_s=inp.week * measurements.SECONDS_PER_WEEK)
     try:
-        return flt.run(inp.imu, fixes, cfg, mode=mode, covariance=True, **tight), []
+        return flt.run(inp.imu, fixes, cfg, mode=mode, covariance=True, smooth=smooth, **tight), []
     except ValueError as e:
         # Interim until the core re-initialises after long IMU gaps itself: run the filter
         # on each stretch between them, each starting afresh.
@@ -312,10 +312,12 @@ def replay(source: str | Path, out: str | Path, *, mode: str = "loose", config=N
            timing_method: str = "robust", gps_latency_s: float = DEFAULT_GPS_LATENCY_S,
            imu_latency_s: float = DEFAULT_IMU_LATENCY_S, truth: bool = True,
            nav: str | Path | None = None, outages: str | outages_mod.OutageSpec | None = None,
-           reference: str | Path | None = None, reference_q=(1,), point: str = "antenna") -> ReplayResult:
+           reference: str | Path | None = None, reference_q=(1,), point: str = "antenna",
+           smooth: bool = False) -> ReplayResult:
     """Replay a session directory or a data-set TOML (see the module doc); ``outages``: FIRST:LENGTH:PERIOD[:END];
     ``reference``: an RTKLIB .pos (its ``reference_q`` epochs) at the antenna point; ``point``: the point
-    solution.pos gives (antenna or imu)."""
+    solution.pos gives (antenna or imu); ``smooth``: also the fixed-interval smoother (smoothed.pos,
+    ``smooth_*`` arrays, run.json "smoothed")."""
     if mode not in MODES:
         raise ValueError(f"--mode {mode!r}: one of {', '.join(MODES)}")
     if point not in POINTS:
@@ -345,7 +347,7 @@ def replay(source: str | Path, out: str | Path, *, mode: str = "loose", config=N
         prs = prs[~outages_mod.inside(prs[:, 0], schedule)]
 
     t2 = time.perf_counter()
-    sol, split = _filter(inp, cfg, filter_mode, fixes, prs)
+    sol, split = _filter(inp, cfg, filter_mode, fixes, prs, smooth)
     free_from = None
     if mode == "ins":
         free_from = _ins_aiding_end(sol, fixes) if len(sol.t) else None
@@ -353,7 +355,7 @@ def replay(source: str | Path, out: str | Path, *, mode: str = "loose", config=N
             raise ValueError(f"{source}: --mode ins: the heading never became known, so free navigation never "
                              "started (set initial_yaw_deg, or use data that moves faster than heading_min_speed_mps)")
         fixes = fixes[fixes[:, 0] <= free_from]
-        sol, split = _filter(inp, cfg, filter_mode, fixes, prs)
+        sol, split = _filter(inp, cfg, filter_mode, fixes, prs, smooth)
     clock["filter_s"] = time.perf_counter() - t2
     if len(sol.t) == 0:
         raise measurements.logs.LogError(f"{source}: the filter never initialised (no usable fix after levelling)")
@@ -429,12 +431,22 @@ def replay(source: str | Path, out: str | Path, *, mode: str = "loose", config=N
         if mode == "ins":
             scoring["ins_free_from"] = free_from
     arrays["r_point_ecef"] = r_score if scored_point == "imu" else r_ant
+    smoothed = None
+    if smooth and "smoothed" in sol.extra:
+        from . import smoothing
+        sm_arrays, sm_summary, sm, sm_ant, sm_sigma_ned = smoothing.results(
+            sol, found, ref, scored_point, lever, score_sched if ref is not None and len(ref[0]) else schedule)
+        arrays.update(smoothing.prefixed(sm_arrays))
+        smoothed = (sm_summary, sm if point == "imu" else _with_positions(sm, sm_ant), sm_sigma_ned)
 
     out.mkdir(parents=True, exist_ok=True)
     np.savez_compressed(out / "results.npz", **arrays)
     pos_sol = sol if point == "imu" else _with_positions(sol, r_ant)
     write_pos(out / "solution.pos", inp.week, pos_sol, sigma_ned, sats,
               note=f"mode {mode}, {inp.kind} {source.name}, {point} point")
+    if smoothed is not None:
+        write_pos(out / "smoothed.pos", inp.week, smoothed[1], smoothed[2], sats,
+                  note=f"mode {mode}, {inp.kind} {source.name}, {point} point, fixed-interval smoothed")
     (out / "config.toml").write_text(flt.to_toml(cfg), encoding="utf-8")
     clock["write_s"] = time.perf_counter() - t3
     clock["total_s"] = sum(v for v in clock.values())
@@ -461,6 +473,8 @@ def replay(source: str | Path, out: str | Path, *, mode: str = "loose", config=N
         summary["ins"] = {"aiding_until_t": free_from, "fixes_used": int(len(fixes)),
                           "how": "loose filter fed the fixes up to the one that completed the initialisation "
                                  "(heading known); zero-velocity and zero-rate updates off"}
+    if smoothed is not None:
+        summary["smoothed"] = smoothed[0]
     if info:
         summary["dataset"] = info
     (out / "run.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")

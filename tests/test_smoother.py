@@ -1,0 +1,227 @@
+"""The fixed-interval smoother (C++ rts.hpp): its backward pass against an independent
+textbook RTS, its error-state bookkeeping, and smoothed against forward on simulated truth."""
+
+import numpy as np
+import pytest
+
+from gpsins import _core, evaluate, filter as flt, sim
+
+# Bytes the smoother's tape holds (see rts.hpp): per output epoch the nominal state and the
+# packed covariance, per propagation the dense transition, each record with one trailer double.
+N_LOOSE = 15
+OUTPUT_BYTES_LOOSE = 8 * (18 + N_LOOSE * (N_LOOSE + 1) // 2 + 1)
+PROPAGATION_BYTES_LOOSE = 8 * (N_LOOSE * N_LOOSE + 1)
+
+
+def update_bytes(m: int, n: int) -> int:
+    return 8 * (1 + 2 * m * n + m * m + m + 9 + 1)
+
+
+# ------------------------------------------------------------ an independent smoother
+
+def run_linear(ops, x0, p0, chunk_bytes):
+    f = _core.LinearRts(x0, p0, chunk_bytes)
+    for op in ops:
+        if op[0] == "predict":
+            f.predict(op[1], op[2])
+        elif op[0] == "transition":
+            f.transition(op[1], op[2])
+        elif op[0] == "update":
+            f.update(op[1], op[2], op[3])
+        else:
+            f.output()
+    xs, ps = f.smooth()
+    return xs, ps, f.spilled_bytes
+
+
+def linear_problem(seed):
+    """2-D constant velocity, position fixes every other step, a restart of the position
+    states in the middle (new error independent of the old one), one speed-only update."""
+    rng = np.random.default_rng(seed)
+    dt = 0.2
+    phi = np.eye(4)
+    phi[0, 2] = phi[1, 3] = dt
+    q = np.diag([1e-3, 2e-3, 5e-2, 4e-2])
+    h = np.eye(4)[:2]
+    r = np.diag([0.5, 0.3])
+    truth = np.array([0.0, 0.0, 2.0, -1.0])
+    ops = []
+    for k in range(400):
+        truth = phi @ truth + rng.normal(size=4) * np.sqrt(np.diag(q))
+        ops.append(("predict", phi, q))
+        if k == 200:
+            a = np.diag([0.0, 0.0, 1.0, 1.0])
+            ops.append(("transition", a, np.diag([25.0, 25.0, 0.0, 0.0])))
+        if k % 2 == 0 and not 120 <= k < 180:
+            ops.append(("update", h, r, h @ truth + rng.normal(size=2) * np.sqrt(np.diag(r))))
+        if k == 300:
+            hv = np.array([[0.0, 0.0, 1.0, 0.0]])
+            ops.append(("update", hv, np.array([[0.01]]), hv @ truth + 0.1 * rng.normal(size=1)))
+        ops.append(("output",))
+    return ops, np.zeros(4), np.diag([4.0, 4.0, 9.0, 9.0])
+
+
+@pytest.mark.parametrize("chunk_bytes", [64 << 20, 4096])
+def test_backward_pass_equals_a_textbook_rts_smoother(chunk_bytes):
+    ops, x0, p0 = linear_problem(3)
+    # Textbook: the prior at each output is the one just before its updates.
+    x, p = x0.copy(), p0.copy()
+    xf, pf, xpr, ppr, phis = [], [], [], [], []
+    phi_acc, have_prior = np.eye(4), False
+    for op in ops:
+        if op[0] in ("predict", "transition"):
+            x, p = op[1] @ x, op[1] @ p @ op[1].T + op[2]
+            phi_acc = op[1] @ phi_acc
+        elif op[0] == "update":
+            if not have_prior:
+                xpr.append(x.copy())
+                ppr.append(p.copy())
+                have_prior = True
+            _, h, r, z = op
+            k = p @ h.T @ np.linalg.inv(h @ p @ h.T + r)
+            ikh = np.eye(4) - k @ h
+            x, p = x + k @ (z - h @ x), ikh @ p @ ikh.T + k @ r @ k.T
+        else:
+            if not have_prior:
+                xpr.append(x.copy())
+                ppr.append(p.copy())
+            have_prior = False
+            phis.append(phi_acc)
+            phi_acc = np.eye(4)
+            xf.append(x.copy())
+            pf.append(p.copy())
+    n = len(xf)
+    xs, ps = [None] * n, [None] * n
+    xs[-1], ps[-1] = xf[-1], pf[-1]
+    for k in range(n - 2, -1, -1):
+        c = pf[k] @ phis[k + 1].T @ np.linalg.inv(ppr[k + 1])
+        xs[k] = xf[k] + c @ (xs[k + 1] - xpr[k + 1])
+        ps[k] = pf[k] + c @ (ps[k + 1] - ppr[k + 1]) @ c.T
+    bx, bp, spilled = run_linear(ops, x0, p0, chunk_bytes)
+    assert (spilled > 0) == (chunk_bytes == 4096)
+    np.testing.assert_allclose(bx, np.array(xs), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(bp, np.array(ps), rtol=0, atol=1e-9)
+    # Not trivially equal to the forward pass: smoothing changed the states by far more than rounding.
+    assert np.abs(np.array(xs) - np.array(xf)).max() > 0.1
+    # Across the restart (step 200) the position is a break, the velocity carries.
+    assert np.all(np.diagonal(bp, axis1=1, axis2=2) <= np.diagonal(np.array(pf), axis1=1, axis2=2) + 1e-12)
+
+
+# ------------------------------------------------------------ the navigation filter
+
+def truth_of(s):
+    return evaluate.Truth(s.truth.t, s.truth.r_ecef, s.truth.v_ecef, s.truth.q_eb)
+
+
+def run(s, fixes=None, **over):
+    cfg = flt.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), **over})
+    return flt.run(sim.imu_table(s), sim.fix_table(s) if fixes is None else fixes, cfg, covariance=True, smooth=True)
+
+
+def errors(sol, tr):
+    inside = (sol.t >= tr.t[0]) & (sol.t <= tr.t[-1]) & sol.heading_known
+    e = evaluate.nav_errors(_subset(sol, inside), tr)
+    return sol.t[inside], e, sol.sigma[inside]
+
+
+def _subset(sol, m):
+    return flt.Solution(sol.mode, sol.n_states, sol.t[m], sol.r_ecef[m], sol.v_ecef[m], sol.q_eb[m], sol.gyro_bias[m],
+                        sol.accel_bias[m], sol.sigma[m], sol.standstill[m], sol.heading_known[m], sol.updates,
+                        sol.counters, covariance=None if sol.covariance is None else sol.covariance[m])
+
+
+@pytest.fixture(scope="module")
+def default_drive():
+    s = sim.simulate(sim.load("default"), seed=0)
+    return s, run(s)
+
+
+def test_smoothed_beats_forward_in_every_segment_and_stays_inside_its_3_sigma(default_drive):
+    s, fwd = default_drive
+    sm = fwd.extra["smoothed"]
+    tr = truth_of(s)
+    t, ef, sf = errors(fwd, tr)
+    _, es, ss = errors(sm, tr)
+    hf, hs = np.hypot(ef.r_ned[:, 0], ef.r_ned[:, 1]), np.hypot(es.r_ned[:, 0], es.r_ned[:, 1])
+    rms = lambda x: float(np.sqrt(np.mean(x ** 2)))  # noqa: E731
+    assert rms(hs) < rms(hf) and rms(es.r_ned[:, 2]) < rms(ef.r_ned[:, 2])
+    t0 = tr.t[0]
+    for label, a, b in s.scenario.segment_times():
+        m = (t >= t0 + a) & (t < t0 + b)
+        if m.sum() < 10:
+            continue
+        assert rms(hs[m]) <= rms(hf[m]), label
+        assert rms(np.linalg.norm(es.e9[m, 3:6], axis=1)) <= rms(np.linalg.norm(ef.e9[m, 3:6], axis=1)), label
+    # Smoothed covariance never exceeds the forward one (rounding aside).
+    assert np.all(ss <= sf * (1 + 1e-6) + 1e-12)
+    assert np.all(sm.sigma <= fwd.sigma * (1 + 1e-6) + 1e-12)
+    # ...and it is honest: the smoothed errors lie inside 3 sigma nearly everywhere.
+    inside = np.abs(es.e9) <= 3 * ss[:, :9]
+    assert inside.mean() > 0.98
+
+
+def test_tape_size_per_epoch_as_documented(default_drive):
+    _, fwd = default_drive
+    info = fwd.extra["smooth_info"]
+    n = info["outputs"]
+    assert n == len(fwd.t) and info["spilled_bytes"] == 0
+    upd = fwd.updates
+    acc = upd["accepted"]
+    upd_bytes = sum(update_bytes(int(m), N_LOOSE) for m in upd["dof"][acc])
+    prop = info["tape_bytes"] - n * OUTPUT_BYTES_LOOSE - upd_bytes
+    # One transition per output epoch, one more where an update split an IMU interval,
+    # a few re-initialisations (start-up, heading).
+    k = prop / PROPAGATION_BYTES_LOOSE
+    assert k == int(k) and n <= k <= n + acc.sum() + 10
+    per_epoch = info["tape_bytes"] / n
+    assert OUTPUT_BYTES_LOOSE + PROPAGATION_BYTES_LOOSE <= per_epoch < 1.2 * (OUTPUT_BYTES_LOOSE + PROPAGATION_BYTES_LOOSE)
+
+
+def test_spilled_tape_gives_the_same_smoothed_run():
+    s = sim.simulate(sim.load("default"), seed=1)
+    cfg = flt.load_config(None, sim.imu_noise_truth(s.scenario.imu))
+    imu, fixes = sim.imu_table(s)[:6000], sim.fix_table(s)
+    a = flt.run(imu, fixes, cfg, covariance=True, smooth=True)
+    b = flt.run(imu, fixes, cfg, covariance=True, smooth=True, smooth_chunk_mb=0.25)
+    assert b.extra["smooth_info"]["chunks_spilled"] > 3 and a.extra["smooth_info"]["spilled_bytes"] == 0
+    np.testing.assert_array_equal(a.extra["smoothed"].r_ecef, b.extra["smoothed"].r_ecef)
+    np.testing.assert_array_equal(a.extra["smoothed"].covariance, b.extra["smoothed"].covariance)
+
+
+def test_15_s_outage_smoothed_drift_at_most_a_fifth_of_forward():
+    s = sim.simulate(sim.load("default"), seed=0)
+    tr = truth_of(s)
+    fixes = sim.fix_table(s)
+    t0 = tr.t[0] + 40.0  # moving, turning
+    out = (fixes[:, 0] >= t0) & (fixes[:, 0] < t0 + 15.0)
+    fwd = run(s, fixes[~out])
+    sm = fwd.extra["smoothed"]
+    drift = []
+    for sol in (fwd, sm):
+        m = (sol.t >= t0) & (sol.t < t0 + 15.0)
+        e = evaluate.nav_errors(_subset(sol, m), tr)
+        drift.append(np.hypot(e.r_ned[:, 0], e.r_ned[:, 1]).max())
+    assert drift[0] > 0.5  # the outage does hurt the forward pass
+    assert drift[1] <= drift[0] / 5, drift
+
+
+def test_large_injected_corrections_are_smoothed_in_the_same_error_definition():
+    """Start with the heading 20 degrees off (told as known, 25 degrees sigma): the forward pass
+    injects large attitude corrections. The smoothed attitude at the start is then right to the
+    accuracy the rest of the run allows, inside its own 3 sigma."""
+    s = sim.simulate(sim.load("default"), seed=2)
+    tr = truth_of(s)
+    true_yaw = float(np.degrees(_core.euler_from_body_to_ecef(tr.q_eb[:1], _core.ecef_to_geodetic(tr.r_ecef[:1]))[0, 0]))
+    fwd = run(s, initial_yaw_deg=true_yaw + 20.0, attitude_sigma_deg=[1.0, 1.0, 25.0])
+    sm = fwd.extra["smoothed"]
+    m = fwd.t < fwd.t[0] + 20.0
+    ef = evaluate.nav_errors(_subset(fwd, m), tr)
+    es = evaluate.nav_errors(_subset(sm, m), tr)
+    yaw_f, yaw_s = np.abs(ef.ypr_deg[:, 0]), np.abs(es.ypr_deg[:, 0])
+    assert yaw_f[0] > 15.0  # the forward pass starts far off
+    assert yaw_s.max() < 1.0
+    # within 3 sigma of the smoothed covariance (attitude errors, rad)
+    assert np.mean(np.abs(es.e9[:, :3]) <= 3 * sm.sigma[m, :3]) > 0.95
+    h_f = np.hypot(ef.r_ned[:, 0], ef.r_ned[:, 1])
+    h_s = np.hypot(es.r_ned[:, 0], es.r_ned[:, 1])
+    assert np.sqrt(np.mean(h_s ** 2)) < np.sqrt(np.mean(h_f ** 2))
