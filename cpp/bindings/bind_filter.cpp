@@ -6,13 +6,16 @@
 #include <pybind11/pybind11.h>
 #include <pybind11/stl.h>
 
+#include <chrono>
 #include <limits>
+#include <memory>
 #include <string>
 #include <variant>
 #include <vector>
 
 #include "gpsins/gnss/ephemeris.hpp"
 #include "gpsins/ins_filter.hpp"
+#include "gpsins/rts.hpp"
 
 namespace py = pybind11;
 using namespace gpsins;
@@ -164,9 +167,45 @@ PseudorangeEpoch pr_epoch(const double* p, py::ssize_t start, py::ssize_t end) {
   return ep;
 }
 
+// Backward pass over a recorded run: smooth_state (layout of state) and
+// smooth_covariance, with the tape's size and both passes' wall times.
+template <int NB, int NC>
+void add_smoothed(EskfRecorder<NB, NC>& rec, bool with_cov, double forward_s, py::dict& out) {
+  using Rec = EskfRecorder<NB, NC>;
+  constexpr int N = Rec::N, kNom = Rec::kNominal;
+  constexpr int kCols = kNom + N;  // nominal without flags, sigma, flags
+  const long n = rec.outputs();
+  Array state({static_cast<py::ssize_t>(n), py::ssize_t(kCols)});
+  Array cov(with_cov ? std::vector<py::ssize_t>{n, N, N} : std::vector<py::ssize_t>{0, N, N});
+  double* ps = state.mutable_data();
+  double* pc = cov.mutable_data();
+  const auto t0 = std::chrono::steady_clock::now();
+  {
+    py::gil_scoped_release release;
+    rec.smooth([&](long k, const double* row, const Eigen::Matrix<double, N, N>& p) {
+      double* o = ps + k * kCols;
+      std::copy(row, row + kNom - 1, o);
+      for (int i = 0; i < N; ++i) o[kNom - 1 + i] = std::sqrt(std::max(p(i, i), 0.0));
+      o[kCols - 1] = row[kNom - 1];
+      if (with_cov) Eigen::Map<Eigen::Matrix<double, N, N, Eigen::RowMajor>>(pc + k * N * N) = p;
+    });
+  }
+  const double backward_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  out["smooth_state"] = state;
+  if (with_cov) out["smooth_covariance"] = cov;
+  py::dict info;
+  info["tape_bytes"] = rec.tape().bytes();
+  info["spilled_bytes"] = rec.tape().spilled_bytes();
+  info["chunks_spilled"] = rec.tape().chunks_spilled();
+  info["outputs"] = n;
+  info["forward_s"] = forward_s;
+  info["backward_s"] = backward_s;
+  out["smooth_info"] = info;
+}
+
 template <int NB, int NC>
 py::dict run_batch(InsFilter<NB, NC>& f, const Array& imu, const Array& fixes, const Array& prs, int output_every,
-                   bool with_cov) {
+                   bool with_cov, bool smooth = false, double smooth_chunk_mb = 256.0) {
   using Row = StateRow<NB, NC>;
   const py::ssize_t n = imu.shape(0), m = fixes.shape(0);
   const int fc = static_cast<int>(fixes.shape(1));
@@ -188,6 +227,13 @@ py::dict run_batch(InsFilter<NB, NC>& f, const Array& imu, const Array& fixes, c
   const char* bad_what = nullptr;
   double bad_t = 0.0;
   InputStatus bad = InputStatus::Ok;
+  using Recorder = EskfRecorder<NB, NC>;
+  std::unique_ptr<Recorder> rec;
+  if (smooth) {
+    rec = std::make_unique<Recorder>(static_cast<std::size_t>(smooth_chunk_mb * 1048576.0));
+    f.set_observer(rec.get());
+  }
+  const auto t_forward = std::chrono::steady_clock::now();
   {
     py::gil_scoped_release release;
     for (py::ssize_t k = 0; k < n && bad == InputStatus::Ok; ++k) {
@@ -228,9 +274,12 @@ py::dict run_batch(InsFilter<NB, NC>& f, const Array& imu, const Array& fixes, c
           covs.resize(c0 + N * N);
           Eigen::Map<Eigen::Matrix<double, N, N, Eigen::RowMajor>>(covs.data() + c0) = f.core().P;
         }
+        if (rec) rec->output(f.core(), rows[rows.size() - 1]);
       }
     }
   }
+  f.set_observer(nullptr);
+  const double forward_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_forward).count();
   f.set_update_log(nullptr);
   f.set_event_log(nullptr);
   if (bad != InputStatus::Ok) input_error(bad_what, bad_row, bad_t, bad);
@@ -290,6 +339,7 @@ py::dict run_batch(InsFilter<NB, NC>& f, const Array& imu, const Array& fixes, c
   out["counters"] = counters_dict(f.counters());
   out["fixes_after_end"] = m - j;
   out["n_states"] = NB * 3 + NC;
+  if (rec) add_smoothed(*rec, with_cov, forward_s, out);
   return out;
 }
 
@@ -324,14 +374,16 @@ class PyFilter {
     if (s != InputStatus::Ok) input_error("fix", fix_count_, t, s);
     ++fix_count_;
   }
-  py::dict run(py::handle imu, py::handle fixes, py::handle prs, int output_every, bool with_cov) {
+  py::dict run(py::handle imu, py::handle fixes, py::handle prs, int output_every, bool with_cov, bool smooth,
+               double smooth_chunk_mb) {
+    if (smooth && !(smooth_chunk_mb > 0.0)) throw py::value_error("smooth_chunk_mb must be > 0");
     if (output_every < 1) throw py::value_error("output_every must be >= 1");
     const Array a = table(imu, kImuCols, "imu"), b = table(fixes, kFixCols, "fixes", kFixColsSigma);
     const Array c = table(prs.is_none() ? py::handle(Array(std::vector<py::ssize_t>{0, kPrCols})) : prs, kPrCols,
                           "pseudoranges");
     if (c.shape(0) > 0 && !tight_)
       throw py::value_error("pseudoranges given to a loosely coupled filter (mode = 'tight' uses them)");
-    return std::visit([&](auto& f) { return run_batch(f, a, b, c, output_every, with_cov); }, f_);
+    return std::visit([&](auto& f) { return run_batch(f, a, b, c, output_every, with_cov, smooth, smooth_chunk_mb); }, f_);
   }
   void push_pseudoranges(double t, const std::vector<int>& prn, const std::vector<double>& pr,
                          const std::vector<double>& cn0, const std::vector<int>& lock) {
@@ -472,9 +524,12 @@ void bind_filter(py::module_& m) {
            py::arg("sigma_ned") = Vec3::Constant(std::numeric_limits<double>::quiet_NaN()),
            py::arg("sigma_v_ned") = Vec3::Constant(std::numeric_limits<double>::quiet_NaN()))
       .def("run", &PyFilter::run, py::arg("imu"), py::arg("fixes"), py::arg("pseudoranges") = py::none(),
-           py::arg("output_every") = 1, py::arg("covariance") = false,
+           py::arg("output_every") = 1, py::arg("covariance") = false, py::arg("smooth") = false,
+           py::arg("smooth_chunk_mb") = 256.0,
            "Batch: imu (n, 7) [t, dtheta xyz, dv xyz], fixes (m, 10) [t, r xyz, v xyz, hdop, vdop, mode], "
-           "pseudoranges (k, 5) [t, prn, pr, cn0, lock] (tight), rows of one epoch sharing t.")
+           "pseudoranges (k, 5) [t, prn, pr, cn0, lock] (tight), rows of one epoch sharing t. smooth: also a "
+           "fixed-interval smoother over the run (smooth_state, smooth_covariance, smooth_info); its record of the "
+           "forward pass goes to a temporary file in chunks of smooth_chunk_mb.")
       .def("push_pseudoranges", &PyFilter::push_pseudoranges, py::arg("t"), py::arg("prn"), py::arg("pr"),
            py::arg("cn0"), py::arg("lock"))
       .def("add_ephemeris", &PyFilter::add_ephemeris, py::arg("eph"))

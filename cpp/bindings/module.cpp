@@ -7,6 +7,7 @@ void bind_attitude(py::module_& m);
 void bind_filter(py::module_& m);
 void bind_allan(py::module_& m);
 void bind_gnss(py::module_& m);
+void bind_smoother(py::module_& m);
 
 PYBIND11_MODULE(_core, m) {
   m.doc() = "gpsins C++ core: Earth model, attitude, the integrated navigation filter.";
@@ -15,4 +16,5 @@ PYBIND11_MODULE(_core, m) {
   bind_filter(m);
   bind_allan(m);
   bind_gnss(m);
+  bind_smoother(m);
 }

@@ -277,7 +277,9 @@ void InsFilter<NB, NC>::restart_after_gap(double gap_s, double t_end) {
     P(Core::kClock + 1, Core::kClock + 1) = cfg_.clock_drift_sigma_mps * cfg_.clock_drift_sigma_mps;
     clock_set_ = false;
     pending_pr_count_ = 0;  // the clock restarts from the next epoch after the gap
+    core_.note_restart(Core::kClock, 2);
   }
+  core_.note_restart(0, 9);
   heading_known_ = false;
   rejecting_ = false;
   auto coast = [&](double dt) {
@@ -334,6 +336,7 @@ void InsFilter<NB, NC>::reset_to_fix(const FixInput& fix) {
   P.template middleCols<6>(es::vel).setZero();
   P.template block<3, 3>(es::vel, es::vel) = Mat3::Identity() * var_v;
   P.template block<3, 3>(es::pos, es::pos) = Mat3::Identity() * cfg_.position_sigma_m * cfg_.position_sigma_m;
+  core_.note_restart(es::vel, 6);
   if constexpr (NC == 2) clock_set_ = false;
 }
 
@@ -519,6 +522,7 @@ void InsFilter<NB, NC>::process_pseudoranges(const PseudorangeEpoch& ep) {
       }
       std::nth_element(res.begin(), res.begin() + n / 2, res.begin() + n);
       core_.clock(0) = res[static_cast<std::size_t>(n / 2)];
+      core_.note_restart(Core::kClock, 1);
       clock_set_ = true;
     }
     bool any = false;
@@ -566,6 +570,7 @@ void InsFilter<NB, NC>::initialise(const FixInput& fix) {
     P(Core::kClock, Core::kClock) = cfg_.clock_bias_sigma_m * cfg_.clock_bias_sigma_m;
     P(Core::kClock + 1, Core::kClock + 1) = cfg_.clock_drift_sigma_mps * cfg_.clock_drift_sigma_mps;
   }
+  core_.note_restart(0, N);
   initialised_ = true;
   have_prev_fix_ = true;
   prev_fix_ = fix;
@@ -583,6 +588,7 @@ void InsFilter<NB, NC>::decouple_yaw() {
   P.template middleRows<3>(es::att) = (keep * P.template middleRows<3>(es::att)).eval();
   P.template middleCols<3>(es::att) = (P.template middleCols<3>(es::att) * keep).eval();
   P.template block<3, 3>(es::att, es::att) += up_b * up_b.transpose() * (M_PI * M_PI);
+  core_.note_attitude_map(keep);
 }
 
 // First heading from the course over ground: the navigation states restart at
@@ -607,6 +613,7 @@ void InsFilter<NB, NC>::set_heading(const FixInput& fix, const Vec3& v_ecef, dou
   P.template block<3, 3>(es::att, es::att) = c_bn * var.asDiagonal() * c_bn.transpose();
   P.template block<3, 3>(es::vel, es::vel) = Mat3::Identity() * cfg_.velocity_sigma_mps * cfg_.velocity_sigma_mps;
   P.template block<3, 3>(es::pos, es::pos) = Mat3::Identity() * cfg_.position_sigma_m * cfg_.position_sigma_m;
+  core_.note_restart(0, 9);
   heading_known_ = true;
 }
 

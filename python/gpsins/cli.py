@@ -89,7 +89,7 @@ def _cmd_replay(args: argparse.Namespace) -> int:
                             config=args.config, overrides=overrides, timing_method=args.timing,
                             gps_latency_s=args.gps_latency, imu_latency_s=args.imu_latency, truth=not args.no_truth,
                             nav=args.nav, outages=args.outages, reference=args.reference,
-                            reference_q=args.reference_q, point=args.point)
+                            reference_q=args.reference_q, point=args.point, smooth=args.smooth)
         c = res.summary["counters"]
         print(f"{mode}: {res.summary['imu_samples']} IMU samples, {c['fixes_accepted']} fixes used, "
               f"{c['updates_rejected']} updates rejected; results in {res.out}")
@@ -202,6 +202,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the reference's Q values that count (default: 1, fixed)")
     p.add_argument("--point", choices=("antenna", "imu"), default="antenna",
                    help="the point solution.pos gives (default: antenna)")
+    p.add_argument("--smooth", action="store_true",
+                   help="also smooth the run (fixed-interval, forward-backward): smoothed.pos, smooth_* arrays")
     p.add_argument("--nav", help="RINEX 2 navigation file: ephemerides and Klobuchar when the log lacks them")
     p.add_argument("--config", help="filter configuration: TOML file or preset name (default, report2005)")
     p.add_argument("--set", action="append", metavar="KEY=VALUE",

@@ -455,7 +455,7 @@ class Solution:
 
 def run(imu: np.ndarray, fixes: np.ndarray, config=None, *, mode: str | None = None, output_every: int = 1,
         covariance: bool = False, pseudoranges: np.ndarray | None = None, ephemerides=(), klobuchar=None,
-        gps_time_offset_s: float | None = None) -> Solution:
+        gps_time_offset_s: float | None = None, smooth: bool = False, smooth_chunk_mb: float = 256.0) -> Solution:
     """Run the filter over whole arrays in C++.
 
     imu: (n, 7) [t, dtheta xyz (rad), dv xyz (m/s)] at the IMU's sampling instants.
@@ -468,6 +468,8 @@ def run(imu: np.ndarray, fixes: np.ndarray, config=None, *, mode: str | None = N
     Tight mode also takes pseudoranges (k, 5) [t, prn, pseudorange m, C/N0 dB-Hz, lock count]
     (one epoch's rows share t), the ephemerides (``_core.gnss.Ephemeris``), the Klobuchar
     (alpha, beta) and the offset from the time base to GPS seconds since the GPS epoch.
+    smooth: also run the fixed-interval smoother; its solution (same epochs) is
+    ``extra["smoothed"]``, its tape size and timings ``extra["smooth_info"]``.
     """
     cfg = config if isinstance(config, dict) and "preset" in config else load_config(config)
     mode = mode or cfg.get("mode", "loose")
@@ -488,10 +490,14 @@ def run(imu: np.ndarray, fixes: np.ndarray, config=None, *, mode: str | None = N
     if klobuchar is not None and len(klobuchar[0]) == 4:
         f.set_klobuchar(list(klobuchar[0]), list(klobuchar[1]))
     prs = None if pseudoranges is None else np.ascontiguousarray(pseudoranges, dtype=float).reshape(-1, 5)
-    out = f.run(np.ascontiguousarray(imu, dtype=float), fixes, prs, output_every, covariance)
+    out = f.run(np.ascontiguousarray(imu, dtype=float), fixes, prs, output_every, covariance, smooth, smooth_chunk_mb)
     sol = Solution.from_batch(out, mode, core.scale_factor_states)
     if search is not None:
         sol.extra["heading_search"] = search
+    if smooth:
+        sm = dict(out, state=out["smooth_state"], covariance=out.get("smooth_covariance"))
+        sol.extra["smoothed"] = Solution.from_batch(sm, mode, core.scale_factor_states)
+        sol.extra["smooth_info"] = dict(out["smooth_info"])
     return sol
 
 

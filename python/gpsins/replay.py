@@ -282,12 +282,13 @@ def _config_keys(config) -> list[str]:
     return list(data.get("filter", data))
 
 
-def _filter(inp: Inputs, cfg: dict, mode: str, fixes: np.ndarray, prs: np.ndarray | None) -> flt.Solution:
+def _filter(inp: Inputs, cfg: dict, mode: str, fixes: np.ndarray, prs: np.ndarray | None, smooth: bool = False
+            ) -> flt.Solution:
     tight = {}
     if mode == "tight":
         tight = dict(pseudoranges=prs if prs is not None else np.zeros((0, 5)), ephemerides=inp.ephemerides,
                      klobuchar=inp.klobuchar, gps_time_offset_s=inp.week * measurements.SECONDS_PER_WEEK)
-    return flt.run(inp.imu, fixes, cfg, mode=mode, covariance=True, **tight)
+    return flt.run(inp.imu, fixes, cfg, mode=mode, covariance=True, smooth=smooth, **tight)
 
 
 def _score_reference_system(source: Path, week: int, sol: flt.Solution) -> dict:
@@ -323,10 +324,12 @@ def replay(source: str | Path, out: str | Path, *, mode: str = "loose", config=N
            timing_method: str = "robust", gps_latency_s: float = DEFAULT_GPS_LATENCY_S,
            imu_latency_s: float = DEFAULT_IMU_LATENCY_S, truth: bool = True,
            nav: str | Path | None = None, outages: str | outages_mod.OutageSpec | None = None,
-           reference: str | Path | None = None, reference_q=(1,), point: str = "antenna") -> ReplayResult:
+           reference: str | Path | None = None, reference_q=(1,), point: str = "antenna",
+           smooth: bool = False) -> ReplayResult:
     """Replay a session directory or a data-set TOML (see the module doc); ``outages``: FIRST:LENGTH:PERIOD[:END];
     ``reference``: an RTKLIB .pos (its ``reference_q`` epochs) at the antenna point; ``point``: the point
-    solution.pos gives (antenna or imu)."""
+    solution.pos gives (antenna or imu); ``smooth``: also the fixed-interval smoother (smoothed.pos,
+    ``smooth_*`` arrays, run.json "smoothed")."""
     if mode not in MODES:
         raise ValueError(f"--mode {mode!r}: one of {', '.join(MODES)}")
     if point not in POINTS:
@@ -356,22 +359,23 @@ def replay(source: str | Path, out: str | Path, *, mode: str = "loose", config=N
         prs = prs[~outages_mod.inside(prs[:, 0], schedule)]
 
     t2 = time.perf_counter()
-    sol = _filter(inp, cfg, filter_mode, fixes, prs)
+    sol = _filter(inp, cfg, filter_mode, fixes, prs, smooth)
     free_from = None
     if mode == "ins":
         free_from = _ins_aiding_end(sol, fixes) if len(sol.t) else None
         if free_from is None:
             raise ValueError(f"{source}: --mode ins: the heading never became known, so free navigation never "
                              "started (set initial_yaw_deg, or use data that moves faster than heading_min_speed_mps)")
-        found = sol.extra.get("heading_search")
-        if found and found["yaw_deg"] is not None:  # the searched heading: aided over the search's fixes
-            cfg = flt._merge(cfg, {"initial_yaw_deg": found["yaw_deg"], "heading_sigma_deg": found["sigma_deg"]})
-            used = fixes[(fixes[:, 0] <= found["t_end"]) & np.isin(fixes[:, 9], (2, 3))]
+        searched = sol.extra.get("heading_search")
+        if searched and searched["yaw_deg"] is not None:  # the searched heading: aided over the search's fixes
+            cfg = flt._merge(cfg, {"initial_yaw_deg": searched["yaw_deg"],
+                                   "heading_sigma_deg": searched["sigma_deg"]})
+            used = fixes[(fixes[:, 0] <= searched["t_end"]) & np.isin(fixes[:, 9], (2, 3))]
             free_from = float(used[-1, 0]) if len(used) else free_from
         fixes = fixes[fixes[:, 0] <= free_from]
-        sol = _filter(inp, cfg, filter_mode, fixes, prs)
-        if found:
-            sol.extra["heading_search"] = found
+        sol = _filter(inp, cfg, filter_mode, fixes, prs, smooth)
+        if searched:
+            sol.extra["heading_search"] = searched
     clock["filter_s"] = time.perf_counter() - t2
     if len(sol.t) == 0:
         raise measurements.logs.LogError(f"{source}: the filter never initialised (no usable fix after levelling)")
@@ -448,12 +452,22 @@ def replay(source: str | Path, out: str | Path, *, mode: str = "loose", config=N
             scoring["ins_free_from"] = free_from
     arrays["r_point_ecef"] = r_score if scored_point == "imu" else r_ant
     reference_system = _score_reference_system(source, inp.week, sol)
+    smoothed = None
+    if smooth and "smoothed" in sol.extra:
+        from . import smoothing
+        sm_arrays, sm_summary, sm, sm_ant, sm_sigma_ned = smoothing.results(
+            sol, found, ref, scored_point, lever, score_sched if ref is not None and len(ref[0]) else schedule)
+        arrays.update(smoothing.prefixed(sm_arrays))
+        smoothed = (sm_summary, sm if point == "imu" else _with_positions(sm, sm_ant), sm_sigma_ned)
 
     out.mkdir(parents=True, exist_ok=True)
     np.savez_compressed(out / "results.npz", **arrays)
     pos_sol = sol if point == "imu" else _with_positions(sol, r_ant)
     write_pos(out / "solution.pos", inp.week, pos_sol, sigma_ned, sats,
               note=f"mode {mode}, {inp.kind} {source.name}, {point} point")
+    if smoothed is not None:
+        write_pos(out / "smoothed.pos", inp.week, smoothed[1], smoothed[2], sats,
+                  note=f"mode {mode}, {inp.kind} {source.name}, {point} point, fixed-interval smoothed")
     (out / "config.toml").write_text(flt.to_toml(cfg), encoding="utf-8")
     clock["write_s"] = time.perf_counter() - t3
     clock["total_s"] = sum(v for v in clock.values())
@@ -489,6 +503,8 @@ def replay(source: str | Path, out: str | Path, *, mode: str = "loose", config=N
         summary["ins"] = {"aiding_until_t": free_from, "fixes_used": int(len(fixes)),
                           "how": "loose filter fed the fixes up to the one that completed the initialisation "
                                  "(heading known); zero-velocity and zero-rate updates off"}
+    if smoothed is not None:
+        summary["smoothed"] = smoothed[0]
     if info:
         summary["dataset"] = info
     (out / "run.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")

@@ -76,8 +76,27 @@ def load(path: str | Path) -> Result:
     return Result(name, path, {k: z[k] for k in z.files}, run, MODE_COLORS.get(name, "tab:blue"), cfg)
 
 
+def smoothed_companion(r: Result) -> Result | None:
+    """A replay run with ``--smooth`` as a second run: the smoothed arrays (``smooth_*``) in place of the
+    forward ones, its errors and scoring from run.json's "smoothed", so every figure and table shows
+    forward and smoothed side by side."""
+    keys = [k for k in r.a if k.startswith("smooth_")]
+    if not keys or r.name.endswith(" smoothed"):
+        return None
+    a = {k: v for k, v in r.a.items() if not k.startswith("smooth_")}
+    a.update({k[len("smooth_"):]: r.a[k] for k in keys})
+    sm = r.run.get("smoothed") or {}
+    run = dict(r.run, errors=sm.get("errors", {}), mode=f"{r.name} smoothed")
+    if sm.get("scoring"):
+        run["scoring"] = {**(r.run.get("scoring") or {}), **sm["scoring"]}
+    return Result(f"{r.name} smoothed", r.path, a, run, "tab:cyan", r.config)
+
+
 def _load_all(paths) -> list[Result]:
     results = [p if isinstance(p, Result) else load(p) for p in paths]
+    names = {r.name for r in results}
+    results = [x for r in results for x in (r, None if f"{r.name} smoothed" in names else smoothed_companion(r))
+               if x is not None]
     used = set()
     for r in results:  # two runs of the same mode get different colours
         if r.color in used:

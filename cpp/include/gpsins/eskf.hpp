@@ -20,6 +20,7 @@
 
 #include "gpsins/attitude.hpp"
 #include "gpsins/earth.hpp"
+#include "gpsins/eskf_observer.hpp"
 #include "gpsins/strapdown.hpp"
 
 namespace gpsins {
@@ -104,6 +105,7 @@ class Eskf {
   Eigen::Vector2d clock = Eigen::Vector2d::Zero();  // receiver clock bias (m), drift (m/s)
   MatN P = MatN::Zero();
   ProcessNoise noise;
+  EskfObserver<N>* observer = nullptr;  // a smoother recording the forward pass (rts.hpp)
 
   // Raw increment corrected by the current bias and scale-factor estimates.
   Increment corrected(const Increment& raw) const {
@@ -247,6 +249,30 @@ class Eskf {
     }
     P.template topLeftCorner<kNav, kNav>() += qd;
     symmetrise();
+    if (observer) {
+      MatN full = MatN::Zero();
+      for (int i = 0; i < NB; ++i)
+        for (int k = 0; k < NB; ++k)
+          if (phi.has(i, k)) full.template block<3, 3>(3 * i, 3 * k) = phi.at(i, k);
+      if constexpr (NC == 2) full.template bottomRightCorner<2, 2>() << 1.0, dt, 0.0, 1.0;
+      observer->on_propagate(full);
+    }
+  }
+
+  // The filter's re-initialisations, told to the observer: `count` states from
+  // `first` restart independently of their past.
+  void note_restart(int first, int count) {
+    if (!observer) return;
+    MatN a = MatN::Identity();
+    a.diagonal().segment(first, count).setZero();
+    observer->on_transition(a);
+  }
+  // The attitude error replaced by keep * (attitude error) plus independent noise.
+  void note_attitude_map(const Mat3& keep) {
+    if (!observer) return;
+    MatN a = MatN::Identity();
+    a.template block<3, 3>(es::att, es::att) = keep;
+    observer->on_transition(a);
   }
 
   void symmetrise() { P = 0.5 * (P + P.transpose()).eval(); }
@@ -286,6 +312,10 @@ class Eskf {
       return res;
     }
     P = p_new;
+    if (observer) {
+      const Eigen::Matrix<double, M, M> s_inv = llt.solve(Eigen::Matrix<double, M, M>::Identity());
+      observer->on_update(H, K, s_inv, y, Mat3::Identity() - skew(0.5 * dx.template segment<3>(es::att)));
+    }
     inject_and_reset(dx);
     res.accepted = true;
     return res;

@@ -148,6 +148,7 @@ class InsFilter {
   // Every update is also appended here when set (batch runs).
   void set_update_log(std::vector<UpdateRecord>* log) { log_ = log; }
   void set_event_log(std::vector<FilterEvent>* log) { events_ = log; }
+  void set_observer(EskfObserver<N>* o) { core_.observer = o; }  // smoother recording (rts.hpp)
   double nominal_step_s() const { return dt_nominal_; }
 
  private:

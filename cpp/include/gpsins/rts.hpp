@@ -1,0 +1,253 @@
+// Fixed-interval smoothing of the error-state filter's forward pass.
+//
+// Form: the modified Bryson-Frazier recursion (Bierman), the RTS smoother
+// written with the adjoint lambda (N) and its information Lambda (N x N):
+//   at an output epoch   dx_s = -P lambda,  P_s = P - P Lambda P
+//   across Phi (or A)    lambda <- Phi^T lambda,  Lambda <- Phi^T Lambda Phi
+//   across an update     L = I - K H
+//                        lambda <- L^T lambda - H^T S^-1 y
+//                        Lambda <- L^T Lambda L + H^T S^-1 H
+// It gives the RTS smoother's states and covariances (tests compare with a
+// textbook RTS) but needs neither the prior covariances nor an inverse of
+// them, so a singular prior (constant states, restarted blocks) is no harm.
+//
+// Error-state bookkeeping: every injection is followed by the reset
+// dx_new = G (dx_old - dx_injected), G = I - [dtheta/2]x on the attitude
+// block (seed 003). Going backwards the adjoint of the new error definition
+// is carried to the old one by lambda <- G^T lambda, Lambda <- G^T Lambda G,
+// before the update step; the injected dx itself is the update's K y, which the
+// update step accounts for. The smoothed error at an output epoch is relative
+// to the forward nominal there; it is injected (with its own reset) to give
+// the smoothed nominal state and covariance.
+//
+// Re-initialisations (start-up, heading set, restart after a long IMU gap,
+// reset to GNSS, receiver clock re-set) arrive as transitions A that zero the
+// restarted states: information flows back through what was kept (IMU errors
+// across a gap restart) and not through what restarted (a break there).
+//
+// The forward pass is recorded on a tape of records kept in memory up to a
+// chunk size, then written in chunks to an unnamed temporary file and read
+// back chunk by chunk, newest first.
+#pragma once
+
+#include <cstdint>
+#include <array>
+#include <cstdio>
+#include <functional>
+#include <string>
+#include <vector>
+
+#include "gpsins/eskf.hpp"
+#include "gpsins/eskf_observer.hpp"
+
+namespace gpsins {
+
+// Records of doubles, readable last to first; spills to a temporary file.
+class SmootherTape {
+ public:
+  enum Kind : std::int32_t { kPropagate = 1, kUpdate = 2, kTransition = 3, kOutput = 4 };
+
+  explicit SmootherTape(std::size_t chunk_bytes = std::size_t(64) << 20);
+  ~SmootherTape();
+  SmootherTape(const SmootherTape&) = delete;
+  SmootherTape& operator=(const SmootherTape&) = delete;
+
+  // Appends one record: n doubles of payload, then its kind and length.
+  double* append(Kind kind, int n);
+  std::size_t bytes() const { return bytes_; }        // everything recorded
+  std::size_t spilled_bytes() const { return spilled_; }
+  std::size_t chunks_spilled() const { return chunks_.size(); }
+
+  // Visits the records newest first: f(kind, payload, n).
+  void for_each_backward(const std::function<void(Kind, const double*, int)>& f);
+
+ private:
+  void spill();
+  std::size_t chunk_bytes_;
+  std::vector<double> buf_;  // current chunk (payload and trailers as doubles)
+  struct Chunk { long offset; std::size_t n; };
+  std::vector<Chunk> chunks_;
+  std::FILE* file_ = nullptr;
+  long file_end_ = 0;
+  std::size_t bytes_ = 0, spilled_ = 0;
+};
+
+// The smoother's backward pass, independent of what the nominal state is:
+// emit(output index, stored nominal payload, smoothed error dx, smoothed P).
+template <int N>
+class BackwardPass {
+ public:
+  using VecN = Eigen::Matrix<double, N, 1>;
+  using MatN = Eigen::Matrix<double, N, N>;
+  using Emit = std::function<void(long, const double*, int, const VecN&, const MatN&)>;
+
+  // Output payload: [nominal (n_nominal doubles), P upper triangle by rows].
+  static constexpr int kPacked = N * (N + 1) / 2;
+
+  static void pack(const MatN& p, double* o) {
+    for (int i = 0; i < N; ++i)
+      for (int j = i; j < N; ++j) *o++ = p(i, j);
+  }
+  static MatN unpack(const double* o) {
+    MatN p;
+    for (int i = 0; i < N; ++i)
+      for (int j = i; j < N; ++j) p(i, j) = p(j, i) = *o++;
+    return p;
+  }
+
+  static void run(SmootherTape& tape, long n_outputs, const Emit& emit) {
+    VecN lam = VecN::Zero();
+    MatN Lam = MatN::Zero();
+    long index = n_outputs;
+    tape.for_each_backward([&](SmootherTape::Kind kind, const double* d, int n) {
+      switch (kind) {
+        case SmootherTape::kPropagate:
+        case SmootherTape::kTransition: {
+          const Eigen::Map<const MatN> phi(d);
+          lam = (phi.transpose() * lam).eval();
+          Lam = (phi.transpose() * Lam * phi).eval();
+          Lam = 0.5 * (Lam + Lam.transpose()).eval();  // keep rounding from building up an asymmetric part
+          break;
+        }
+        case SmootherTape::kUpdate:
+          update_step(d, lam, Lam);
+          Lam = 0.5 * (Lam + Lam.transpose()).eval();
+          break;
+        case SmootherTape::kOutput: {
+          const int n_nom = n - kPacked;
+          const MatN p = unpack(d + n_nom);
+          const VecN dx = -p * lam;
+          MatN ps = p - p * Lam * p;
+          ps = 0.5 * (ps + ps.transpose()).eval();
+          emit(--index, d, n_nom, dx, ps);
+          break;
+        }
+      }
+    });
+  }
+
+ private:
+  // Payload: M, H (M x N), K (N x M), S^-1 (M x M), y (M), G (3 x 3), column-major.
+  static void update_step(const double* d, VecN& lam, MatN& Lam) {
+    const int m = static_cast<int>(d[0]);
+    const double* p = d + 1;
+    const Eigen::Map<const Eigen::Matrix<double, Eigen::Dynamic, N>> H(p, m, N);
+    p += m * N;
+    const Eigen::Map<const Eigen::Matrix<double, N, Eigen::Dynamic>> K(p, N, m);
+    p += N * m;
+    const Eigen::Map<const Eigen::MatrixXd> s_inv(p, m, m);
+    p += m * m;
+    const Eigen::Map<const Eigen::VectorXd> y(p, m);
+    p += m;
+    const Eigen::Map<const Mat3> g(p);
+    // Reset: to the error definition before it.
+    lam.template head<3>() = (g.transpose() * lam.template head<3>()).eval();
+    Lam.template topRows<3>() = (g.transpose() * Lam.template topRows<3>()).eval();
+    Lam.template leftCols<3>() = (Lam.template leftCols<3>() * g).eval();
+    // L^T Lambda L with L = I - K H formed first: when an update nearly pins a
+    // state (K H close to I there) this keeps the small result accurate, where
+    // Lambda - H^T K^T Lambda - ... would cancel large terms.
+    const MatN L = MatN::Identity() - K * H;
+    Lam = (L.transpose() * Lam * L + H.transpose() * s_inv * H).eval();
+    lam = (lam - H.transpose() * (K.transpose() * lam) - H.transpose() * (s_inv * y)).eval();
+  }
+};
+
+// Records the forward pass of an InsFilter's core. Propagation steps between
+// two other records are multiplied into one transition (so with output every
+// k IMU samples the tape holds one Phi per output or update, not per sample).
+template <int NB, int NC>
+class EskfRecorder final : public EskfObserver<3 * NB + NC> {
+ public:
+  static constexpr int N = 3 * NB + NC;
+  using Core = Eskf<NB, NC>;
+  using MatN = Eigen::Matrix<double, N, N>;
+  using Base = EskfObserver<N>;
+  // Nominal payload: t, r, v, q (w x y z), bg, ba, [sg, sa], [clock], flags.
+  static constexpr int kNominal = 1 + 3 + 3 + 4 + 6 + (NB == 7 ? 6 : 0) + NC + 1;
+  using Pass = BackwardPass<N>;
+
+  explicit EskfRecorder(std::size_t chunk_bytes) : tape_(chunk_bytes) {}
+
+  void on_propagate(const MatN& phi) override {
+    if (have_phi_) phi_ = (phi * phi_).eval(); else phi_ = phi;
+    have_phi_ = true;
+  }
+  void on_update(const typename Base::MatRef& H, const typename Base::MatRef& K, const typename Base::MatRef& s_inv,
+                 const typename Base::VecRef& y, const Mat3& g) override {
+    flush_phi();
+    const int m = static_cast<int>(H.rows());
+    double* d = tape_.append(SmootherTape::kUpdate, 1 + 2 * m * N + m * m + m + 9);
+    *d++ = m;
+    Eigen::Map<Eigen::MatrixXd>(d, m, N) = H; d += m * N;
+    Eigen::Map<Eigen::MatrixXd>(d, N, m) = K; d += N * m;
+    Eigen::Map<Eigen::MatrixXd>(d, m, m) = s_inv; d += m * m;
+    Eigen::Map<Eigen::VectorXd>(d, m) = y; d += m;
+    Eigen::Map<Mat3>{d} = g;
+  }
+  void on_transition(const MatN& a) override {
+    flush_phi();
+    Eigen::Map<MatN>(tape_.append(SmootherTape::kTransition, N * N)) = a;
+  }
+
+  // An output epoch: the core's nominal state and covariance now.
+  void output(const Core& e, double flags) {
+    flush_phi();
+    double* o = tape_.append(SmootherTape::kOutput, kNominal + Pass::kPacked);
+    *o++ = e.nav.t_s;
+    for (int i = 0; i < 3; ++i) *o++ = e.nav.r_ecef_m(i);
+    for (int i = 0; i < 3; ++i) *o++ = e.nav.v_ecef_mps(i);
+    *o++ = e.nav.q_eb.w(); *o++ = e.nav.q_eb.x(); *o++ = e.nav.q_eb.y(); *o++ = e.nav.q_eb.z();
+    for (int i = 0; i < 3; ++i) *o++ = e.imu.gyro_bias_rad_per_s(i);
+    for (int i = 0; i < 3; ++i) *o++ = e.imu.accel_bias_mps2(i);
+    if constexpr (NB == 7) {
+      for (int i = 0; i < 3; ++i) *o++ = e.imu.gyro_scale_factor(i);
+      for (int i = 0; i < 3; ++i) *o++ = e.imu.accel_scale_factor(i);
+    }
+    if constexpr (NC == 2) { *o++ = e.clock(0); *o++ = e.clock(1); }
+    *o++ = flags;
+    Pass::pack(e.P, o);
+    ++outputs_;
+  }
+
+  // Backward pass: emit(index, row of the smoothed nominal in the layout above
+  // (flags last), smoothed covariance), newest first.
+  void smooth(const std::function<void(long, const double*, const MatN&)>& emit) {
+    flush_phi();
+    std::array<double, kNominal> row{};
+    Pass::run(tape_, outputs_, [&](long k, const double* nom, int, const typename Pass::VecN& dx, const MatN& ps) {
+      std::copy(nom, nom + kNominal, row.begin());
+      const Vec3 dth = dx.template segment<3>(es::att);
+      Quat q(nom[7], nom[8], nom[9], nom[10]);
+      q = (q * quat_from_rotvec(dth)).normalized();
+      for (int i = 0; i < 3; ++i) {
+        row[static_cast<std::size_t>(1 + i)] += dx(es::pos + i);
+        row[static_cast<std::size_t>(4 + i)] += dx(es::vel + i);
+      }
+      row[7] = q.w(); row[8] = q.x(); row[9] = q.y(); row[10] = q.z();
+      for (int i = 0; i < 3 * (NB - 3) + NC; ++i) row[static_cast<std::size_t>(11 + i)] += dx(es::bg + i);
+      // The smoothed covariance in the error definition of the smoothed nominal.
+      const Mat3 g = Mat3::Identity() - skew(0.5 * dth);
+      MatN p = ps;
+      p.template topRows<3>() = (g * p.template topRows<3>()).eval();
+      p.template leftCols<3>() = (p.template leftCols<3>() * g.transpose()).eval();
+      emit(k, row.data(), p);
+    });
+  }
+
+  long outputs() const { return outputs_; }
+  const SmootherTape& tape() const { return tape_; }
+
+ private:
+  void flush_phi() {
+    if (!have_phi_) return;
+    Eigen::Map<MatN>(tape_.append(SmootherTape::kPropagate, N * N)) = phi_;
+    have_phi_ = false;
+  }
+  SmootherTape tape_;
+  MatN phi_ = MatN::Identity();
+  bool have_phi_ = false;
+  long outputs_ = 0;
+};
+
+}  // namespace gpsins
