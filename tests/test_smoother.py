@@ -269,8 +269,10 @@ def test_replay_smooth_writes_smoothed_results_next_to_the_forward_ones(tmp_path
         assert z["smooth_" + k].shape[0] == (z["t"].shape[0] if k in ("r_ecef", "sigma", "sigma_ned_m")
                                              else z[k].shape[0])
     fwd, sm = res.summary["scoring"], res.summary["smoothed"]["scoring"]
-    # Both outages are bridged far better than by the forward pass, which drifts tens of metres.
-    assert sm["horizontal_m"]["worst"] < 0.2 * fwd["horizontal_m"]["worst"]
+    # Both outages are bridged far better than by the forward pass, and better than the open peer's
+    # best on this walk (0.42 m RMS of per-outage maxima, back-correcting each outage with the next fix).
+    assert sm["horizontal_m"]["worst"] < 0.5 * fwd["horizontal_m"]["worst"]
+    assert sm["horizontal_m"]["rms"] < 0.42
     assert sm["outside"]["rms_h_m"] < fwd["outside"]["rms_h_m"]
 
 
