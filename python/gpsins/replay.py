@@ -381,47 +381,21 @@ def replay(source: str | Path, out: str | Path, *, mode: str = "loose", config=N
         raise measurements.logs.LogError(f"{source}: the filter never initialised (no usable fix after levelling)")
     t3 = time.perf_counter()
 
-    sigma_ned, sigma_ypr = _nav_sigmas(sol)
     fix_t = inp.fixes[:, 0]
     k = np.clip(np.searchsorted(fix_t, sol.t, side="right") - 1, 0, max(len(fix_t) - 1, 0))
     sats = inp.fix_sats[k] if len(fix_t) else np.zeros(len(sol.t), int)
     lever = np.broadcast_to(np.asarray(cfg.get("lever_arm_body_m", 0.0), float), (3,))
     r_ant = antenna_positions(sol, lever)
-    arrays = dict(t=sol.t, week=np.int64(inp.week), r_ecef=sol.r_ecef, v_ecef=sol.v_ecef, q_eb=sol.q_eb,
-                  llh=sol.llh(), ypr_deg=np.degrees(sol.ypr()), gyro_bias=sol.gyro_bias, accel_bias=sol.accel_bias,
-                  sigma=sol.sigma, sigma_ned_m=sigma_ned, sigma_ypr_deg=sigma_ypr, standstill=sol.standstill,
+    arrays = dict(t=sol.t, week=np.int64(inp.week), **solution_arrays(sol), standstill=sol.standstill,
                   heading_known=sol.heading_known, fixes=inp.fixes, fix_sats=inp.fix_sats,
                   lever_arm_body_m=lever, outages=schedule)
+    sigma_ned = arrays["sigma_ned_m"]
     arrays.update({f"upd_{k}": v for k, v in sol.updates.items()})
-    c_en_sol = evaluate.c_en(arrays["llh"][:, 0], arrays["llh"][:, 1])
-    p_v_ned = np.swapaxes(c_en_sol, -1, -2) @ sol.covariance[:, 3:6, 3:6] @ c_en_sol
-    arrays["sigma_v_ned_mps"] = np.sqrt(np.diagonal(p_v_ned, axis1=1, axis2=2))
-    if sol.clock is not None:
-        arrays["clock"] = sol.clock
     stats = {}
     found = inp.truth
     if found:
-        tr, extra = found
-        inside = (sol.t >= tr.t[0]) & (sol.t <= tr.t[-1])
-        err = evaluate.nav_errors(_subset(sol, inside), tr)
-        ref = tr.at(sol.t[inside])
-        llh_ref = flt._core.ecef_to_geodetic(ref.r_ecef)
-        c_en = evaluate.c_en(llh_ref[:, 0], llh_ref[:, 1])
-        dv_ned = np.einsum("nji,nj->ni", c_en, sol.v_ecef[inside] - ref.v_ecef)
-        e9 = err.e9
-        nees = evaluate.nees(e9, sol.covariance[inside][:, :9, :9])
-        full = lambda a: _fill(inside, a)  # noqa: E731
-        arrays.update(err_ned_m=full(err.r_ned), err_ypr_deg=full(err.ypr_deg), err_v_ned_mps=full(dv_ned),
-                      nees9=full(nees), **extra)
-        hk = sol.heading_known[inside]
-        h = np.hypot(err.r_ned[hk, 0], err.r_ned[hk, 1])
-        # Errors count from the first known heading; a short or standing run may never get there.
-        stats = {} if not hk.any() else {
-                 "horizontal_rms_m": float(np.sqrt(np.mean(h ** 2))), "horizontal_max_m": float(h.max()),
-                 "vertical_rms_m": float(np.sqrt(np.mean(err.r_ned[hk, 2] ** 2))),
-                 "vertical_max_m": float(np.abs(err.r_ned[hk, 2]).max()),
-                 "nees9_mean": float(nees[hk].mean()),
-                 "inside_3_sigma": float(np.mean(np.abs(e9[hk]) <= 3 * sol.sigma[inside][hk, :9]))}
+        err_arrays, stats = truth_errors(sol, found[0])
+        arrays.update(err_arrays, **found[1])
 
     # Scoring against a reference: a .pos at the antenna point, else a session's truth at the IMU.
     ref = inp.reference
@@ -437,17 +411,10 @@ def replay(source: str | Path, out: str | Path, *, mode: str = "loose", config=N
         score_sched = schedule
         if mode == "ins":
             score_sched = np.array([[free_from, max(float(sol.t[-1]), free_from) + 1e-6]])
-        sc = outages_mod.score(sol.t, r_score, ref[0], ref[1], score_sched)
-        use, e = outages_mod.errors_ned(sol.t, r_score, ref[0], ref[1])
-        arrays.update(ref_t=ref[0][use], ref_r_ecef=ref[1][use], ref_err_ned_m=e,
-                      ref_outage=outages_mod.outage_index(ref[0][use], score_sched), drift_t_s=sc.drift_t_s,
-                      drift_h_m=sc.drift_h_m, drift_v_m=sc.drift_v_m, drift_outage=sc.drift_outage)
-        h = np.hypot(e[:, 0], e[:, 1])
-        scoring = {"reference": str(ref[2]), "point": scored_point, "n_reference_epochs": int(use.sum()),
-                   "all": {"rms_h_m": float(np.sqrt(np.mean(h ** 2))) if len(h) else float("nan"),
-                           "rms_v_m": float(np.sqrt(np.mean(e[:, 2] ** 2))) if len(h) else float("nan"),
-                           "max_h_m": float(h.max()) if len(h) else float("nan")},
-                   **sc.summary()}
+        ref_arrays, scoring, use = reference_scores(sol.t, r_score, ref, score_sched)
+        arrays.update(ref_arrays, ref_t=ref[0][use], ref_r_ecef=ref[1][use],
+                      ref_outage=outages_mod.outage_index(ref[0][use], score_sched))
+        scoring = {"reference": str(ref[2]), "point": scored_point, "n_reference_epochs": int(use.sum()), **scoring}
         if mode == "ins":
             scoring["ins_free_from"] = free_from
     arrays["r_point_ecef"] = r_score if scored_point == "imu" else r_ant
@@ -509,6 +476,59 @@ def replay(source: str | Path, out: str | Path, *, mode: str = "loose", config=N
         summary["dataset"] = info
     (out / "run.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
     return ReplayResult(out, mode, summary)
+
+
+def solution_arrays(sol: flt.Solution) -> dict:
+    """A solution's arrays as results.npz holds them (the forward and the smoothed one alike)."""
+    sigma_ned, sigma_ypr = _nav_sigmas(sol)
+    llh = sol.llh()
+    c_en = evaluate.c_en(llh[:, 0], llh[:, 1])
+    p_v_ned = np.swapaxes(c_en, -1, -2) @ sol.covariance[:, 3:6, 3:6] @ c_en
+    a = dict(r_ecef=sol.r_ecef, v_ecef=sol.v_ecef, q_eb=sol.q_eb, llh=llh, ypr_deg=np.degrees(sol.ypr()),
+             gyro_bias=sol.gyro_bias, accel_bias=sol.accel_bias, sigma=sol.sigma, sigma_ned_m=sigma_ned,
+             sigma_ypr_deg=sigma_ypr, sigma_v_ned_mps=np.sqrt(np.diagonal(p_v_ned, axis1=1, axis2=2)))
+    if sol.clock is not None:
+        a["clock"] = sol.clock
+    return a
+
+
+def truth_errors(sol: flt.Solution, tr: evaluate.Truth) -> tuple[dict, dict]:
+    """Errors against the simulator's truth: per-epoch arrays (NaN outside the truth's span) and
+    their statistics from the first known heading on (none if a short or standing run never got there)."""
+    inside = (sol.t >= tr.t[0]) & (sol.t <= tr.t[-1])
+    err = evaluate.nav_errors(_subset(sol, inside), tr)
+    ref = tr.at(sol.t[inside])
+    llh_ref = flt._core.ecef_to_geodetic(ref.r_ecef)
+    c_en = evaluate.c_en(llh_ref[:, 0], llh_ref[:, 1])
+    dv_ned = np.einsum("nji,nj->ni", c_en, sol.v_ecef[inside] - ref.v_ecef)
+    nees = evaluate.nees(err.e9, sol.covariance[inside][:, :9, :9])
+    arrays = dict(err_ned_m=_fill(inside, err.r_ned), err_ypr_deg=_fill(inside, err.ypr_deg),
+                  err_v_ned_mps=_fill(inside, dv_ned), nees9=_fill(inside, nees))
+    hk = sol.heading_known[inside]
+    if not hk.any():
+        return arrays, {}
+    h = np.hypot(err.r_ned[hk, 0], err.r_ned[hk, 1])
+    return arrays, {"horizontal_rms_m": float(np.sqrt(np.mean(h ** 2))), "horizontal_max_m": float(h.max()),
+                    "vertical_rms_m": float(np.sqrt(np.mean(err.r_ned[hk, 2] ** 2))),
+                    "vertical_max_m": float(np.abs(err.r_ned[hk, 2]).max()),
+                    "nees9_mean": float(nees[hk].mean()),
+                    "inside_3_sigma": float(np.mean(np.abs(err.e9[hk]) <= 3 * sol.sigma[inside][hk, :9]))}
+
+
+def reference_scores(t: np.ndarray, r_score: np.ndarray, ref: tuple, schedule: np.ndarray
+                     ) -> tuple[dict, dict, np.ndarray]:
+    """Errors against a reference (t, r_ecef, name) and the per-outage drift: arrays, the scoring
+    summary, and which reference epochs were used."""
+    sc = outages_mod.score(t, r_score, ref[0], ref[1], schedule)
+    use, e = outages_mod.errors_ned(t, r_score, ref[0], ref[1])
+    h = np.hypot(e[:, 0], e[:, 1])
+    scoring = {"all": {"rms_h_m": float(np.sqrt(np.mean(h ** 2))) if len(h) else float("nan"),
+                       "rms_v_m": float(np.sqrt(np.mean(e[:, 2] ** 2))) if len(h) else float("nan"),
+                       "max_h_m": float(h.max()) if len(h) else float("nan")},
+               **sc.summary()}
+    arrays = dict(ref_err_ned_m=e, drift_t_s=sc.drift_t_s, drift_h_m=sc.drift_h_m, drift_v_m=sc.drift_v_m,
+                  drift_outage=sc.drift_outage)
+    return arrays, scoring, use
 
 
 def _with_positions(sol: flt.Solution, r_ecef: np.ndarray) -> flt.Solution:
