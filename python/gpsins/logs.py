@@ -98,6 +98,17 @@ def _gather(buf: np.ndarray, offsets: np.ndarray, width: int) -> np.ndarray:
     return np.lib.stride_tricks.sliding_window_view(buf, width)[offsets]
 
 
+def _check_stamps(buf: np.ndarray, pc: np.ndarray, lay: Layout, lo: float, hi: float, good: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """(valid, checksum-valid but with an impossible stamp) for complete candidates at pc."""
+    if not lay.stamped:
+        return good, np.zeros(len(good), dtype=bool)
+    st = _gather(buf, pc + lay.header_len, STAMP_BYTES).view("<f8").reshape(-1)
+    with np.errstate(invalid="ignore"):
+        plausible = np.isfinite(st) & (st > lo) & (st < hi)
+    return good & plausible, good & ~plausible
+
+
 def _candidates(buf: np.ndarray, lay: Layout, lo: float = STAMP_MIN, hi: float = STAMP_MAX
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """All header-valid candidates: positions, lengths, checksum/stamp validity,
@@ -134,13 +145,7 @@ def _candidates(buf: np.ndarray, lay: Layout, lo: float = STAMP_MIN, hi: float =
             body = pc + 1 + sl
             end = pc + lc - 1
             good = (cs[end] - cs[body]) == buf[end]
-        if lay.stamped:
-            st = _gather(buf, pc + lay.header_len, STAMP_BYTES).view("<f8").reshape(-1)
-            with np.errstate(invalid="ignore"):
-                plausible = np.isfinite(st) & (st > lo) & (st < hi)
-            bad_stamp[complete] = good & ~plausible
-            good &= plausible
-        ok[complete] = good
+        ok[complete], bad_stamp[complete] = _check_stamps(buf, pc, lay, lo, hi, good)
     return p, length, ok, bad_stamp
 
 
@@ -179,13 +184,7 @@ def _ubx_candidates(buf: np.ndarray, lay: Layout, lo: float, hi: float):
         ck_b = b1 + b2 + (npc & 0xFF).astype(np.uint8) * a1
         end = body + npc
         good = (ck_a == buf[end]) & (ck_b == buf[end + 1])
-        if lay.stamped:
-            st = _gather(buf, pc + lay.header_len, STAMP_BYTES).view("<f8").reshape(-1)
-            with np.errstate(invalid="ignore"):
-                fine = np.isfinite(st) & (st > lo) & (st < hi)
-            bad_stamp[complete] = good & ~fine
-            good &= fine
-        ok[complete] = good
+        ok[complete], bad_stamp[complete] = _check_stamps(buf, pc, lay, lo, hi, good)
     return p, length, ok, bad_stamp
 
 
