@@ -152,14 +152,18 @@ def oadev(data: np.ndarray, rate_hz: float, *, taus: str | int = 10, data_type: 
         av = np.stack(list(pool.map(lambda x: oavar_phase(x, tau0, m), xs)), -1)
     al = np.stack([noise_type_lag1(x, m) if alpha is None else np.full(len(m), alpha) for x in xs], -1)
     edf = np.stack([edf_simple(n, m, al[:, k]) for k in range(len(xs))], -1)
-    p_lo, p_hi = (1 - confidence) / 2, (1 + confidence) / 2
-    adev = np.sqrt(av)
-    lo = adev * np.sqrt(edf / chi2.ppf(p_hi, edf))
-    hi = adev * np.sqrt(edf / chi2.ppf(p_lo, edf))
+    adev, lo, hi = _chi2_bounds(av, edf, confidence)
     rel = 1.0 / np.sqrt(2.0 * (n / m - 1.0))
     squeeze = (lambda v: v[:, 0]) if single else (lambda v: v)
     return AllanResult(m * tau0, squeeze(adev), m, n, tau0, squeeze(al), squeeze(edf), squeeze(lo), squeeze(hi), rel,
                        confidence, "overlapping")
+
+
+def _chi2_bounds(avar: np.ndarray, edf: np.ndarray, confidence: float) -> tuple[np.ndarray, ...]:
+    """ADEV and its two-sided chi-square confidence bounds for the given degrees of freedom."""
+    p_lo, p_hi = (1 - confidence) / 2, (1 + confidence) / 2
+    adev = np.sqrt(avar)
+    return adev, adev * np.sqrt(edf / chi2.ppf(p_hi, edf)), adev * np.sqrt(edf / chi2.ppf(p_lo, edf))
 
 
 def adev_nonoverlapping(data: np.ndarray, rate_hz: float, *, taus: str | int = 10,
@@ -179,10 +183,7 @@ def adev_nonoverlapping(data: np.ndarray, rate_hz: float, *, taus: str | int = 1
         means = a[:k * mm].reshape(k, mm, -1).mean(1)
         av[i] = 0.5 * np.mean(np.diff(means, axis=0) ** 2, axis=0)
     edf = np.repeat((n // m - 1.0)[:, None], a.shape[1], 1)
-    p_lo, p_hi = (1 - confidence) / 2, (1 + confidence) / 2
-    adev = np.sqrt(av)
-    lo = adev * np.sqrt(edf / chi2.ppf(p_hi, edf))
-    hi = adev * np.sqrt(edf / chi2.ppf(p_lo, edf))
+    adev, lo, hi = _chi2_bounds(av, edf, confidence)
     rel = 1.0 / np.sqrt(2.0 * (n / m - 1.0))
     squeeze = (lambda v: v[:, 0]) if single else (lambda v: v)
     alpha = np.zeros_like(edf, dtype=int)
