@@ -38,13 +38,14 @@ class Datasheet:
     accel_scale_factor_sigma: float = 1e-3
     misalignment_sigma_rad: float = 1e-3
     gyro_g_sensitivity_rad_per_s_per_mps2: float = 0.2 * DEG / G0
-    # Noise figures (Allan): the filter is tuned with these; the unit's own are drawn around them.
-    gyro_arw_rad_per_sqrt_s: tuple = (8.8e-4, 8.7e-4, 8.1e-4)
-    gyro_bias_instability_rad_per_s: tuple = (4.7e-4, 4.7e-4, 3.6e-4)
-    gyro_rrw_rad_per_s_sqrt_s: tuple = (1.8e-4, 1.9e-4, 0.0)
-    accel_vrw_mps_per_sqrt_s: tuple = (78.4e-4, 61.0e-4, 69.7e-4)
-    accel_bias_instability_mps2: tuple = (43.8e-4, 24.5e-4, 0.0)
-    accel_rrw_mps2_per_sqrt_s: tuple = (23.2e-4, 9.8e-4, 13.4e-4)
+    # Noise figures (Allan; by default the report's Tables 5.8 and 5.9, as the simulator's IMU model has
+    # them): the filter is tuned with these; the unit's own are drawn around them.
+    gyro_arw_rad_per_sqrt_s: tuple = ImuModel.gyro_arw_rad_per_sqrt_s
+    gyro_bias_instability_rad_per_s: tuple = ImuModel.gyro_bias_instability_rad_per_s
+    gyro_rrw_rad_per_s_sqrt_s: tuple = ImuModel.gyro_rrw_rad_per_s_sqrt_s
+    accel_vrw_mps_per_sqrt_s: tuple = ImuModel.accel_vrw_mps_per_sqrt_s
+    accel_bias_instability_mps2: tuple = ImuModel.accel_bias_instability_mps2
+    accel_rrw_mps2_per_sqrt_s: tuple = ImuModel.accel_rrw_mps2_per_sqrt_s
     noise_spread: float = 0.2  # the unit's coefficients: datasheet x lognormal(0, spread)
 
 
