@@ -113,8 +113,8 @@ def fix_table(fixes: Fixes, t0: float, fix_uere_m: float, floor_m: dict | None =
 
 
 def velocity_sigma(fixes: Fixes, floor_mps: float = VELOCITY_SIGMA_FLOOR_MPS) -> float | None:
-    """One velocity sigma for all fixes (the core takes one): the median of the stated per-axis sigmas of the
-    fixes with a velocity, floored; None when no fix has a velocity."""
+    """The velocity sigma for fixes that state none (per-fix sigmas travel in the fix table): the median
+    of the stated per-axis sigmas of the fixes with a velocity, floored; None when no fix has a velocity."""
     if fixes.v_ned_mps is None:
         return None
     has = np.isfinite(fixes.v_ned_mps).all(1)

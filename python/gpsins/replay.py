@@ -17,8 +17,8 @@ What a data set gives the filter (each only where neither the data set's ``[filt
 table nor ``--set`` names the key itself): ``lever_arm_body_m`` from ``[gnss] antenna_m``;
 ``imu_rate_hz`` from the median IMU interval (the core's gap bridging and standstill
 window use it); ``use_fix_velocity`` when the fixes carry velocities and
-``fix_velocity_sigma_mps`` from their stated sigmas (``dataset.velocity_sigma``: the core
-has one velocity sigma, not one per fix); ``pseudorange_decimation`` so that the tight
+``fix_velocity_sigma_mps`` from their stated sigmas (``dataset.velocity_sigma``, for fixes that
+state none); ``pseudorange_decimation`` so that the tight
 filter uses about one epoch per second whatever the receiver's rate. Fix position and velocity
 sigmas travel per fix in the fix table's sigma columns (``dataset.fix_table``). The mounting rotation and
 the IMU time offset are applied by ``dataset.load``.
