@@ -64,9 +64,11 @@ def _rejected(counters: dict, mode: str) -> str:
 
 
 def metrics(run_dir: Path, mode: str) -> dict:
-    """Figures of one replay from its results.npz and run.json."""
+    """Figures of one replay from its results and run.json."""
+    from gpsins import results as results_mod
+
     summary = json.loads((run_dir / "run.json").read_text())
-    z = np.load(run_dir / "results.npz")
+    z = results_mod.load(run_dir)
     out = {"mode": mode, "rejected": _rejected(summary["counters"], mode)}
     diverged, resets, found = _counters(summary["counters"])
     out.update(diverged=diverged, resets=resets, reset_counters=found)

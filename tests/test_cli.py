@@ -176,7 +176,7 @@ def test_spp_compares_with_the_truth_next_to_the_session(capsys, session):
 
 
 def test_report_on_a_missing_results_directory(capsys, tmp_path):
-    _one_line(capsys, ["report", tmp_path / "nope"], "nope: no results.npz and run.json; give a directory written by")
+    _one_line(capsys, ["report", tmp_path / "nope"], "nope: no solution.parquet, results.npz and run.json; give a directory written by")
 
 
 def test_calibrate_missing_table(capsys, tmp_path):

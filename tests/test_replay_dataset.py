@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from gpsins import cli, dataset, replay
+from gpsins import results as results_mod
 from gpsins.readers import rtklib_pos
 from gpsins.sim import earth, scenario, simulate
 from gpsins.sim import dataset_writer as dw
@@ -71,7 +72,7 @@ def walk_runs(tmp_path_factory):
 def test_walk_replays_and_its_outage_scoring_is_recomputed_independently(walk_runs, name, mode):
     res, d = walk_runs[(name, mode)]
     s = json.loads((d / "run.json").read_text())
-    z = np.load(d / "results.npz")
+    z = results_mod.load(d)
     assert s["kind"] == "dataset" and s["mode"] == mode and len(z["t"]) > 15000
     # The data set's schedule: two 15 s outages from the first GNSS epoch; no GNSS update inside them.
     sched = np.array(s["outages"]["schedule"])
@@ -115,7 +116,7 @@ def test_walk_data_set_noise_and_rates_reach_the_filter(walk_runs):
     cfg = tomllib.loads((d / "config.toml").read_text())
     assert cfg["pseudorange_decimation"] == 4  # RAWX at 4 Hz: about one epoch a second
     # The fixes written: hdop/vdop carry the per-fix sigma (floors 0.02 / 0.03 m for RTK fixed).
-    z = np.load(d / "results.npz")
+    z = results_mod.load(d)
     h = z["fixes"][:, 7] * cfg["fix_uere_m"] / np.sqrt(2)
     assert h.min() == pytest.approx(0.02) and (h > 0.1).any()
 
@@ -190,7 +191,7 @@ def _run_variant(sim_set, tmp_path, name, edit=lambda s: s, **kw):
     p = path.parent / f"{name}.toml"
     p.write_text(edit(path.read_text()))
     res = replay.replay(p, tmp_path / name, outages="40:10:25", **kw)
-    z = np.load(tmp_path / name / "results.npz")
+    z = results_mod.load(tmp_path / name)
     sc = sim.scenario
     t_run = z["t"] + int(z["week"]) * 604800.0 - (sc.start.gps_week * 604800.0 + sc.start.gps_tow_s)
     # IMU-point errors against the simulator's truth, NED, after the heading is known (plus 5 s).
@@ -214,7 +215,7 @@ def test_sim_data_set_with_the_right_mounting_lever_and_offset_is_inside_3_sigma
     cfg = tomllib.loads((tmp_path / "right" / "config.toml").read_text())
     assert cfg["lever_arm_body_m"] == list(LEVER) and cfg["imu_rate_hz"] == pytest.approx(100, rel=1e-3)
     # The antenna point written: IMU point + C_eb lever arm.
-    z = np.load(tmp_path / "right" / "results.npz")
+    z = results_mod.load(tmp_path / "right")
     from gpsins import _core
     np.testing.assert_allclose(z["r_point_ecef"][-1], z["r_ecef"][-1] + _core.dcm_from_quat(z["q_eb"][-1]) @ LEVER,
                                atol=1e-9)
@@ -257,7 +258,7 @@ def test_zero_standard_deviations_do_not_break_anything(sim_set, tmp_path):
 def test_ins_mode_navigates_freely_after_the_initialisation(sim_set, right_run, tmp_path):
     s, _, _ = _run_variant(sim_set, tmp_path, "ins", mode="ins")
     t_free = s["ins"]["aiding_until_t"]
-    z = np.load(tmp_path / "ins" / "results.npz")
+    z = results_mod.load(tmp_path / "ins")
     fixes_used = z["upd_t"][np.isin(z["upd_kind"], (1, 2, 3))]
     assert fixes_used.max() <= t_free and not np.isin(z["upd_kind"], (4, 5)).any()
     assert s["scoring"]["n_outages"] == 1 and s["scoring"]["per_outage"][0]["start"] == t_free
@@ -274,7 +275,7 @@ def test_a_session_with_truth_is_scored_against_the_truth_at_the_imu(sim_set, tm
     res = replay.replay(tmp_path / "session", tmp_path / "out", outages="40:10:25")
     sc = res.summary["scoring"]
     assert sc["reference"] == "truth.npz" and sc["point"] == "imu" and sc["n_outages"] == 4
-    z = np.load(tmp_path / "out" / "results.npz")
+    z = results_mod.load(tmp_path / "out")
     sched = np.array(res.summary["outages"]["schedule"])
     gnss = np.isin(z["upd_kind"], (1, 2, 3))
     assert not np.any((z["upd_t"][gnss][:, None] >= sched[:, 0]) & (z["upd_t"][gnss][:, None] < sched[:, 1]))
@@ -324,7 +325,7 @@ accel_scale_factor_cal = [0.0, 0.0, 0.0]
 """)
     for mode in ("loose", "tight"):
         res = replay.replay(tmp_path / "set.toml", tmp_path / mode, mode=mode)
-        z = np.load(tmp_path / mode / "results.npz")
+        z = results_mod.load(tmp_path / mode)
         e = np.array([c_en.T @ (x - r0) for x in z["r_ecef"][::200]])
         h = np.hypot(e[:, 0], e[:, 1])
         print(f"\nRINEX {mode}: horizontal RMS {np.sqrt(np.mean(h ** 2)):.2f} m, max {h.max():.2f} m, "
@@ -354,7 +355,7 @@ def test_report_of_a_data_set_has_the_drift_figure_and_table(walk_runs, tmp_path
     figs = report.build_figures([d_loose, d_tight])
     fig = figs["outage_drift.png"]
     ax = fig.axes[0]
-    z = np.load(d_loose / "results.npz")
+    z = results_mod.load(d_loose)
     shown = np.concatenate([ln.get_ydata() for ln in ax.get_lines() if ln.get_color() == "tab:blue"
                             and ln.get_linestyle() == "-"])
     np.testing.assert_allclose(np.sort(shown), np.sort(z["drift_h_m"]))  # every drift epoch of the loose run

@@ -1,6 +1,6 @@
 """The report as a reader uses it: every panel shows what its legend names, the
 tight filter's pseudorange updates are drawn normalised against their gate, and
-the page's numbers equal a recomputation from results.npz and truth.npz that
+the page's numbers equal a recomputation from the results tables and truth.npz that
 shares no code with the report."""
 
 import base64
@@ -12,6 +12,7 @@ from scipy.stats import chi2
 
 from figcheck import check_figure, mode_points
 from gpsins import replay, report, sim
+from gpsins import results as results_mod
 from gpsins.sim.messages import MEASUREMENT_DELAY_S
 from gpsins.sim.scenario import parse
 from gpsins.sim.session import write_session
@@ -76,11 +77,11 @@ def test_legends_say_which_line_style_is_which_axis(figs):
 
 
 def test_pseudorange_innovations_are_normalised_per_satellite_with_the_gate(figs, runs):
-    z = np.load(runs[2][1] / "results.npz")
+    z = results_mod.load(runs[2][1])
     k = z["upd_kind"] == 6
     t0 = z["t"][0]  # the tight result is not the first: its own start differs
     ax = figs["pseudorange.png"].axes[0]
-    base_t0 = np.load(runs[2][0] / "results.npz")["t"][0]
+    base_t0 = results_mod.load(runs[2][0])["t"][0]
     prns = np.unique(z["upd_id"][k])
     assert len(prns) >= 4
     for line in ax.get_lines():
@@ -107,7 +108,7 @@ def test_2d_and_3d_fix_nis_have_their_own_bands(figs):
 
 def test_high_dop_does_not_set_the_scale(figs, runs):
     ax = figs["innovations.png"].axes[0]
-    z = np.load(runs[2][0] / "results.npz")
+    z = results_mod.load(runs[2][0])
     fix = np.isin(z["upd_kind"], (1, 2))
     typical = 3 * np.median(z["upd_innovation_sigma"][fix, 0])
     assert ax.get_ylim()[1] < 10 * typical
@@ -155,7 +156,7 @@ def test_the_page_numbers_equal_an_independent_recomputation(runs):
     bounds = truth["segment_t"] + float(truth["t0_tow_s"])
     assert [r[0] for r in rows] == [str(x) for x in truth["segment_labels"]]
     for mode_col, out in zip((2, 4), outs):
-        z = np.load(out / "results.npz")
+        z = results_mod.load(out)
         inside = (z["t"] >= truth["tow_s"][0]) & (z["t"] <= truth["tow_s"][-1]) & z["heading_known"]
         h, v = _errors(z["t"], z["r_ecef"], truth)
         checked = 0
@@ -171,7 +172,7 @@ def test_the_page_numbers_equal_an_independent_recomputation(runs):
         assert checked >= 3
     # The receiver's own fixes (valid ones, inside the truth's span).
     assert head[6].startswith("receiver H")
-    z = np.load(outs[0] / "results.npz")
+    z = results_mod.load(outs[0])
     f = z["fixes"][z["fixes"][:, 9] > 0]
     ok_t = z["t"][np.isfinite(z["err_ned_m"][:, 0])]
     f = f[(f[:, 0] >= ok_t[0]) & (f[:, 0] <= ok_t[-1])]
@@ -182,7 +183,7 @@ def test_the_page_numbers_equal_an_independent_recomputation(runs):
             hr, hm, vr, vm = _rms_max(h[m], v[m])
             assert np.allclose(_cell(row[6]), [hr, hm], atol=0.006) and np.allclose(_cell(row[7]), [vr, vm], atol=0.006)
     # The overall line per mode.
-    z = np.load(outs[0] / "results.npz")
+    z = results_mod.load(outs[0])
     hk = z["heading_known"] & (z["t"] >= truth["tow_s"][0]) & (z["t"] <= truth["tow_s"][-1])
     h, v = _errors(z["t"][hk], z["r_ecef"][hk], truth)
     m = re.search(r"<h2>loose</h2><ul>.*?horizontal RMS ([0-9.]+) m \(max ([0-9.]+)\), vertical RMS ([0-9.]+) m",
@@ -196,7 +197,7 @@ def test_intervals_outside_3_sigma_cover_every_such_update(runs):
     tables = _tables((root / "report" / "report.html").read_text())
     rows = tables["Intervals with innovations outside 3 sigma (Table 7.4)"][1:]
     for mode, out in zip(("loose", "tight"), outs):
-        z = np.load(out / "results.npz")
+        z = results_mod.load(out)
         sel = np.isin(z["upd_kind"], (1, 2, 6))
         with np.errstate(invalid="ignore"):
             ratio = np.abs(z["upd_innovation"][sel]) / z["upd_innovation_sigma"][sel]

@@ -167,45 +167,91 @@ PseudorangeEpoch pr_epoch(const double* p, py::ssize_t start, py::ssize_t end) {
   return ep;
 }
 
-// Backward pass over a recorded run: smooth_state (layout of state) and
-// smooth_covariance, with the tape's size and both passes' wall times.
+// Backward pass over a recorded run. Rows come newest first; they are gathered
+// into blocks of block_rows, each in time order, and a block is handed to
+// sink(dict(state=..., covariance=..., first=index of its first row)) as soon
+// as it is complete, so the caller can write it out. With no sink the whole
+// smoothed run is returned as smooth_state / smooth_covariance.
 template <int NB, int NC>
-void add_smoothed(EskfRecorder<NB, NC>& rec, bool with_cov, double forward_s, py::dict& out) {
+py::dict smooth_recorded(EskfRecorder<NB, NC>& rec, bool with_cov, py::object sink, long block_rows) {
   using Rec = EskfRecorder<NB, NC>;
   constexpr int N = Rec::N, kNom = Rec::kNominal;
   constexpr int kCols = kNom + N;  // nominal without flags, sigma, flags
   const long n = rec.outputs();
-  Array state({static_cast<py::ssize_t>(n), py::ssize_t(kCols)});
-  Array cov(with_cov ? std::vector<py::ssize_t>{n, N, N} : std::vector<py::ssize_t>{0, N, N});
-  double* ps = state.mutable_data();
-  double* pc = cov.mutable_data();
+  const bool streaming = !sink.is_none();
+  const long rows = streaming ? std::max(1L, std::min(block_rows, n)) : n;
+  auto new_block = [&](long len) {
+    return std::make_pair(Array({static_cast<py::ssize_t>(len), py::ssize_t(kCols)}),
+                          Array(with_cov ? std::vector<py::ssize_t>{len, N, N} : std::vector<py::ssize_t>{0, N, N}));
+  };
+  long lo = std::max(0L, n - rows);  // rows [lo, hi) are being filled
+  auto block = new_block(n - lo);
   const auto t0 = std::chrono::steady_clock::now();
   {
     py::gil_scoped_release release;
     rec.smooth([&](long k, const double* row, const Eigen::Matrix<double, N, N>& p) {
-      double* o = ps + k * kCols;
+      double* o = block.first.mutable_data() + (k - lo) * kCols;
       std::copy(row, row + kNom - 1, o);
       for (int i = 0; i < N; ++i) o[kNom - 1 + i] = std::sqrt(std::max(p(i, i), 0.0));
       o[kCols - 1] = row[kNom - 1];
-      if (with_cov) Eigen::Map<Eigen::Matrix<double, N, N, Eigen::RowMajor>>(pc + k * N * N) = p;
+      if (with_cov)
+        Eigen::Map<Eigen::Matrix<double, N, N, Eigen::RowMajor>>(block.second.mutable_data() + (k - lo) * N * N) = p;
+      if (streaming && k == lo) {
+        py::gil_scoped_acquire acquire;
+        py::dict b;
+        b["state"] = block.first;
+        if (with_cov) b["covariance"] = block.second;
+        b["first"] = lo;
+        sink(b);
+        const long next_lo = std::max(0L, lo - rows);
+        if (lo > 0) block = new_block(lo - next_lo);
+        lo = next_lo;
+      }
     });
   }
   const double backward_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-  out["smooth_state"] = state;
-  if (with_cov) out["smooth_covariance"] = cov;
+  py::dict out;
+  if (!streaming) {
+    out["smooth_state"] = block.first;
+    if (with_cov) out["smooth_covariance"] = block.second;
+  }
   py::dict info;
   info["tape_bytes"] = rec.tape().bytes();
   info["spilled_bytes"] = rec.tape().spilled_bytes();
   info["chunks_spilled"] = rec.tape().chunks_spilled();
   info["outputs"] = n;
-  info["forward_s"] = forward_s;
   info["backward_s"] = backward_s;
   out["smooth_info"] = info;
+  return out;
 }
 
+// What a filter carries from one batch call to the next: the smoother's record
+// of the forward pass (its type follows the filter's, so it is kept type-erased)
+// and the forward wall time so far.
+struct BatchCarry {
+  std::shared_ptr<void> recorder;
+  double forward_s = 0.0;
+};
+
+// The recorder run_batch made for this filter type.
+template <int NB, int NC>
+EskfRecorder<NB, NC>* recorder_of(const InsFilter<NB, NC>&, void* p) {
+  return static_cast<EskfRecorder<NB, NC>*>(p);
+}
+
+// Input rows of this call within the whole run, for output decimation and messages.
+struct RowOffsets {
+  py::ssize_t imu = 0, fixes = 0, prs = 0;
+};
+
+// One batch call: every sample, fix and pseudorange epoch of the arrays in time
+// order. A run may be split into consecutive calls (the fixes and pseudoranges
+// of each call those up to its last IMU time); the result is then the same as
+// one call over the whole arrays. record: keep (or go on keeping) the
+// smoother's record of the forward pass in carry.
 template <int NB, int NC>
 py::dict run_batch(InsFilter<NB, NC>& f, const Array& imu, const Array& fixes, const Array& prs, int output_every,
-                   bool with_cov, bool smooth = false, double smooth_chunk_mb = 256.0) {
+                   bool with_cov, bool record, double smooth_chunk_mb, BatchCarry& carry, const RowOffsets& offset) {
   using Row = StateRow<NB, NC>;
   const py::ssize_t n = imu.shape(0), m = fixes.shape(0);
   const int fc = static_cast<int>(fixes.shape(1));
@@ -228,11 +274,11 @@ py::dict run_batch(InsFilter<NB, NC>& f, const Array& imu, const Array& fixes, c
   double bad_t = 0.0;
   InputStatus bad = InputStatus::Ok;
   using Recorder = EskfRecorder<NB, NC>;
-  std::unique_ptr<Recorder> rec;
-  if (smooth) {
-    rec = std::make_unique<Recorder>(static_cast<std::size_t>(smooth_chunk_mb * 1048576.0));
-    f.set_observer(rec.get());
-  }
+  if (record && !carry.recorder)
+    carry.recorder = std::make_shared<Recorder>(static_cast<std::size_t>(smooth_chunk_mb * 1048576.0));
+  // The filter's type never changes, so the recorder is the one made above for it.
+  Recorder* rec = record ? static_cast<Recorder*>(carry.recorder.get()) : nullptr;
+  if (rec) f.set_observer(rec);
   const auto t_forward = std::chrono::steady_clock::now();
   {
     py::gil_scoped_release release;
@@ -243,7 +289,7 @@ py::dict run_batch(InsFilter<NB, NC>& f, const Array& imu, const Array& fixes, c
       while (j < m && pf[j * fc] <= r[0]) {
         const InputStatus s = f.push_fix(fix_of(pf + j * fc, fc));
         if (s != InputStatus::Ok) {
-          bad = s; bad_row = j; bad_what = "fixes"; bad_t = pf[j * fc];
+          bad = s; bad_row = offset.fixes + j; bad_what = "fixes"; bad_t = pf[j * fc];
           break;
         }
         ++j;
@@ -254,7 +300,7 @@ py::dict run_batch(InsFilter<NB, NC>& f, const Array& imu, const Array& fixes, c
         while (e < np_rows && pp[e * kPrCols] == pp[q * kPrCols]) ++e;
         const InputStatus s = f.push_pseudoranges(pr_epoch(pp, q, e));
         if (s != InputStatus::Ok) {
-          bad = s; bad_row = q; bad_what = "pseudoranges"; bad_t = pp[q * kPrCols];
+          bad = s; bad_row = offset.prs + q; bad_what = "pseudoranges"; bad_t = pp[q * kPrCols];
           break;
         }
         q = e;
@@ -262,10 +308,10 @@ py::dict run_batch(InsFilter<NB, NC>& f, const Array& imu, const Array& fixes, c
       if (bad != InputStatus::Ok) break;
       const InputStatus s = f.push_imu(r[0], Vec3(r[1], r[2], r[3]), Vec3(r[4], r[5], r[6]));
       if (s != InputStatus::Ok) {
-        bad = s; bad_row = k; bad_what = "imu"; bad_t = r[0];
+        bad = s; bad_row = offset.imu + k; bad_what = "imu"; bad_t = r[0];
         break;
       }
-      if (f.initialised() && k % output_every == 0) {
+      if (f.initialised() && (offset.imu + k) % output_every == 0) {
         const std::size_t at = rows.size();
         rows.resize(at + Row::kCols);
         Row::write(f, rows.data() + at);
@@ -279,7 +325,7 @@ py::dict run_batch(InsFilter<NB, NC>& f, const Array& imu, const Array& fixes, c
     }
   }
   f.set_observer(nullptr);
-  const double forward_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_forward).count();
+  carry.forward_s += std::chrono::duration<double>(std::chrono::steady_clock::now() - t_forward).count();
   f.set_update_log(nullptr);
   f.set_event_log(nullptr);
   if (bad != InputStatus::Ok) input_error(bad_what, bad_row, bad_t, bad);
@@ -339,7 +385,6 @@ py::dict run_batch(InsFilter<NB, NC>& f, const Array& imu, const Array& fixes, c
   out["counters"] = counters_dict(f.counters());
   out["fixes_after_end"] = m - j;
   out["n_states"] = NB * 3 + NC;
-  if (rec) add_smoothed(*rec, with_cov, forward_s, out);
   return out;
 }
 
@@ -375,15 +420,36 @@ class PyFilter {
     ++fix_count_;
   }
   py::dict run(py::handle imu, py::handle fixes, py::handle prs, int output_every, bool with_cov, bool smooth,
-               double smooth_chunk_mb) {
-    if (smooth && !(smooth_chunk_mb > 0.0)) throw py::value_error("smooth_chunk_mb must be > 0");
+               double smooth_chunk_mb, bool record, py::ssize_t imu_row0, py::ssize_t fix_row0, py::ssize_t pr_row0) {
+    if ((smooth || record) && !(smooth_chunk_mb > 0.0)) throw py::value_error("smooth_chunk_mb must be > 0");
     if (output_every < 1) throw py::value_error("output_every must be >= 1");
+    if (imu_row0 < 0 || fix_row0 < 0 || pr_row0 < 0) throw py::value_error("row offsets must be >= 0");
     const Array a = table(imu, kImuCols, "imu"), b = table(fixes, kFixCols, "fixes", kFixColsSigma);
     const Array c = table(prs.is_none() ? py::handle(Array(std::vector<py::ssize_t>{0, kPrCols})) : prs, kPrCols,
                           "pseudoranges");
     if (c.shape(0) > 0 && !tight_)
       throw py::value_error("pseudoranges given to a loosely coupled filter (mode = 'tight' uses them)");
-    return std::visit([&](auto& f) { return run_batch(f, a, b, c, output_every, with_cov, smooth, smooth_chunk_mb); }, f_);
+    const RowOffsets at{imu_row0, fix_row0, pr_row0};
+    py::dict out = std::visit([&](auto& f) {
+      return run_batch(f, a, b, c, output_every, with_cov, smooth || record, smooth_chunk_mb, carry_, at);
+    }, f_);
+    if (smooth) {
+      py::dict sm = smooth_run(with_cov, py::none(), 0);
+      for (auto item : sm) out[item.first] = item.second;
+    }
+    return out;
+  }
+  // The backward pass over what run(..., record=True) calls recorded (see smooth_recorded).
+  py::dict smooth_run(bool with_cov, py::object sink, long block_rows) {
+    if (!carry_.recorder) throw py::value_error("smooth: nothing recorded (run with record=True first)");
+    if (!sink.is_none() && block_rows < 1) throw py::value_error("smooth: block_rows must be >= 1");
+    py::dict out = std::visit([&](auto& f) {
+      return smooth_recorded(*recorder_of(f, carry_.recorder.get()), with_cov, sink, block_rows);
+    }, f_);
+    py::dict info = out["smooth_info"];
+    info["forward_s"] = carry_.forward_s;
+    carry_.recorder.reset();
+    return out;
   }
   void push_pseudoranges(double t, const std::vector<int>& prn, const std::vector<double>& pr,
                          const std::vector<double>& cn0, const std::vector<int>& lock) {
@@ -420,6 +486,7 @@ class PyFilter {
 
  private:
   AnyFilter f_;
+  BatchCarry carry_;
   bool tight_ = false;
   py::ssize_t imu_count_ = 0, fix_count_ = 0, pr_count_ = 0;
 };
@@ -525,11 +592,21 @@ void bind_filter(py::module_& m) {
            py::arg("sigma_v_ned") = Vec3::Constant(std::numeric_limits<double>::quiet_NaN()))
       .def("run", &PyFilter::run, py::arg("imu"), py::arg("fixes"), py::arg("pseudoranges") = py::none(),
            py::arg("output_every") = 1, py::arg("covariance") = false, py::arg("smooth") = false,
-           py::arg("smooth_chunk_mb") = 256.0,
+           py::arg("smooth_chunk_mb") = 256.0, py::arg("record") = false, py::arg("imu_row0") = 0,
+           py::arg("fix_row0") = 0, py::arg("pr_row0") = 0,
            "Batch: imu (n, 7) [t, dtheta xyz, dv xyz], fixes (m, 10) [t, r xyz, v xyz, hdop, vdop, mode], "
            "pseudoranges (k, 5) [t, prn, pr, cn0, lock] (tight), rows of one epoch sharing t. smooth: also a "
            "fixed-interval smoother over the run (smooth_state, smooth_covariance, smooth_info); its record of the "
-           "forward pass goes to a temporary file in chunks of smooth_chunk_mb.")
+           "forward pass goes to a temporary file in chunks of smooth_chunk_mb. A run split into consecutive "
+           "calls (each with the fixes and pseudoranges up to its last IMU time) gives the same rows: *_row0 are "
+           "the call's first rows within the whole run (output decimation, messages); record=True keeps the "
+           "smoother's record across calls for smooth().")
+      .def("smooth", &PyFilter::smooth_run, py::arg("covariance") = false, py::arg("sink") = py::none(),
+           py::arg("block_rows") = 65536,
+           "Backward pass over what run(..., record=True) recorded. With a sink, the smoothed rows are handed "
+           "over in blocks of block_rows, newest block first (each in time order), as dicts (state, covariance, "
+           "first = index of the block's first row); otherwise returned whole (smooth_state, smooth_covariance). "
+           "Both give smooth_info (tape size, wall times).")
       .def("push_pseudoranges", &PyFilter::push_pseudoranges, py::arg("t"), py::arg("prn"), py::arg("pr"),
            py::arg("cn0"), py::arg("lock"))
       .def("add_ephemeris", &PyFilter::add_ephemeris, py::arg("eph"))

@@ -84,12 +84,14 @@ def _cmd_replay(args: argparse.Namespace) -> int:
         raise CommandError(f"{args.reference}: no such reference file (--reference takes an RTKLIB .pos)")
 
     modes = ["loose", "tight"] if args.mode == "both" else [args.mode]
+    inp = replay.load_inputs(args.session, modes=modes, config=args.config, overrides=overrides,
+                             timing_method=args.timing, gps_latency_s=args.gps_latency, imu_latency_s=args.imu_latency,
+                             truth=not args.no_truth, nav=args.nav)
     for mode in modes:
-        res = replay.replay(args.session, Path(args.out) / mode if len(modes) > 1 else args.out, mode=mode,
-                            config=args.config, overrides=overrides, timing_method=args.timing,
-                            gps_latency_s=args.gps_latency, imu_latency_s=args.imu_latency, truth=not args.no_truth,
-                            nav=args.nav, outages=args.outages, reference=args.reference,
-                            reference_q=args.reference_q, point=args.point, smooth=args.smooth)
+        res = replay.run_mode(inp, Path(args.out) / mode if len(modes) > 1 else args.out, mode=mode,
+                              overrides=overrides, outages=args.outages, reference=args.reference,
+                              reference_q=args.reference_q, point=args.point, smooth=args.smooth,
+                              covariance_every=args.covariance_every)
         c = res.summary["counters"]
         print(f"{mode}: {res.summary['imu_samples']} IMU samples, {c['fixes_accepted']} fixes used, "
               f"{c['updates_rejected']} updates rejected; results in {res.out}")
@@ -109,8 +111,11 @@ def _cmd_report(args: argparse.Namespace) -> int:
     from . import report
 
     for path in args.results:
-        if not (Path(path) / "results.npz").is_file() or not (Path(path) / "run.json").is_file():
-            raise CommandError(f"{path}: no results.npz and run.json; give a directory written by gpsins replay --out")
+        from . import results
+
+        if not results.exists(path) or not (Path(path) / "run.json").is_file():
+            raise CommandError(f"{path}: no {results.SOLUTION}, {results.SMALL} and run.json; give a directory "
+                               "written by gpsins replay --out")
     page = report.make_report(args.results, args.out or Path(args.results[0]) / "report")
     report.print_comparison(args.results)
     print(f"report: {page} (self-contained: {page.with_suffix('.html')})")
@@ -203,7 +208,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--point", choices=("antenna", "imu"), default="antenna",
                    help="the point solution.pos gives (default: antenna)")
     p.add_argument("--smooth", action="store_true",
-                   help="also smooth the run (fixed-interval, forward-backward): smoothed.pos, smooth_* arrays")
+                   help="also smooth the run (fixed-interval, forward-backward): smoothed.parquet, smoothed.pos")
+    p.add_argument("--covariance-every", type=int, default=0, metavar="N",
+                   help="also write the full error-state covariance of every Nth epoch (covariance.parquet)")
     p.add_argument("--nav", help="RINEX 2 navigation file: ephemerides and Klobuchar when the log lacks them")
     p.add_argument("--config", help="filter configuration: TOML file or preset name (default, report2005)")
     p.add_argument("--set", action="append", metavar="KEY=VALUE",

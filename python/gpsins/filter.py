@@ -471,6 +471,31 @@ def run(imu: np.ndarray, fixes: np.ndarray, config=None, *, mode: str | None = N
     smooth: also run the fixed-interval smoother; its solution (same epochs) is
     ``extra["smoothed"]``, its tape size and timings ``extra["smooth_info"]``.
     """
+    setup = _setup(imu, fixes, config, mode, ephemerides, klobuchar, gps_time_offset_s)
+    f, fixes = setup.core_filter, setup.fixes
+    prs = None if pseudoranges is None else np.ascontiguousarray(pseudoranges, dtype=float).reshape(-1, 5)
+    out = f.run(np.ascontiguousarray(imu, dtype=float), fixes, prs, output_every, covariance, smooth, smooth_chunk_mb)
+    sol = Solution.from_batch(out, setup.mode, setup.scale_factors)
+    if setup.search is not None:
+        sol.extra["heading_search"] = setup.search
+    if smooth:
+        sm = dict(out, state=out["smooth_state"], covariance=out.get("smooth_covariance"))
+        sol.extra["smoothed"] = Solution.from_batch(sm, setup.mode, setup.scale_factors)
+        sol.extra["smooth_info"] = dict(out["smooth_info"])
+    return sol
+
+
+@dataclass
+class _Setup:
+    core_filter: "_core.InsFilter"
+    mode: str
+    scale_factors: bool
+    fixes: np.ndarray
+    search: dict | None
+
+
+def _setup(imu, fixes, config, mode, ephemerides, klobuchar, gps_time_offset_s) -> _Setup:
+    """The core filter of a run: configuration, heading search (handheld), ephemerides, ionosphere."""
     cfg = config if isinstance(config, dict) and "preset" in config else load_config(config)
     mode = mode or cfg.get("mode", "loose")
     fixes = np.ascontiguousarray(fixes, dtype=float)
@@ -489,16 +514,67 @@ def run(imu: np.ndarray, fixes: np.ndarray, config=None, *, mode: str | None = N
         f.add_ephemeris(e)
     if klobuchar is not None and len(klobuchar[0]) == 4:
         f.set_klobuchar(list(klobuchar[0]), list(klobuchar[1]))
-    prs = None if pseudoranges is None else np.ascontiguousarray(pseudoranges, dtype=float).reshape(-1, 5)
-    out = f.run(np.ascontiguousarray(imu, dtype=float), fixes, prs, output_every, covariance, smooth, smooth_chunk_mb)
-    sol = Solution.from_batch(out, mode, core.scale_factor_states)
-    if search is not None:
-        sol.extra["heading_search"] = search
-    if smooth:
-        sm = dict(out, state=out["smooth_state"], covariance=out.get("smooth_covariance"))
-        sol.extra["smoothed"] = Solution.from_batch(sm, mode, core.scale_factor_states)
-        sol.extra["smooth_info"] = dict(out["smooth_info"])
-    return sol
+    return _Setup(f, mode, core.scale_factor_states, fixes, search)
+
+
+CHUNK_ROWS = 16384  # IMU samples per call of a chunked run: ~40 MB of covariances at 17 states
+
+
+class ChunkedRun:
+    """The filter over a whole run in consecutive calls of ``chunk_rows`` IMU samples, so that
+    what is in memory at a time does not grow with the run: ``chunks()`` yields each call's
+    ``Solution`` (its epochs only, with their covariances), the same rows one ``run`` gives.
+    ``record=True`` keeps the smoother's record of the forward pass (spilled to a temporary
+    file in ``smooth_chunk_mb`` pieces); ``smoothed_blocks()`` then yields the smoothed
+    solution in blocks, newest block first, each in time order."""
+
+    def __init__(self, imu: np.ndarray, fixes: np.ndarray, config=None, *, mode: str | None = None,
+                 output_every: int = 1, pseudoranges: np.ndarray | None = None, ephemerides=(), klobuchar=None,
+                 gps_time_offset_s: float | None = None, record: bool = False, smooth_chunk_mb: float = 256.0,
+                 chunk_rows: int = CHUNK_ROWS):
+        if chunk_rows < 1:
+            raise ValueError("chunk_rows must be >= 1")
+        self.imu = imu
+        self._setup = _setup(imu, fixes, config, mode, ephemerides, klobuchar, gps_time_offset_s)
+        self.fixes = self._setup.fixes
+        self.prs = None if pseudoranges is None else np.ascontiguousarray(pseudoranges, dtype=float).reshape(-1, 5)
+        self.mode, self.output_every, self.record = self._setup.mode, output_every, record
+        self.smooth_chunk_mb, self.chunk_rows = smooth_chunk_mb, chunk_rows
+        self.counters: dict = {}
+        self.fixes_after_end = len(self.fixes)
+        self.heading_search = self._setup.search
+
+    def chunks(self, covariance: bool = True):
+        f = self._setup.core_filter
+        n = len(self.imu)
+        j = q = 0
+        for a in range(0, n, self.chunk_rows):
+            b = min(n, a + self.chunk_rows)
+            imu = np.ascontiguousarray(self.imu[a:b], dtype=float)
+            t_end = imu[-1, 0] if b < n else np.inf  # the last call takes what is left (fixes after the end)
+            j2 = int(np.searchsorted(self.fixes[:, 0], t_end, side="right"))
+            prs, q2 = None, q
+            if self.prs is not None:
+                q2 = int(np.searchsorted(self.prs[:, 0], t_end, side="right"))
+                prs = self.prs[q:q2]
+            out = f.run(imu, self.fixes[j:j2], prs, self.output_every, covariance, False, self.smooth_chunk_mb,
+                        self.record, a, j, q)
+            self.counters, self.fixes_after_end = out["counters"], len(self.fixes) - j2 + int(out["fixes_after_end"])
+            j, q = j2, q2
+            yield Solution.from_batch(out, self.mode, self._setup.scale_factors)
+
+    def smooth(self, sink, block_rows: int = 65536, covariance: bool = True) -> dict:
+        """After ``chunks()`` ran through with ``record=True``: the backward pass, handing
+        ``sink(index of the block's first epoch, Solution)`` each block as it completes (newest
+        block first, each in time order). Returns the tape's size and the wall times."""
+        n_states, sf = self._setup.core_filter.n_states, self._setup.scale_factors
+
+        def take(b: dict) -> None:
+            sink(int(b["first"]), Solution.from_batch(
+                {"state": b["state"], "covariance": b.get("covariance"), "updates": {}, "counters": self.counters,
+                 "fixes_after_end": self.fixes_after_end, "events": {}, "n_states": n_states}, self.mode, sf))
+
+        return dict(self._setup.core_filter.smooth(covariance, take, block_rows)["smooth_info"])
 
 
 # A device whose course is not its heading (handheld): the heading is searched.

@@ -3,8 +3,10 @@
 session directory -> decoded measurements -> time alignment -> filter -> results directory;
 data-set TOML (``gpsins.dataset``) -> decoded files -> filter -> the same results directory:
 
-- ``results.npz``: the solution (see ``RESULT_ARRAYS``), the receiver's fixes,
-  every update, and, when the session has a truth file, the errors;
+- ``solution.parquet`` (per epoch), ``updates.parquet`` (per update), ``results.npz`` (the
+  receiver's fixes, outages, scoring) and with ``--smooth`` ``smoothed.parquet``: the arrays of
+  ``RESULT_ARRAYS``, written chunk by chunk as the filter runs so that memory does not grow with
+  the session (``results`` says why Parquet, ``results.load`` reads them all back);
 - ``solution.pos``: RTKLIB-style positions (GPST, latitude, longitude, height,
   standard deviations), for RTKLIB's plot tools and comparisons;
 - ``config.toml``: the exact filter configuration used;
@@ -12,6 +14,11 @@ data-set TOML (``gpsins.dataset``) -> decoded files -> filter -> the same result
   timings and summary statistics; with a reference (``--reference``, a data set's
   ``[scoring]``, or a session's simulated truth) the errors against it and, with
   ``--outages``, the per-outage drift (``outages.Score.summary``).
+
+The filter runs in chunks of IMU samples (``filter.ChunkedRun``); each chunk's epochs go through
+``solution.Stream`` (derived columns, truth errors, .pos lines, running statistics) and are
+dropped. ``--mode both`` decodes and aligns the session once for both filters (``load_inputs``,
+then ``run_mode`` per mode).
 
 What a data set gives the filter (each only where neither the data set's ``[filter]``
 table nor ``--set`` names the key itself): ``lever_arm_body_m`` from ``[gnss] antenna_m``;
@@ -44,7 +51,7 @@ from pathlib import Path
 import numpy as np
 
 from . import dataset as dataset_mod, evaluate, filter as flt, measurements, outages as outages_mod
-from . import measurements_ubx, reference as reference_mod, timing
+from . import measurements_ubx, reference as reference_mod, results, solution, timing
 from .readers import rinex
 
 DEFAULT_GPS_LATENCY_S = 0.0205  # receiver's epoch-to-first-byte delay (assumed 20 ms) + the logger's
@@ -76,6 +83,7 @@ RESULT_ARRAYS = {
 MODES = ("loose", "tight", "ins")
 UNKNOWN_CN0_DBHZ = 99.0  # what the tight filter is given for a pseudorange whose C/N0 the file does not state
 POINTS = ("antenna", "imu")
+TRUTH_SCORING_HZ = 10.0  # a simulated truth scored as the reference is taken at about this rate
 
 
 @dataclass
@@ -83,36 +91,6 @@ class ReplayResult:
     out: Path
     mode: str
     summary: dict
-
-
-def _nav_sigmas(sol: flt.Solution) -> tuple[np.ndarray, np.ndarray]:
-    llh = sol.llh()
-    c_en = evaluate.c_en(llh[:, 0], llh[:, 1])
-    p = sol.covariance
-    pos = np.swapaxes(c_en, -1, -2) @ p[:, 6:9, 6:9] @ c_en
-    # Body-side attitude error dtheta -> NED axes: C_nb dtheta.
-    c_eb = flt._core.dcm_from_quat(sol.q_eb)
-    c_nb = np.swapaxes(c_en, -1, -2) @ c_eb
-    att = c_nb @ p[:, 0:3, 0:3] @ np.swapaxes(c_nb, -1, -2)
-    return (np.sqrt(np.diagonal(pos, axis1=1, axis2=2)), np.degrees(np.sqrt(np.diagonal(att, axis1=1, axis2=2))))
-
-
-def write_pos(path: Path, week: int, sol: flt.Solution, sigma_ned: np.ndarray, sats: np.ndarray, every: int = 1,
-              note: str = "") -> None:
-    """RTKLIB-style .pos (lat/lon/height, GPST epochs); Q = 5 (single) for an INS solution."""
-    llh = sol.llh()
-    idx = np.arange(0, len(sol.t), every)
-    lines = ["% program   : gpsins replay", f"% {note}" if note else "%",
-             "% (lat/lon/height=WGS84/ellipsoidal,Q=1:fix,2:float,3:sbas,4:dgps,5:single,6:ppp,ns=# of satellites)",
-             "%  GPST                   latitude(deg) longitude(deg)  height(m)   Q  ns   sdn(m)   sde(m)   sdu(m)"
-             "  sdne(m)  sdeu(m)  sdun(m) age(s)  ratio"]
-    times = rinex.gpst_text(week * measurements.SECONDS_PER_WEEK + sol.t[idx])
-    for k, ts in zip(idx, times):
-        lat, lon = np.degrees(llh[k, :2])
-        sn, se, sd = sigma_ned[k]
-        lines.append(f"{ts} {lat:14.9f} {lon:14.9f} {llh[k, 2]:10.4f} {5:3d} {int(sats[k]):3d} {sn:8.4f} {se:8.4f} "
-                     f"{sd:8.4f} {0.0:8.4f} {0.0:8.4f} {0.0:8.4f} {0.0:6.2f} {0.0:6.1f}")
-    path.write_text("\n".join(lines) + "\n", encoding="ascii")
 
 
 def load_session_truth(directory: Path, t_offset: float) -> tuple[evaluate.Truth, dict] | None:
@@ -282,237 +260,22 @@ def _config_keys(config) -> list[str]:
     return list(data.get("filter", data))
 
 
-def _filter(inp: Inputs, cfg: dict, mode: str, fixes: np.ndarray, prs: np.ndarray | None, smooth: bool = False
-            ) -> flt.Solution:
-    tight = {}
-    if mode == "tight":
-        tight = dict(pseudoranges=prs if prs is not None else np.zeros((0, 5)), ephemerides=inp.ephemerides,
-                     klobuchar=inp.klobuchar, gps_time_offset_s=inp.week * measurements.SECONDS_PER_WEEK)
-    return flt.run(inp.imu, fixes, cfg, mode=mode, covariance=True, smooth=smooth, **tight)
-
-
-def _score_reference_system(source: Path, week: int, sol: flt.Solution) -> dict:
+def _score_reference_system(ref, week: int, rows: dict) -> dict:
     """Errors against the session's own reference system (RTK position and dual-antenna heading
-    and pitch, ``reference.csv`` beside the session), as a real campaign scores without truth."""
-    if not (source.is_dir() and (source / reference_mod.FILE_NAME).exists()):
+    and pitch, ``reference.csv`` beside the session), as a real campaign scores without truth;
+    ``rows``: the solution rows that bracket its epochs (``solution.Brackets``)."""
+    if ref is None or len(rows.get("t", ())) < 2:
         return {}
-    ref = reference_mod.load(source)
-    ypr = sol.ypr()
-    e = reference_mod.compare(ref, week * measurements.SECONDS_PER_WEEK + sol.t, sol.r_ecef, ypr[:, 0], ypr[:, 1])
+    e = reference_mod.compare(ref, week * measurements.SECONDS_PER_WEEK + rows["t"], rows["r_imu"], rows["yaw"],
+                              rows["pitch"])
     return {"file": reference_mod.FILE_NAME, "damaged_lines": len(ref.damaged_lines), **e.summary()}
 
 
-def _ins_aiding_end(sol: flt.Solution, fixes: np.ndarray) -> float | None:
-    """Time of the fix after which the filter was initialised (heading known): the last one an INS run gets."""
-    known = np.flatnonzero(sol.heading_known)
-    if not len(known):
+def _reference_system(source: Path):
+    """A session's reference system (``reference.csv``), if it has one."""
+    if not (source.is_dir() and (source / reference_mod.FILE_NAME).exists()):
         return None
-    t_known = sol.t[known[0]]
-    used = fixes[(fixes[:, 0] <= t_known) & np.isin(fixes[:, 9], (2, 3))]
-    return float(used[-1, 0]) if len(used) else float(t_known)
-
-
-def antenna_positions(sol: flt.Solution, lever_arm_body_m) -> np.ndarray:
-    """ECEF position of the antenna: r + C_eb lever arm."""
-    lever = np.broadcast_to(np.asarray(lever_arm_body_m, float), (3,))
-    if not np.any(lever) or not len(sol.t):
-        return sol.r_ecef.copy()
-    return sol.r_ecef + flt._core.dcm_from_quat(sol.q_eb) @ lever
-
-
-def replay(source: str | Path, out: str | Path, *, mode: str = "loose", config=None, overrides: dict | None = None,
-           timing_method: str = "robust", gps_latency_s: float = DEFAULT_GPS_LATENCY_S,
-           imu_latency_s: float = DEFAULT_IMU_LATENCY_S, truth: bool = True,
-           nav: str | Path | None = None, outages: str | outages_mod.OutageSpec | None = None,
-           reference: str | Path | None = None, reference_q=(1,), point: str = "antenna",
-           smooth: bool = False) -> ReplayResult:
-    """Replay a session directory or a data-set TOML (see the module doc); ``outages``: FIRST:LENGTH:PERIOD[:END];
-    ``reference``: an RTKLIB .pos (its ``reference_q`` epochs) at the antenna point; ``point``: the point
-    solution.pos gives (antenna or imu); ``smooth``: also the fixed-interval smoother (smoothed.pos,
-    ``smooth_*`` arrays, run.json "smoothed")."""
-    if mode not in MODES:
-        raise ValueError(f"--mode {mode!r}: one of {', '.join(MODES)}")
-    if point not in POINTS:
-        raise ValueError(f"--point {point!r}: one of {', '.join(POINTS)}")
-    source, out = Path(source), Path(out)
-    overrides = dict(overrides or {})
-    spec = outages_mod.parse(outages) if isinstance(outages, str) else outages
-    clock = {}
-    filter_mode = "loose" if mode == "ins" else mode
-    if is_dataset(source):
-        inp = _dataset_inputs(source, config, overrides)
-    else:
-        inp = _session_inputs(source, filter_mode, config, timing_method, gps_latency_s, imu_latency_s, truth, nav,
-                              overrides)
-    clock["decode_s"] = inp.info.pop("decode_s")
-    if "align_s" in inp.info:
-        clock["align_s"] = inp.info.pop("align_s")
-    spec = spec if spec is not None else inp.outage_spec
-    schedule = outages_mod.schedule(spec, *inp.gnss_span) if spec is not None else np.zeros((0, 2))
-
-    ins_overrides = {"zero_velocity_updates": False} if mode == "ins" else {}
-    cfg = flt.load_config(inp.base_config, {**inp.data_config, **overrides, **ins_overrides, "mode": filter_mode})
-    fix_out = outages_mod.inside(inp.fixes[:, 0], schedule)
-    fixes = inp.fixes[~fix_out]
-    prs = inp.pseudoranges
-    if prs is not None:
-        prs = prs[~outages_mod.inside(prs[:, 0], schedule)]
-
-    t2 = time.perf_counter()
-    sol = _filter(inp, cfg, filter_mode, fixes, prs, smooth)
-    free_from = None
-    if mode == "ins":
-        free_from = _ins_aiding_end(sol, fixes) if len(sol.t) else None
-        if free_from is None:
-            raise ValueError(f"{source}: --mode ins: the heading never became known, so free navigation never "
-                             "started (set initial_yaw_deg, or use data that moves faster than heading_min_speed_mps)")
-        searched = sol.extra.get("heading_search")
-        if searched and searched["yaw_deg"] is not None:  # the searched heading: aided over the search's fixes
-            cfg = flt._merge(cfg, {"initial_yaw_deg": searched["yaw_deg"],
-                                   "heading_sigma_deg": searched["sigma_deg"]})
-            used = fixes[(fixes[:, 0] <= searched["t_end"]) & np.isin(fixes[:, 9], (2, 3))]
-            free_from = float(used[-1, 0]) if len(used) else free_from
-        fixes = fixes[fixes[:, 0] <= free_from]
-        sol = _filter(inp, cfg, filter_mode, fixes, prs, smooth)
-        if searched:
-            sol.extra["heading_search"] = searched
-    clock["filter_s"] = time.perf_counter() - t2
-    if len(sol.t) == 0:
-        raise measurements.logs.LogError(f"{source}: the filter never initialised (no usable fix after levelling)")
-    t3 = time.perf_counter()
-
-    fix_t = inp.fixes[:, 0]
-    k = np.clip(np.searchsorted(fix_t, sol.t, side="right") - 1, 0, max(len(fix_t) - 1, 0))
-    sats = inp.fix_sats[k] if len(fix_t) else np.zeros(len(sol.t), int)
-    lever = np.broadcast_to(np.asarray(cfg.get("lever_arm_body_m", 0.0), float), (3,))
-    r_ant = antenna_positions(sol, lever)
-    arrays = dict(t=sol.t, week=np.int64(inp.week), **solution_arrays(sol), standstill=sol.standstill,
-                  heading_known=sol.heading_known, fixes=inp.fixes, fix_sats=inp.fix_sats,
-                  lever_arm_body_m=lever, outages=schedule)
-    sigma_ned = arrays["sigma_ned_m"]
-    arrays.update({f"upd_{k}": v for k, v in sol.updates.items()})
-    stats = {}
-    found = inp.truth
-    if found:
-        err_arrays, stats = truth_errors(sol, found[0])
-        arrays.update(err_arrays, **found[1])
-
-    # Scoring against a reference: a .pos at the antenna point, else a session's truth at the IMU.
-    ref = inp.reference
-    if reference is not None:
-        f = dataset_mod.load_reference(reference, reference_q)
-        ref = (f.t_abs - inp.week * measurements.SECONDS_PER_WEEK, f.r_ecef, f.source)
-    scored_point = "antenna"
-    if ref is None and found:
-        ref, scored_point = (found[0].t, found[0].r_ecef, "truth.npz"), "imu"
-    scoring = {}
-    r_score = r_ant if scored_point == "antenna" else sol.r_ecef
-    if ref is not None and len(ref[0]):
-        score_sched = schedule
-        if mode == "ins":
-            score_sched = np.array([[free_from, max(float(sol.t[-1]), free_from) + 1e-6]])
-        ref_arrays, scoring, use = reference_scores(sol.t, r_score, ref, score_sched)
-        arrays.update(ref_arrays, ref_t=ref[0][use], ref_r_ecef=ref[1][use],
-                      ref_outage=outages_mod.outage_index(ref[0][use], score_sched))
-        scoring = {"reference": str(ref[2]), "point": scored_point, "n_reference_epochs": int(use.sum()), **scoring}
-        if mode == "ins":
-            scoring["ins_free_from"] = free_from
-    arrays["r_point_ecef"] = r_score if scored_point == "imu" else r_ant
-    reference_system = _score_reference_system(source, inp.week, sol)
-    smoothed = None
-    if smooth and "smoothed" in sol.extra:
-        from . import smoothing
-        sm_arrays, sm_summary, sm, sm_ant, sm_sigma_ned = smoothing.results(
-            sol, found, ref, scored_point, lever, score_sched if ref is not None and len(ref[0]) else schedule)
-        arrays.update(smoothing.prefixed(sm_arrays))
-        smoothed = (sm_summary, sm if point == "imu" else _with_positions(sm, sm_ant), sm_sigma_ned)
-
-    out.mkdir(parents=True, exist_ok=True)
-    np.savez_compressed(out / "results.npz", **arrays)
-    pos_sol = sol if point == "imu" else _with_positions(sol, r_ant)
-    write_pos(out / "solution.pos", inp.week, pos_sol, sigma_ned, sats,
-              note=f"mode {mode}, {inp.kind} {source.name}, {point} point")
-    if smoothed is not None:
-        write_pos(out / "smoothed.pos", inp.week, smoothed[1], smoothed[2], sats,
-                  note=f"mode {mode}, {inp.kind} {source.name}, {point} point, fixed-interval smoothed")
-    (out / "config.toml").write_text(flt.to_toml(cfg), encoding="utf-8")
-    clock["write_s"] = time.perf_counter() - t3
-    clock["total_s"] = sum(v for v in clock.values())
-    info = dict(inp.info)
-    events = sol.event_list()
-    summary = {"session": info.pop("session", str(source)), "kind": inp.kind, "mode": mode,
-               "alignment": info.pop("alignment", {}), "counters": sol.counters,
-               "imu_gaps_longer_than_max_gap": info.pop("imu_gaps_longer_than_max_gap", []),
-               "reinitialisations": {"count": int(sol.counters.get("imu_gap_restarts", 0)),
-                                     "at_t": [e["t"] for e in events if e["kind"] == "imu_gap_restart"],
-                                     "how": "the filter restarted after an IMU gap longer than max_gap_s: attitude "
-                                            "and biases kept, heading unknown, covariance inflated"},
-               "gnss_resets": {"count": int(sol.counters.get("gnss_resets", 0)),
-                               "at_t": [e["t"] for e in events if e["kind"] == "gnss_reset"]},
-               "events": events,
-               "warnings": info.pop("warnings", []),
-               "skipped": info.pop("skipped", {}), "fixes_after_end": sol.extra["fixes_after_end"],
-               "wall_time_s": clock, "imu_samples": int(len(inp.imu)), "errors": stats,
-               "update_kinds": {flt.UPDATE_KINDS[int(k)]: int(np.sum(sol.updates["kind"] == k))
-                                for k in np.unique(sol.updates["kind"])},
-               "solution_point": point,
-               "outages": {"spec": spec.text() if spec is not None else None, "schedule": schedule.tolist(),
-                           "gnss_first_t": inp.gnss_span[0], "gnss_last_t": inp.gnss_span[1],
-                           "fixes_removed": int(fix_out.sum()),
-                           "pseudoranges_removed": 0 if inp.pseudoranges is None else
-                           int(len(inp.pseudoranges) - len(prs))},
-               "scoring": scoring}
-    if reference_system:
-        summary["reference_system"] = reference_system
-    if "heading_search" in sol.extra:
-        summary["heading_search"] = sol.extra["heading_search"]
-    if mode == "ins":
-        summary["ins"] = {"aiding_until_t": free_from, "fixes_used": int(len(fixes)),
-                          "how": "loose filter fed the fixes up to the one that completed the initialisation "
-                                 "(heading known); zero-velocity and zero-rate updates off"}
-    if smoothed is not None:
-        summary["smoothed"] = smoothed[0]
-    if info:
-        summary["dataset"] = info
-    (out / "run.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
-    return ReplayResult(out, mode, summary)
-
-
-def solution_arrays(sol: flt.Solution) -> dict:
-    """A solution's arrays as results.npz holds them (the forward and the smoothed one alike)."""
-    sigma_ned, sigma_ypr = _nav_sigmas(sol)
-    llh = sol.llh()
-    c_en = evaluate.c_en(llh[:, 0], llh[:, 1])
-    p_v_ned = np.swapaxes(c_en, -1, -2) @ sol.covariance[:, 3:6, 3:6] @ c_en
-    a = dict(r_ecef=sol.r_ecef, v_ecef=sol.v_ecef, q_eb=sol.q_eb, llh=llh, ypr_deg=np.degrees(sol.ypr()),
-             gyro_bias=sol.gyro_bias, accel_bias=sol.accel_bias, sigma=sol.sigma, sigma_ned_m=sigma_ned,
-             sigma_ypr_deg=sigma_ypr, sigma_v_ned_mps=np.sqrt(np.diagonal(p_v_ned, axis1=1, axis2=2)))
-    if sol.clock is not None:
-        a["clock"] = sol.clock
-    return a
-
-
-def truth_errors(sol: flt.Solution, tr: evaluate.Truth) -> tuple[dict, dict]:
-    """Errors against the simulator's truth: per-epoch arrays (NaN outside the truth's span) and
-    their statistics from the first known heading on (none if a short or standing run never got there)."""
-    inside = (sol.t >= tr.t[0]) & (sol.t <= tr.t[-1])
-    err = evaluate.nav_errors(_subset(sol, inside), tr)
-    ref = tr.at(sol.t[inside])
-    llh_ref = flt._core.ecef_to_geodetic(ref.r_ecef)
-    c_en = evaluate.c_en(llh_ref[:, 0], llh_ref[:, 1])
-    dv_ned = np.einsum("nji,nj->ni", c_en, sol.v_ecef[inside] - ref.v_ecef)
-    nees = evaluate.nees(err.e9, sol.covariance[inside][:, :9, :9])
-    arrays = dict(err_ned_m=_fill(inside, err.r_ned), err_ypr_deg=_fill(inside, err.ypr_deg),
-                  err_v_ned_mps=_fill(inside, dv_ned), nees9=_fill(inside, nees))
-    hk = sol.heading_known[inside]
-    if not hk.any():
-        return arrays, {}
-    h = np.hypot(err.r_ned[hk, 0], err.r_ned[hk, 1])
-    return arrays, {"horizontal_rms_m": float(np.sqrt(np.mean(h ** 2))), "horizontal_max_m": float(h.max()),
-                    "vertical_rms_m": float(np.sqrt(np.mean(err.r_ned[hk, 2] ** 2))),
-                    "vertical_max_m": float(np.abs(err.r_ned[hk, 2]).max()),
-                    "nees9_mean": float(nees[hk].mean()),
-                    "inside_3_sigma": float(np.mean(np.abs(err.e9[hk]) <= 3 * sol.sigma[inside][hk, :9]))}
+    return reference_mod.load(source)
 
 
 def reference_scores(t: np.ndarray, r_score: np.ndarray, ref: tuple, schedule: np.ndarray
@@ -531,18 +294,247 @@ def reference_scores(t: np.ndarray, r_score: np.ndarray, ref: tuple, schedule: n
     return arrays, scoring, use
 
 
-def _with_positions(sol: flt.Solution, r_ecef: np.ndarray) -> flt.Solution:
-    import dataclasses
-    return dataclasses.replace(sol, r_ecef=r_ecef)
+def _ins_aiding_end(run: flt.ChunkedRun, fixes: np.ndarray) -> float | None:
+    """Time of the fix after which the filter was initialised (heading known): the last one an INS run
+    gets. Only the chunks up to that point are run."""
+    for sol in run.chunks(covariance=False):
+        known = np.flatnonzero(sol.heading_known)
+        if len(known):
+            t_known = sol.t[known[0]]
+            used = fixes[(fixes[:, 0] <= t_known) & np.isin(fixes[:, 9], (2, 3))]
+            return float(used[-1, 0]) if len(used) else float(t_known)
+    return None
 
 
-def _fill(mask: np.ndarray, a: np.ndarray) -> np.ndarray:
-    full = np.full((len(mask),) + a.shape[1:], np.nan)
-    full[mask] = a
-    return full
+@dataclass
+class _Scored:
+    """What a solution stream's brackets give against a reference."""
+
+    arrays: dict
+    summary: dict
 
 
-def _subset(sol: flt.Solution, m: np.ndarray) -> flt.Solution:
-    return flt.Solution(sol.mode, sol.n_states, sol.t[m], sol.r_ecef[m], sol.v_ecef[m], sol.q_eb[m], sol.gyro_bias[m],
-                        sol.accel_bias[m], sol.sigma[m], sol.standstill[m], sol.heading_known[m], sol.updates,
-                        sol.counters)
+def _score_stream(stream, ref, schedule, prefix: str = "") -> _Scored:
+    rows = stream.brackets.rows()
+    if ref is None or not len(ref[0]) or len(rows.get("t", ())) < 1:
+        return _Scored({}, {})
+    arrays, scoring, use = reference_scores(rows["t"], rows["r_score"], ref, schedule)
+    arrays.update(ref_t=ref[0][use], ref_r_ecef=ref[1][use], ref_outage=outages_mod.outage_index(ref[0][use], schedule))
+    return _Scored({prefix + k: v for k, v in arrays.items()}, scoring)
+
+
+def load_inputs(source: str | Path, *, modes=("loose",), config=None, overrides: dict | None = None,
+                timing_method: str = "robust", gps_latency_s: float = DEFAULT_GPS_LATENCY_S,
+                imu_latency_s: float = DEFAULT_IMU_LATENCY_S, truth: bool = True,
+                nav: str | Path | None = None) -> Inputs:
+    """A session's or data set's inputs, decoded once for every mode asked for."""
+    source = Path(source)
+    if is_dataset(source):
+        return _dataset_inputs(source, config, dict(overrides or {}))
+    filter_mode = "tight" if "tight" in modes else "loose"
+    return _session_inputs(source, filter_mode, config, timing_method, gps_latency_s, imu_latency_s, truth, nav,
+                           dict(overrides or {}))
+
+
+def replay(source: str | Path, out: str | Path, *, mode: str = "loose", config=None, overrides: dict | None = None,
+           timing_method: str = "robust", gps_latency_s: float = DEFAULT_GPS_LATENCY_S,
+           imu_latency_s: float = DEFAULT_IMU_LATENCY_S, truth: bool = True,
+           nav: str | Path | None = None, outages: str | outages_mod.OutageSpec | None = None,
+           reference: str | Path | None = None, reference_q=(1,), point: str = "antenna",
+           smooth: bool = False, covariance_every: int = 0, chunk_rows: int = flt.CHUNK_ROWS) -> ReplayResult:
+    """Replay a session directory or a data-set TOML (see the module doc); ``outages``: FIRST:LENGTH:PERIOD[:END];
+    ``reference``: an RTKLIB .pos (its ``reference_q`` epochs) at the antenna point; ``point``: the point
+    solution.pos gives (antenna or imu); ``smooth``: also the fixed-interval smoother (smoothed.parquet,
+    smoothed.pos, run.json "smoothed"); ``covariance_every``: also the full covariance of every so many
+    epochs (covariance.parquet); ``chunk_rows``: IMU samples per filter call (memory, not results)."""
+    if mode not in MODES:
+        raise ValueError(f"--mode {mode!r}: one of {', '.join(MODES)}")
+    inp = load_inputs(source, modes=(mode,), config=config, overrides=overrides, timing_method=timing_method,
+                      gps_latency_s=gps_latency_s, imu_latency_s=imu_latency_s, truth=truth, nav=nav)
+    return run_mode(inp, out, mode=mode, overrides=overrides, outages=outages, reference=reference,
+                    reference_q=reference_q, point=point, smooth=smooth, covariance_every=covariance_every,
+                    chunk_rows=chunk_rows)
+
+
+def run_mode(inp: Inputs, out: str | Path, *, mode: str = "loose", overrides: dict | None = None,
+             outages: str | outages_mod.OutageSpec | None = None, reference: str | Path | None = None,
+             reference_q=(1,), point: str = "antenna", smooth: bool = False, covariance_every: int = 0,
+             chunk_rows: int = flt.CHUNK_ROWS) -> ReplayResult:
+    """One filter mode over decoded inputs (``load_inputs``), written to ``out`` (see ``replay``)."""
+    if mode not in MODES:
+        raise ValueError(f"--mode {mode!r}: one of {', '.join(MODES)}")
+    if point not in POINTS:
+        raise ValueError(f"--point {point!r}: one of {', '.join(POINTS)}")
+    if mode == "tight" and inp.kind == "session" and inp.pseudoranges is None:
+        raise ValueError(f"{inp.source}: inputs were decoded without pseudoranges (load_inputs modes)")
+    source, out = inp.source, Path(out)
+    overrides = dict(overrides or {})
+    spec = outages_mod.parse(outages) if isinstance(outages, str) else outages
+    clock = {k: v for k, v in inp.info.items() if k in ("decode_s", "align_s")}
+    filter_mode = "loose" if mode == "ins" else mode
+    spec = spec if spec is not None else inp.outage_spec
+    schedule = outages_mod.schedule(spec, *inp.gnss_span) if spec is not None else np.zeros((0, 2))
+
+    ins_overrides = {"zero_velocity_updates": False} if mode == "ins" else {}
+    cfg = flt.load_config(inp.base_config, {**inp.data_config, **overrides, **ins_overrides, "mode": filter_mode})
+    fix_out = outages_mod.inside(inp.fixes[:, 0], schedule)
+    fixes = inp.fixes[~fix_out]
+    prs = inp.pseudoranges if filter_mode == "tight" else None
+    if prs is not None:
+        prs = prs[~outages_mod.inside(prs[:, 0], schedule)]
+    tight = {}
+    if filter_mode == "tight":
+        tight = dict(pseudoranges=prs if prs is not None else np.zeros((0, 5)), ephemerides=inp.ephemerides,
+                     klobuchar=inp.klobuchar, gps_time_offset_s=inp.week * measurements.SECONDS_PER_WEEK)
+
+    def make_run(cfg_run: dict, fixes_run: np.ndarray, record: bool) -> flt.ChunkedRun:
+        return flt.ChunkedRun(inp.imu, fixes_run, cfg_run, mode=filter_mode, record=record, chunk_rows=chunk_rows,
+                              **tight)
+
+    t2 = time.perf_counter()
+    free_from, searched = None, None
+    if mode == "ins":
+        first = make_run(cfg, fixes, False)
+        searched = first.heading_search
+        free_from = _ins_aiding_end(first, fixes)
+        if free_from is None:
+            raise ValueError(f"{source}: --mode ins: the heading never became known, so free navigation never "
+                             "started (set initial_yaw_deg, or use data that moves faster than heading_min_speed_mps)")
+        if searched and searched["yaw_deg"] is not None:  # the searched heading: aided over the search's fixes
+            cfg = flt._merge(cfg, {"initial_yaw_deg": searched["yaw_deg"], "heading_sigma_deg": searched["sigma_deg"]})
+            used = fixes[(fixes[:, 0] <= searched["t_end"]) & np.isin(fixes[:, 9], (2, 3))]
+            free_from = float(used[-1, 0]) if len(used) else free_from
+        fixes = fixes[fixes[:, 0] <= free_from]
+    run = make_run(cfg, fixes, smooth)
+    if searched:
+        run.heading_search = searched
+    clock["filter_setup_s"] = time.perf_counter() - t2
+
+    # Scoring against a reference: a .pos at the antenna point, else a session's truth at the IMU.
+    found = inp.truth
+    ref = inp.reference
+    if reference is not None:
+        f = dataset_mod.load_reference(reference, reference_q)
+        ref = (f.t_abs - inp.week * measurements.SECONDS_PER_WEEK, f.r_ecef, f.source)
+    scored_point = "antenna"
+    if ref is None and found:
+        # The truth as the reference, at no more than TRUTH_SCORING_HZ: enough for drift and outage maxima.
+        tt = found[0].t
+        step = max(1, int(round(1.0 / (TRUTH_SCORING_HZ * float(np.median(np.diff(tt))))))) if len(tt) > 1 else 1
+        ref, scored_point = (tt[::step], found[0].r_ecef[::step], "truth.npz"), "imu"
+    has_ref = ref is not None and len(ref[0]) > 0
+    score_sched = schedule
+    ref_system = _reference_system(source)
+    sys_epochs = (ref_system.gps_seconds() - inp.week * measurements.SECONDS_PER_WEEK) if ref_system else np.zeros(0)
+    bracket_epochs = np.concatenate([ref[0] if has_ref else np.zeros(0), sys_epochs])
+    lever = np.broadcast_to(np.asarray(cfg.get("lever_arm_body_m", 0.0), float), (3,)).copy()
+
+    out.mkdir(parents=True, exist_ok=True)
+    for stale in (results.SMOOTHED, results.COVARIANCE, "smoothed.pos"):  # from an earlier run into this directory
+        (out / stale).unlink(missing_ok=True)
+    what = f"mode {mode}, {inp.kind} {source.name}, {point} point"
+
+    def stream(table: str, pos: str, note: str, newest_first: bool = False, cov: bool = False) -> solution.Stream:
+        return solution.Stream(out / table, out / pos, inp.week, note, lever, inp.fixes[:, 0], inp.fix_sats,
+                               truth=found[0] if found else None, score_point=scored_point, pos_point=point,
+                               bracket_epochs=bracket_epochs, newest_first=newest_first,
+                               covariance_path=out / results.COVARIANCE if cov else None,
+                               covariance_every=covariance_every)
+
+    t3 = time.perf_counter()
+    forward = stream(results.SOLUTION, "solution.pos", what, cov=covariance_every > 0)
+    updates = results.TableWriter(out / results.UPDATES)
+    events: dict[str, list] = {"t": [], "kind": [], "value": []}
+    update_kinds: dict[int, int] = {}
+    write_s = 0.0
+    for sol in run.chunks():
+        w0 = time.perf_counter()
+        forward.add(sol, forward.epochs)
+        updates.append(sol.updates)
+        write_s += time.perf_counter() - w0
+        for k in events:
+            events[k].extend(np.asarray(sol.events.get(k, ())).tolist())
+        for k, n in zip(*np.unique(sol.updates["kind"], return_counts=True)):
+            update_kinds[int(k)] = update_kinds.get(int(k), 0) + int(n)
+    forward.close()
+    updates.close()
+    clock["filter_s"] = time.perf_counter() - t3 - write_s
+    if forward.epochs == 0:
+        raise measurements.logs.LogError(f"{source}: the filter never initialised (no usable fix after levelling)")
+    counters = run.counters
+    if mode == "ins":  # the whole free stretch is one outage
+        score_sched = np.array([[free_from, max(forward.last_t, free_from) + 1e-6]])
+
+    smoothed_summary = None
+    if smooth:
+        ts = time.perf_counter()
+        back = stream(results.SMOOTHED, "smoothed.pos", what + ", fixed-interval smoothed", newest_first=True)
+        info = run.smooth(lambda first, sol: back.add(sol, first))
+        back.close()
+        clock["smooth_s"] = time.perf_counter() - ts
+        smoothed_summary = {"info": info}
+        if back.score is not None and back.score.summary():
+            smoothed_summary["errors"] = back.score.summary()
+        sm_scored = _score_stream(back, ref, score_sched, results.SMOOTH_PREFIX)
+        if sm_scored.summary:
+            smoothed_summary["scoring"] = sm_scored.summary
+
+    t4 = time.perf_counter()
+    small = dict(week=np.int64(inp.week), fixes=inp.fixes, fix_sats=inp.fix_sats, lever_arm_body_m=lever,
+                 outages=schedule)
+    if found:
+        small.update(found[1])
+    scoring = {}
+    if has_ref:
+        scored = _score_stream(forward, ref, score_sched)
+        small.update(scored.arrays)
+        scoring = {"reference": str(ref[2]), "point": scored_point,
+                   "n_reference_epochs": int(len(scored.arrays.get("ref_t", ()))), **scored.summary}
+        if mode == "ins":
+            scoring["ins_free_from"] = free_from
+    if smooth:
+        small.update(sm_scored.arrays)
+    np.savez(out / results.SMALL, **small)
+    reference_system = _score_reference_system(ref_system, inp.week, forward.brackets.rows())
+    (out / "config.toml").write_text(flt.to_toml(cfg), encoding="utf-8")
+    clock["write_s"] = write_s + time.perf_counter() - t4
+    clock["total_s"] = sum(v for k, v in clock.items())
+    info = {k: v for k, v in inp.info.items() if k not in ("decode_s", "align_s")}
+    event_list = [{"t": float(t), "kind": flt.EVENT_KINDS.get(int(k), str(int(k))), "value": float(v)}
+                  for t, k, v in zip(events["t"], events["kind"], events["value"])]
+    summary = {"session": info.pop("session", str(source)), "kind": inp.kind, "mode": mode,
+               "alignment": info.pop("alignment", {}), "counters": counters,
+               "imu_gaps_longer_than_max_gap": info.pop("imu_gaps_longer_than_max_gap", []),
+               "reinitialisations": {"count": int(counters.get("imu_gap_restarts", 0)),
+                                     "at_t": [e["t"] for e in event_list if e["kind"] == "imu_gap_restart"],
+                                     "how": "the filter restarted after an IMU gap longer than max_gap_s: attitude "
+                                            "and biases kept, heading unknown, covariance inflated"},
+               "gnss_resets": {"count": int(counters.get("gnss_resets", 0)),
+                               "at_t": [e["t"] for e in event_list if e["kind"] == "gnss_reset"]},
+               "events": event_list,
+               "warnings": info.pop("warnings", []),
+               "skipped": info.pop("skipped", {}), "fixes_after_end": run.fixes_after_end,
+               "wall_time_s": clock, "imu_samples": int(len(inp.imu)), "epochs": forward.epochs,
+               "errors": forward.score.summary() if forward.score is not None else {},
+               "update_kinds": {flt.UPDATE_KINDS[k]: n for k, n in sorted(update_kinds.items())},
+               "solution_point": point,
+               "outages": {"spec": spec.text() if spec is not None else None, "schedule": schedule.tolist(),
+                           "gnss_first_t": inp.gnss_span[0], "gnss_last_t": inp.gnss_span[1],
+                           "fixes_removed": int(fix_out.sum()),
+                           "pseudoranges_removed": 0 if prs is None or inp.pseudoranges is None else
+                           int(len(inp.pseudoranges) - len(prs))},
+               "scoring": scoring}
+    if reference_system:
+        summary["reference_system"] = reference_system
+    if run.heading_search is not None:
+        summary["heading_search"] = run.heading_search
+    if mode == "ins":
+        summary["ins"] = {"aiding_until_t": free_from, "fixes_used": int(len(fixes)),
+                          "how": "loose filter fed the fixes up to the one that completed the initialisation "
+                                 "(heading known); zero-velocity and zero-rate updates off"}
+    if smoothed_summary is not None:
+        summary["smoothed"] = smoothed_summary
+    if info:
+        summary["dataset"] = info
+    (out / "run.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
+    return ReplayResult(out, mode, summary)

@@ -4,7 +4,7 @@ more replay results directories (one per filter mode), side by side.
 
 Figures are built by ``build_figures`` (matplotlib Figure objects, so tests can
 inspect what each panel holds) and written by ``figures``. Everything comes
-from ``results.npz`` and ``run.json``; the truth's biases and clock and the
+from the results tables (``results.load``; a long run's epochs decimated) and ``run.json``; the truth's biases and clock and the
 satellites' visibility and sky tracks come from the session's files
 (``truth.npz`` and the receiver's ID 23 and ID 22) when they are still there.
 """
@@ -28,7 +28,7 @@ from matplotlib.lines import Line2D  # noqa: E402
 from matplotlib.patches import Patch  # noqa: E402
 from scipy.stats import chi2  # noqa: E402
 
-from . import _core, evaluate  # noqa: E402
+from . import _core, evaluate, results  # noqa: E402
 
 KIND_FIX3, KIND_FIX2, KIND_PR = 1, 2, 6
 KIND_FIX = (KIND_FIX3, KIND_FIX2)
@@ -66,14 +66,18 @@ class Result:
         return None
 
 
-def load(path: str | Path) -> Result:
+MAX_PLOT_EPOCHS = 100_000  # a longer run's epochs are decimated for the figures (its numbers come from run.json)
+
+
+def load(path: str | Path, max_epochs: int = MAX_PLOT_EPOCHS) -> Result:
     path = Path(path)
-    z = np.load(path / "results.npz")
+    stride = max(1, -(-results.epochs(path) // max_epochs))
+    a = results.load(path, stride=stride)
     run = json.loads((path / "run.json").read_text(encoding="utf-8"))
     cfg_path = path / "config.toml"
     cfg = tomllib.loads(cfg_path.read_text(encoding="utf-8")) if cfg_path.exists() else {}
     name = run.get("mode", path.name)
-    return Result(name, path, {k: z[k] for k in z.files}, run, MODE_COLORS.get(name, "tab:blue"), cfg)
+    return Result(name, path, a, run, MODE_COLORS.get(name, "tab:blue"), cfg)
 
 
 def smoothed_companion(r: Result) -> Result | None:

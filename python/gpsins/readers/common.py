@@ -46,9 +46,14 @@ def gps_seconds(y: int, mo: int, d: int, h: int, mi: int, s: float) -> float:
 
 
 def gpst_text(t_abs) -> list[str]:
-    """RTKLIB's GPST epoch text, 'YYYY/MM/DD hh:mm:ss.sss', for seconds since the GPS epoch."""
-    return [(GPS_EPOCH + dt.timedelta(seconds=float(x))).strftime("%Y/%m/%d %H:%M:%S.%f")[:-3]
-            for x in np.atleast_1d(t_abs)]
+    """RTKLIB's GPST epoch text, 'YYYY/MM/DD hh:mm:ss.sss', for seconds since the GPS epoch
+    (to the microsecond, then cut to the millisecond, as datetime's formatting does)."""
+    x = np.atleast_1d(np.asarray(t_abs, dtype=np.float64))
+    whole = np.floor(x)
+    us = whole.astype(np.int64) * 1_000_000 + np.round((x - whole) * 1e6).astype(np.int64)  # x - whole is exact
+    ms = np.datetime64("1980-01-06T00:00:00", "ms") + (us // 1000).astype("timedelta64[ms]")
+    text = np.datetime_as_string(ms, unit="ms")
+    return np.strings.replace(np.strings.replace(text, "-", "/"), "T", " ").tolist()
 
 
 def leap_seconds(utc: dt.datetime) -> int:
