@@ -57,7 +57,7 @@ def _columns(arrays: dict) -> tuple[dict, dict]:
         if a.ndim == 1:
             cols[name] = a
             continue
-        a = a.reshape(len(a), -1)
+        a = a.reshape(a.shape[0], int(np.prod(a.shape[1:])))
         parts = COMPONENTS.get(name)
         if parts is None or len(parts) != a.shape[1]:
             parts = tuple(str(i) for i in range(a.shape[1]))

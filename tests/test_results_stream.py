@@ -1,0 +1,117 @@
+"""Replay in bounded memory: a run split into chunks gives what one call over the whole arrays
+gives (forward and smoothed), and the results tables read back what was written, with
+decimation and the per-chunk running statistics equal to statistics over everything."""
+
+import json
+
+import numpy as np
+import pytest
+
+from gpsins import filter as flt, replay, results, sim
+from gpsins.readers.common import GPS_EPOCH, gpst_text
+from gpsins.sim.session import write_session
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory):
+    d = tmp_path_factory.mktemp("stream") / "session"
+    write_session(sim.simulate(sim.load("default"), seed=3), d)
+    return d
+
+
+@pytest.fixture(scope="module")
+def tight_inputs(session):
+    return replay.load_inputs(session, modes=("tight",))
+
+
+def _whole_and_chunked(inp, chunk_rows, output_every=2):
+    cfg = flt.load_config(None, {"mode": "tight"})
+    kw = dict(pseudoranges=inp.pseudoranges, ephemerides=inp.ephemerides, klobuchar=inp.klobuchar,
+              gps_time_offset_s=inp.week * 604800.0)
+    whole = flt.run(inp.imu, inp.fixes, cfg, mode="tight", covariance=True, smooth=True, output_every=output_every,
+                    **kw)
+    run = flt.ChunkedRun(inp.imu, inp.fixes, cfg, mode="tight", record=True, chunk_rows=chunk_rows,
+                         output_every=output_every, **kw)
+    chunks = list(run.chunks())
+    blocks = []
+    run.smooth(lambda first, sol: blocks.append((first, sol)), block_rows=997)
+    return whole, run, chunks, blocks
+
+
+@pytest.mark.parametrize("chunk_rows", [1, 777, 10 ** 6])
+def test_chunked_run_equals_one_call(tight_inputs, chunk_rows):
+    inp = tight_inputs
+    if chunk_rows == 1:  # one sample per call over the first 1500 samples is enough to show the seams
+        inp = replay.Inputs(inp.source, inp.kind, inp.week, inp.imu[:1500], inp.fixes, inp.fix_sats, inp.gnss_span,
+                            inp.pseudoranges, inp.ephemerides, inp.klobuchar)
+    whole, run, chunks, blocks = _whole_and_chunked(inp, chunk_rows)
+    cat = lambda parts, name: np.concatenate([getattr(p, name) for p in parts])  # noqa: E731
+    for name in ("t", "r_ecef", "v_ecef", "q_eb", "sigma", "clock", "covariance", "heading_known"):
+        np.testing.assert_array_equal(cat(chunks, name), getattr(whole, name), err_msg=name)
+    for key in ("t", "kind", "nis", "innovation"):
+        np.testing.assert_array_equal(np.concatenate([c.updates[key] for c in chunks]), whole.updates[key])
+    assert run.counters == whole.counters
+    assert run.fixes_after_end == whole.extra["fixes_after_end"]
+    # The smoother's blocks come newest first, each in time order, and tile the run.
+    firsts = [f for f, _ in blocks]
+    assert firsts == sorted(firsts, reverse=True) and firsts[-1] == 0
+    blocks.sort(key=lambda b: b[0])
+    sm = whole.extra["smoothed"]
+    for name in ("t", "r_ecef", "q_eb", "sigma", "covariance"):
+        np.testing.assert_array_equal(cat([b for _, b in blocks], name), getattr(sm, name), err_msg=name)
+
+
+def test_results_tables_round_trip(tmp_path):
+    rng = np.random.default_rng(1)
+    chunks = [dict(t=np.arange(n, dtype=float) + 100 * k, r_ecef=rng.normal(size=(n, 3)), flag=rng.random(n) > 0.5,
+                   sigma=rng.random((n, 17))) for k, n in enumerate((5, 0, 7, 3))]
+    with results.TableWriter(tmp_path / "x.parquet") as w:
+        for c in chunks:
+            w.append(c)
+    full = {k: np.concatenate([c[k] for c in chunks]) for k in chunks[0]}
+    back = results.read_table(tmp_path / "x.parquet")
+    for k, v in full.items():
+        np.testing.assert_array_equal(back[k], v)
+    for stride in (2, 4):
+        dec = results.read_table(tmp_path / "x.parquet", columns=["t", "r_ecef"], stride=stride)
+        np.testing.assert_array_equal(dec["t"], full["t"][::stride])
+        np.testing.assert_array_equal(dec["r_ecef"], full["r_ecef"][::stride])
+    import pyarrow.parquet as pq  # what pandas.read_parquet uses: the components are plain named columns
+    np.testing.assert_array_equal(pq.read_table(tmp_path / "x.parquet").column("r_ecef_y").to_numpy(),
+                                  full["r_ecef"][:, 1])
+
+
+def test_replay_in_chunks_writes_what_one_chunk_writes(session, tmp_path):
+    """Small chunks against one chunk: the same tables, .pos, statistics and scoring, and the statistics
+    equal those recomputed from the per-epoch errors."""
+    inp = replay.load_inputs(session)
+    a = replay.run_mode(inp, tmp_path / "one", chunk_rows=10 ** 7, smooth=True)
+    b = replay.run_mode(inp, tmp_path / "many", chunk_rows=1000, smooth=True)
+    for name in ("solution.pos", "smoothed.pos"):
+        assert (tmp_path / "one" / name).read_bytes() == (tmp_path / "many" / name).read_bytes()
+    za, zb = results.load(tmp_path / "one"), results.load(tmp_path / "many")
+    assert za.keys() == zb.keys()
+    for k in za:
+        np.testing.assert_array_equal(za[k], zb[k], err_msg=k)
+    assert a.summary["errors"] == pytest.approx(b.summary["errors"], rel=1e-12)
+    assert json.dumps(a.summary["scoring"]) == json.dumps(b.summary["scoring"])
+    assert a.summary["smoothed"]["errors"] == pytest.approx(b.summary["smoothed"]["errors"], rel=1e-12)
+    hk = za["heading_known"] & np.isfinite(za["err_ned_m"][:, 0])
+    h = np.hypot(za["err_ned_m"][hk, 0], za["err_ned_m"][hk, 1])
+    assert b.summary["errors"]["horizontal_rms_m"] == pytest.approx(np.sqrt(np.mean(h ** 2)), rel=1e-12)
+    assert b.summary["errors"]["nees9_mean"] == pytest.approx(np.mean(za["nees9"][hk]), rel=1e-12)
+    assert np.all(np.diff(zb["smooth_t"]) > 0)
+    # Full covariance on request, every Nth epoch.
+    c = replay.run_mode(inp, tmp_path / "cov", chunk_rows=1000, covariance_every=50)
+    t, p = results.load_covariance(tmp_path / "cov")
+    zc = results.load(tmp_path / "cov")
+    np.testing.assert_array_equal(t, zc["t"][::50])
+    np.testing.assert_allclose(np.sqrt(np.diagonal(p, axis1=1, axis2=2)), zc["sigma"][::50], rtol=1e-12)
+    assert c.summary["epochs"] == len(zc["t"])
+
+
+def test_gpst_text_matches_datetime():
+    import datetime as dt
+    x = np.array([0.0005, 1.0004999, 12.9995, 1e9 + 0.0015, 1.5e9 + 0.9999996, 86399.9996])
+    want = [(GPS_EPOCH + dt.timedelta(seconds=float(v))).strftime("%Y/%m/%d %H:%M:%S.%f")[:-3] for v in x]
+    assert gpst_text(x) == want
