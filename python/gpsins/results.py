@@ -32,7 +32,8 @@ COVARIANCE = "covariance.parquet"
 SMALL = "results.npz"
 SMOOTH_PREFIX = "smooth_"  # load(): the smoothed solution's arrays, as results.npz had them
 _META_KEY = b"gpsins:arrays"
-_COMPRESSION = "zstd"
+# Dictionary encoding costs two thirds of the write time and gains nothing on measured floats.
+_WRITE_OPTIONS = dict(compression="zstd", compression_level=1, use_dictionary=False)
 
 # Component names of multi-column arrays; anything else is numbered (sigma_0, sigma_1, ...).
 _XYZ, _NED, _YPR = ("x", "y", "z"), ("n", "e", "d"), ("yaw", "pitch", "roll")
@@ -82,7 +83,7 @@ class TableWriter:
         if self._writer is None:
             table = pa.table(cols)
             self._schema = table.schema.with_metadata({_META_KEY: json.dumps(meta).encode()})
-            self._writer = pq.ParquetWriter(self.path, self._schema, compression=_COMPRESSION)
+            self._writer = pq.ParquetWriter(self.path, self._schema, **_WRITE_OPTIONS)
         table = pa.table(cols, schema=self._schema)
         if table.num_rows:
             self._writer.write_table(table)
@@ -105,7 +106,7 @@ def reverse_row_groups(src: Path, dst: Path) -> None:
     one row group in memory at a time."""
     _, pq = _pa()
     f = pq.ParquetFile(src)
-    with pq.ParquetWriter(dst, f.schema_arrow, compression=_COMPRESSION) as w:
+    with pq.ParquetWriter(dst, f.schema_arrow, **_WRITE_OPTIONS) as w:
         for i in reversed(range(f.num_row_groups)):
             w.write_table(f.read_row_group(i))
     f.close()
