@@ -1,0 +1,78 @@
+"""The ``report2005`` preset (the report's hand tuning) run on the simulated default drive, against the
+magnitudes seed 004 states in chapter 7 for its car run, in its units (ENU metres, degrees):
+
+- loose, segments L-O: the filter differs from the reference by about 20 m east, 10 m north, 22 m up
+  (7.1.2.1); at the stop at the end pitch and yaw errors are about 0.5 deg and 5 deg (7.1.2.2);
+- tight, segments L-O: about 18 m east, 22 m north, 15 m up (7.2.2.1); at the end 0.3 deg and 7 deg (7.2.2.2).
+
+What matches is asserted; what does not is a strict xfail that says by how much, and the preset's
+description says the same.
+"""
+
+import numpy as np
+import pytest
+
+from gpsins import replay, results, sim
+from gpsins.sim.session import write_session
+
+REPORT = {"loose": {"enu_m": (20.0, 10.0, 22.0), "pitch_deg": 0.5, "yaw_deg": 5.0},
+          "tight": {"enu_m": (18.0, 22.0, 15.0), "pitch_deg": 0.3, "yaw_deg": 7.0}}
+L_TO_O = ("L-M", "M-N", "N-O")
+FACTOR = 3.0  # "about" read off a figure of one run, against one simulated run
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    root = tmp_path_factory.mktemp("report2005")
+    write_session(sim.simulate(sim.load("default"), seed=0), root / "session")
+    inp = replay.load_inputs(root / "session", modes=("loose", "tight"), config="report2005")
+    out = {}
+    for mode in ("loose", "tight"):
+        replay.run_mode(inp, root / mode, mode=mode)
+        out[mode] = results.load(root / mode)
+    return out
+
+
+def _l_to_o_peaks(z) -> np.ndarray:
+    """Largest |east|, |north|, |up| error over segments L-M to N-O."""
+    m = np.zeros(len(z["t"]), bool)
+    for label, (a, b) in zip(z["seg_labels"], z["seg_t"]):
+        if str(label) in L_TO_O:
+            m |= (z["t"] >= a) & (z["t"] < b)
+    e = z["err_ned_m"][m]
+    return np.nanmax(np.abs(np.column_stack([e[:, 1], e[:, 0], e[:, 2]])), axis=0)
+
+
+def _end_errors(z) -> np.ndarray:
+    """Mean |yaw| and |pitch| error over the last 10 s (the car stands still at the end)."""
+    end = z["t"] > z["t"][-1] - 10.0
+    return np.nanmean(np.abs(z["err_ypr_deg"][end, :2]), axis=0)
+
+
+@pytest.mark.parametrize("mode", ["loose", "tight"])
+def test_pitch_at_the_stop_is_the_reports(runs, mode):
+    _, pitch = _end_errors(runs[mode])
+    assert pitch <= 2 * REPORT[mode]["pitch_deg"]
+
+
+def test_tight_l_to_o_errors_are_the_reports_magnitude(runs):
+    peaks = _l_to_o_peaks(runs["tight"])
+    want = np.array(REPORT["tight"]["enu_m"])
+    assert np.all(peaks >= want / FACTOR) and np.all(peaks <= want * FACTOR), peaks
+
+
+@pytest.mark.xfail(strict=True, reason="seed 0: loose L-O east error peaks at 114 m in M-N, where the simulated "
+                                       "receiver's fixes are 100 m off and the report's tuning has no gate "
+                                       "(report: about 20 m)")
+def test_loose_l_to_o_errors_are_the_reports_magnitude(runs):
+    peaks = _l_to_o_peaks(runs["loose"])
+    want = np.array(REPORT["loose"]["enu_m"])
+    assert np.all(peaks >= want / FACTOR) and np.all(peaks <= want * FACTOR), peaks
+
+
+@pytest.mark.xfail(strict=True, reason="seed 0: yaw error at the stop about 13.5 deg (loose) and 13.3 deg (tight) "
+                                       "against the report's 5 and 7 deg")
+@pytest.mark.parametrize("mode", ["loose", "tight"])
+def test_yaw_at_the_stop_is_the_reports(runs, mode):
+    yaw, _ = _end_errors(runs[mode])
+    assert yaw <= 1.5 * REPORT[mode]["yaw_deg"]
