@@ -115,3 +115,13 @@ def test_gpst_text_matches_datetime():
     x = np.array([0.0005, 1.0004999, 12.9995, 1e9 + 0.0015, 1.5e9 + 0.9999996, 86399.9996])
     want = [(GPS_EPOCH + dt.timedelta(seconds=float(v))).strftime("%Y/%m/%d %H:%M:%S.%f")[:-3] for v in x]
     assert gpst_text(x) == want
+
+
+def test_smoothed_covariance_is_a_covariance(tight_inputs):
+    """The tight filter sets its clock bias from the first pseudorange epoch's residuals; the smoother's
+    record calls that a restart, so the forward covariance must forget the bias's past too (it did not,
+    and the smoothed clock-drift variance came out at -8100 m^2/s^2 before the first pseudorange)."""
+    whole, _, _, _ = _whole_and_chunked(tight_inputs, 10 ** 6, output_every=1)
+    p = whole.extra["smoothed"].covariance
+    assert np.all(np.diagonal(p, axis1=1, axis2=2) >= 0)
+    assert np.all(np.linalg.eigvalsh(0.5 * (p + np.swapaxes(p, 1, 2)))[:, 0] > -1e-9 * np.abs(p).max(axis=(1, 2)))

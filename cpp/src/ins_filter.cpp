@@ -522,6 +522,11 @@ void InsFilter<NB, NC>::process_pseudoranges(const PseudorangeEpoch& ep) {
       }
       std::nth_element(res.begin(), res.begin() + n / 2, res.begin() + n);
       core_.clock(0) = res[static_cast<std::size_t>(n / 2)];
+      // The bias starts afresh, independent of the drift it was propagated with so far: the
+      // covariance says so too, as the smoother's record of this restart assumes.
+      core_.P.row(Core::kClock).setZero();
+      core_.P.col(Core::kClock).setZero();
+      core_.P(Core::kClock, Core::kClock) = cfg_.clock_bias_sigma_m * cfg_.clock_bias_sigma_m;
       core_.note_restart(Core::kClock, 1);
       clock_set_ = true;
     }
