@@ -167,9 +167,10 @@ def _nav_user_times(nav_user: list, nav_ecef: list, ecef_t: np.ndarray, leap: in
     return utc + (leap or 0)
 
 
-def read_counting_damage(directory: str | Path) -> tuple[logs.SessionLog, Counter]:
-    """A session's record files, and what the readers skipped in them, by reason."""
-    session = logs.read_session(directory)
+def read_counting_damage(directory: str | Path, imu_frames: bool = True) -> tuple[logs.SessionLog, Counter]:
+    """A session's record files, and what the readers skipped in them, by reason
+    (imu_frames: see :func:`logs.read_session`)."""
+    session = logs.read_session(directory, imu_frames)
     skipped: Counter = Counter()
     for name, sensor in session.sensors.items():
         st = sensor.stats()
@@ -183,17 +184,23 @@ def read_counting_damage(directory: str | Path) -> tuple[logs.SessionLog, Counte
 
 
 def decode_session(directory: str | Path) -> Decoded:
-    session, skipped = read_counting_damage(directory)
+    """The session decoded for replay; its IMU is decoded as it is read (no frames kept)."""
+    session, skipped = read_counting_damage(directory, imu_frames=False)
     if "gps" not in session.sensors or not session.sensors["gps"].count:
         raise logs.LogError(f"{directory}: no GPS records")
     if "imu" not in session.sensors or not session.sensors["imu"].count:
         raise logs.LogError(f"{directory}: no IMU records")
     gps = decode_gps(session.sensors["gps"], skipped)
+    return Decoded(gps, valid_imu(session, skipped), skipped, session.sidecar, Path(directory))
+
+
+def valid_imu(session: logs.SessionLog, skipped: Counter) -> logs.ImuLog:
+    """The session's IMU samples without the frames flagged invalid, over range or failing
+    their test (counted). The session lets go of its IMU, so no second copy is held."""
     imu = session.imu()
+    del session.sensors["imu"]
     bad = _bad_imu(imu.status)
     if bad.any():
         skipped["imu: frames flagged invalid, over range or test failure"] += int(bad.sum())
-        keep = ~bad
-        imu = logs.ImuLog(imu.stamps[keep], imu.dtheta_rad[keep], imu.dv_mps[keep], imu.status[keep],
-                          imu.counter[keep], imu.rate_hz)
-    return Decoded(gps, imu, skipped, session.sidecar, Path(directory))
+        imu.keep(~bad)
+    return imu
