@@ -171,3 +171,15 @@ def test_decode_session_keeps_the_valid_samples_of_the_frame_path(tmp_path):
     np.testing.assert_array_equal(dec.imu.counter, [samples[k].counter for k in valid])
     assert dec.skipped["imu: frames flagged invalid, over range or test failure"] == len(samples) - len(valid)
     assert dec.skipped["imu: bytes between frames (garbage or damaged frames)"] == 3
+    # GPS: the pseudorange table, made while decoding, is what every ID 23 frame says.
+    rows, k = [], 0
+    for frame in framed.sensors["gps"].frames():
+        msg_id, payload = ss2.decode_frame(frame)
+        if msg_id == ss2.ID_MEASUREMENTS:
+            m = ss2.Measurements.decode(payload)
+            assert dec.gps.tow[k] == m.tow_s
+            rows += [(m.tow_s, o.prn, m.pseudorange_m(o), o.cn0_dbhz, o.lock_count) for o in m.observations
+                     if not o.sbas]
+            k += 1
+    assert k == len(dec.gps.tow) > 50 and len(rows) > 5 * k
+    np.testing.assert_array_equal(dec.gps.pseudorange_table(), np.array(rows))

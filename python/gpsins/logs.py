@@ -24,6 +24,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Iterator
 
 import numpy as np
 
@@ -116,6 +117,14 @@ class Scan:
     def frames(self) -> list[bytes]:
         data, off = self._require_frames().tobytes(), self.frame_offsets.tolist()
         return [data[a:b] for a, b in zip(off[:-1], off[1:])]
+
+    def iter_frames(self, rows: int = 1 << 16) -> Iterator[tuple[bytes, float]]:
+        """(frame, stamp) of every record, made a few thousand at a time (no list of them all)."""
+        data, off = self._require_frames(), self.frame_offsets
+        for a in range(0, self.count, rows):
+            b = min(self.count, a + rows)
+            chunk, o = data[off[a]:off[b]].tobytes(), (off[a:b + 1] - off[a]).tolist()
+            yield from zip((chunk[x:y] for x, y in zip(o[:-1], o[1:])), self.stamps[a:b].tolist())
 
     def record(self, k: int) -> bytes:
         """Record k as it lies in the file (stamp included)."""
@@ -334,10 +343,12 @@ BLOCK_BYTES = 4 << 20  # read size: the transient arrays of one block are a few 
 
 class _Growing:
     """A column filled block by block. Sized for the most records the file can
-    hold (pages never written take no memory), grown if the file grew."""
+    hold, up to 1 GiB (pages never written take no memory); grown past that, or
+    if the file grew, by reallocation, which moves no pages of a large array."""
 
     def __init__(self, dtype, capacity: int, width: tuple = ()):
-        self.a = np.empty((max(capacity, 16), *width), dtype)
+        row = np.dtype(dtype).itemsize * int(np.prod(width, dtype=np.int64))
+        self.a = np.empty((max(min(capacity, (1 << 30) // row), 16), *width), dtype)
         self.n = 0
 
     def reserve(self, m: int) -> np.ndarray:
@@ -782,6 +793,11 @@ class SensorFiles:
 
     def frames(self) -> list[bytes]:
         return [f for s in self.scans for f in s.frames()]
+
+    def iter_frames(self) -> Iterator[tuple[bytes, float]]:
+        """(frame, stamp) of every record of every file, in order."""
+        for s in self.scans:
+            yield from s.iter_frames()
 
     def stats(self) -> dict:
         keys = ("records", "bytes", "discarded_bytes", "truncated_tail_bytes", "resyncs", "bad_stamps",

@@ -82,10 +82,8 @@ class UbloxGps:
 
 
 def decode_gps(files: logs.SensorFiles, skipped: Counter, fix_uere_m: float = 3.0) -> UbloxGps:
-    frames = files.frames()
-    stamps = files.stamps
     rawx_t, rawx_stamps, pvt_stamps = [], [], []
-    for fr, st in zip(frames, stamps):
+    for fr, st in files.iter_frames():
         if (fr[2], fr[3]) == ubx.RXM_RAWX and len(fr) >= 8 + 16:
             tow, week = struct.unpack_from("<dH", fr, 6)
             rawx_t.append(week * SECONDS_PER_WEEK + tow)
@@ -93,7 +91,7 @@ def decode_gps(files: logs.SensorFiles, skipped: Counter, fix_uere_m: float = 3.
         elif (fr[2], fr[3]) == ubx.NAV_PVT and len(fr) >= 8 + 92:
             pvt_stamps.append(st)
     try:
-        u = ubx_reader.parse(b"".join(frames), "gps records")
+        u = ubx_reader.parse(b"".join(s.frame_data.tobytes() for s in files.scans), "gps records")
     except ubx_reader.ReaderError as e:
         raise logs.LogError(f"no usable UBX records in the session ({e})") from None
     if rawx_t:
@@ -142,7 +140,7 @@ class EsfSamples:
 def esf_samples(files: logs.SensorFiles, skipped: Counter) -> EsfSamples | None:
     """Complete samples (three gyro and three accelerometer axes sharing a time tag) from ESF-RAW."""
     tags, stamps, rates, accel = [], [], [], []
-    for fr, st in zip(files.frames(), files.stamps):
+    for fr, st in files.iter_frames():
         if (fr[2], fr[3]) != ubx.ESF_RAW:
             continue
         n = (len(fr) - 8 - 4) // 8
