@@ -103,7 +103,8 @@ def main() -> None:
     if a.case:
         print(json.dumps(run_case(a.case, Path(a.file), a.block)))
         return
-    print(f"block {a.block:g} MiB; MB = 1e6 bytes; peak RSS is the whole process (the 'before' column: interpreter and imports)")
+    print(f"block {a.block:g} MiB; MB = 1e6 bytes; peak RSS is the whole process "
+          "(the 'before' column: interpreter and imports)")
     print(f"{'case':>8} {'MB':>6} {'records':>9} {'wall s':>7} {'MB/s':>6} {'cpu s':>6} {'MB/cpu s':>8} "
           f"{'peak MB':>8} {'x file':>7} {'before':>7}")
     with tempfile.TemporaryDirectory() as d:
