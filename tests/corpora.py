@@ -174,7 +174,7 @@ def fuzz_reader_case(c: Corpus, rng: np.random.Generator) -> FuzzTally:
         if f not in c.frame_set:
             t.damaged_accepted += 1
             continue
-        rec = s.data[int(s.starts[k]):int(s.starts[k] + s.lengths[k])].tobytes()
+        rec = s.record(k)
         got.add(rec)
         if rec not in c.record_set:
             t.stamp_changed_accepted += 1

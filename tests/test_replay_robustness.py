@@ -46,7 +46,7 @@ def rewrite(d, sensor, keep=None, stamps=None):
     keep = np.ones(scan.count, bool) if keep is None else keep
     out = []
     for k in np.flatnonzero(keep):
-        raw = scan.data[scan.starts[k]:scan.starts[k] + scan.lengths[k]].tobytes()
+        raw = scan.record(k)
         out.append(raw[:h] + STAMP.pack(stamps[k]) + raw[h + logs.STAMP_BYTES:])
     (d / f"{sensor}-000.bin").write_bytes(b"".join(out))
 

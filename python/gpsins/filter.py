@@ -525,8 +525,8 @@ class ChunkedRun:
     what is in memory at a time does not grow with the run: ``chunks()`` yields each call's
     ``Solution`` (its epochs only, with their covariances), the same rows one ``run`` gives.
     ``record=True`` keeps the smoother's record of the forward pass (spilled to a temporary
-    file in ``smooth_chunk_mb`` pieces); ``smoothed_blocks()`` then yields the smoothed
-    solution in blocks, newest block first, each in time order."""
+    file in ``smooth_chunk_mb`` pieces); ``smooth(sink)`` then hands the smoothed
+    solution over in blocks, newest block first, each in time order."""
 
     def __init__(self, imu: np.ndarray, fixes: np.ndarray, config=None, *, mode: str | None = None,
                  output_every: int = 1, pseudoranges: np.ndarray | None = None, ephemerides=(), klobuchar=None,

@@ -7,6 +7,10 @@ then follows the chain of records from the start, resynchronising at the
 next valid candidate after damage, exactly as the logger's streaming finder
 does on a byte stream. Python loops only over damaged places, never over
 records. A truncated last record is accepted as the file's tail and reported.
+Files are read in blocks (:func:`scan_stream`, :func:`read_record_file`) with
+the same result as the whole-buffer :func:`scan`, and kept as compact columns
+(offsets, lengths, stamps, frame bytes; or a BP3010's decoded increments), so
+memory grows with what is kept, not with the file's bytes plus index arrays.
 Layouts: Superstar II (header SOH, ID, ~ID, N), BP3010 (sync byte) and u-blox
 (header B5 62, class, id, length U2; the Fletcher checksum over class..length
 and the payload, the stamp between them left out).
@@ -20,6 +24,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Iterator
 
 import numpy as np
 
@@ -50,6 +55,17 @@ class Layout:
     def stamp_len(self) -> int:
         return STAMP_BYTES if self.stamped else 0
 
+    @property
+    def fixed_len(self) -> int | None:
+        """The one record length of a layout that has one (BP3010), else None."""
+        return bp3010.FRAME_LEN + self.stamp_len if self.device == "bp3010" else None
+
+    @property
+    def min_len(self) -> int:
+        """The shortest record (or frame) this layout can hold."""
+        frame = {"superstar2": 6, "bp3010": bp3010.FRAME_LEN, "ublox": 8}[self.device]
+        return frame + self.stamp_len
+
 
 SS2_RECORDS = Layout("superstar2", ss2.SOH, ss2.HEADER_LEN, True)
 BP_RECORDS = Layout("bp3010", bp3010.SYNC, 1, True)
@@ -62,33 +78,72 @@ LAYOUTS = {"superstar2": SS2_RECORDS, "bp3010": BP_RECORDS, "ublox": UBX_RECORDS
 
 @dataclass
 class Scan:
-    """Accepted records of one file: offsets into `data`, lengths, stamps."""
+    """Accepted records of one file as compact columns: file offsets, lengths,
+    stamps and the device frames back to back (stamps removed). A BP3010 file
+    read for replay keeps its decoded increments (`imu`) instead of the frames."""
 
     path: str
     layout: Layout
-    data: np.ndarray  # uint8, the whole file
-    starts: np.ndarray  # int64 offsets of accepted records
-    lengths: np.ndarray  # int64 record lengths (stamp included for record files)
+    starts: np.ndarray  # int64 file offsets of accepted records
+    lengths: np.ndarray  # int32 record lengths (stamp included for record files); read-only for BP3010
+    stamps: np.ndarray  # float64 (NaN for raw device streams)
+    frame_data: np.ndarray | None  # uint8, the accepted frames as the device sent them, back to back
     stats: dict = field(default_factory=dict)
+    imu: "ImuLog | None" = None
+    _offsets: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     @property
     def count(self) -> int:
         return len(self.starts)
 
     @property
-    def stamps(self) -> np.ndarray:
-        if not self.layout.stamped:
-            return np.full(self.count, np.nan)
-        return _gather(self.data, self.starts + self.layout.header_len, STAMP_BYTES).view("<f8").reshape(-1)
+    def frame_offsets(self) -> np.ndarray:
+        """(count + 1,) int64: frame k is frame_data[offsets[k]:offsets[k + 1]]."""
+        if self._offsets is None:
+            self._offsets = np.zeros(self.count + 1, dtype=np.int64)
+            np.cumsum(self.lengths - self.layout.stamp_len, out=self._offsets[1:])
+        return self._offsets
+
+    def _require_frames(self) -> np.ndarray:
+        if self.frame_data is None:
+            raise LogError(f"{self.path}: read as decoded IMU samples; its frames were not kept")
+        return self.frame_data
 
     def frame(self, k: int) -> bytes:
         """The device frame of record k, as the device sent it (stamp removed)."""
-        s, n, h, sl = int(self.starts[k]), int(self.lengths[k]), self.layout.header_len, self.layout.stamp_len
-        raw = self.data[s:s + n].tobytes()
-        return raw[:h] + raw[h + sl:]
+        off = self.frame_offsets
+        return self._require_frames()[int(off[k]):int(off[k + 1])].tobytes()
 
     def frames(self) -> list[bytes]:
-        return [self.frame(k) for k in range(self.count)]
+        data, off = self._require_frames().tobytes(), self.frame_offsets.tolist()
+        return [data[a:b] for a, b in zip(off[:-1], off[1:])]
+
+    def iter_frames(self, rows: int = 1 << 16) -> Iterator[tuple[bytes, float]]:
+        """(frame, stamp) of every record, made a few thousand at a time (no list of them all)."""
+        data, off = self._require_frames(), self.frame_offsets
+        for a in range(0, self.count, rows):
+            b = min(self.count, a + rows)
+            chunk, o = data[off[a]:off[b]].tobytes(), (off[a:b + 1] - off[a]).tolist()
+            yield from zip((chunk[x:y] for x, y in zip(o[:-1], o[1:])), self.stamps[a:b].tolist())
+
+    def record(self, k: int) -> bytes:
+        """Record k as it lies in the file (stamp included)."""
+        f, h = self.frame(k), self.layout.header_len
+        if not self.layout.stamped:
+            return f
+        return f[:h] + self.stamps[k:k + 1].astype("<f8").tobytes() + f[h:]
+
+    def keep(self, keep: np.ndarray) -> None:
+        """Keep only the records where keep is true (one column copied at a time)."""
+        if self.frame_data is not None:
+            self.frame_data = self.frame_data[np.repeat(keep, self.lengths - self.layout.stamp_len)]
+        if self.imu is not None:
+            self.imu.keep(keep)
+            self.stamps = self.imu.stamps
+        else:
+            self.stamps = self.stamps[keep]
+        self.starts, self.lengths = self.starts[keep], self.lengths[keep]
+        self._offsets = None
 
 
 def _gather(buf: np.ndarray, offsets: np.ndarray, width: int) -> np.ndarray:
@@ -129,22 +184,22 @@ def _candidates(buf: np.ndarray, lay: Layout, lo: float = STAMP_MIN, hi: float =
     ok = np.zeros(len(p), dtype=bool)
     bad_stamp = np.zeros(len(p), dtype=bool)
     pc, lc = p[complete], length[complete]
-    if len(pc):
+    if len(pc) and lay.device == "superstar2":
         # Running sums modulo the checksum's width: unsigned wrap-around is exact
-        # here and keeps the array 1-2 bytes per input byte.
-        wide = np.uint16 if lay.device == "superstar2" else np.uint8
-        cs = np.zeros(size + 1, dtype=wide)
-        np.cumsum(buf, dtype=wide, out=cs[1:])
-        if lay.device == "superstar2":
-            body = pc + ss2.HEADER_LEN + sl
-            end = pc + lc - 2  # checksum position
-            total = (cs[pc + ss2.HEADER_LEN] - cs[pc]) + (cs[end] - cs[body])
-            want = buf[end].astype(np.int64) | buf[end + 1].astype(np.int64) << 8
-            good = total.astype(np.uint16) == want
-        else:
-            body = pc + 1 + sl
-            end = pc + lc - 1
-            good = (cs[end] - cs[body]) == buf[end]
+        # here and keeps the array 2 bytes per input byte.
+        cs = np.zeros(size + 1, dtype=np.uint16)
+        np.cumsum(buf, dtype=np.uint16, out=cs[1:])
+        body = pc + ss2.HEADER_LEN + sl
+        end = pc + lc - 2  # checksum position
+        total = (cs[pc + ss2.HEADER_LEN] - cs[pc]) + (cs[end] - cs[body])
+        want = buf[end].astype(np.int64) | buf[end + 1].astype(np.int64) << 8
+        good = total.astype(np.uint16) == want
+    elif len(pc):
+        # One length: the 14 body bytes of each candidate summed modulo 256 (faster than running sums).
+        body = pc + 1 + sl
+        end = pc + lc - 1
+        good = _gather(buf, body, bp3010.FRAME_LEN - 2).sum(axis=1, dtype=np.uint8) == buf[end]
+    if len(pc):
         ok[complete], bad_stamp[complete] = _check_stamps(buf, pc, lay, lo, hi, good)
     return p, length, ok, bad_stamp
 
@@ -252,7 +307,263 @@ def scan(buf: np.ndarray | bytes, layout: Layout, path: str = "<bytes>", limits:
         "first_discarded_offset": first_discarded,
         "resyncs": int(np.count_nonzero(np.diff(starts) != lengths[:-1])) if len(starts) > 1 else 0,
     }
-    return Scan(path, layout, buf, starts, lengths, stats)
+    return Scan(path, layout, starts, lengths.astype(np.int32), _stamps_at(buf, starts, layout),
+                _frame_bytes(buf, starts, lengths, layout), stats)
+
+
+def _stamps_at(buf: np.ndarray, starts: np.ndarray, lay: Layout) -> np.ndarray:
+    if not lay.stamped:
+        return np.full(len(starts), np.nan)
+    return _gather(buf, starts + lay.header_len, STAMP_BYTES).view("<f8").reshape(-1)
+
+
+def _frame_bytes(buf: np.ndarray, starts: np.ndarray, lengths: np.ndarray, lay: Layout) -> np.ndarray:
+    """The records at starts (non-overlapping, sorted) without their stamps, back to back:
+    a +1/-1 step at each record's and stamp's ends, summed, marks the bytes to keep."""
+    if not len(starts):
+        return np.zeros(0, np.uint8)
+    if lay.device == "bp3010":  # one length: rows of the record, the stamp's columns left out
+        rows = _gather(buf, starts, bp3010.FRAME_LEN + lay.stamp_len)
+        h = lay.header_len
+        return np.concatenate((rows[:, :h], rows[:, h + lay.stamp_len:]), axis=1).reshape(-1)
+    step = np.zeros(len(buf) + 1, np.int8)
+    step[starts] += 1  # each assignment's indices are distinct, so no step is lost
+    step[starts + lengths] -= 1
+    if lay.stamped:
+        stamp = starts + lay.header_len
+        step[stamp] -= 1
+        step[stamp + STAMP_BYTES] += 1
+    return buf[np.cumsum(step[:-1], dtype=np.int8) > 0]
+
+
+# --- streaming reader ---------------------------------------------------------------
+
+BLOCK_BYTES = 4 << 20  # read size: the transient arrays of one block are a few times this
+
+
+class _Growing:
+    """A column filled block by block. Sized for the most records the file can
+    hold, up to 1 GiB (pages never written take no memory); grown past that, or
+    if the file grew, by reallocation, which moves no pages of a large array."""
+
+    def __init__(self, dtype, capacity: int, width: tuple = ()):
+        row = np.dtype(dtype).itemsize * int(np.prod(width, dtype=np.int64))
+        self.a = np.empty((max(min(capacity, (1 << 30) // row), 16), *width), dtype)
+        self.n = 0
+
+    def reserve(self, m: int) -> np.ndarray:
+        """The next m rows, to be written by the caller."""
+        if self.n + m > len(self.a):
+            self.a.resize((max(2 * len(self.a), self.n + m), *self.a.shape[1:]), refcheck=False)
+        out = self.a[self.n:self.n + m]
+        self.n += m
+        return out
+
+    def extend(self, v: np.ndarray) -> None:
+        self.reserve(len(v))[...] = v
+
+    def take(self) -> np.ndarray:
+        self.a.resize((self.n, *self.a.shape[1:]), refcheck=False)  # shrinks in place
+        return self.a
+
+
+class _FrameColumns:
+    """What a Scan keeps of each record: offset, length, stamp, frame bytes."""
+
+    def __init__(self, lay: Layout, size: int):
+        n = size // lay.min_len + 1
+        self.lay = lay
+        self.starts, self.stamps, self.frames = _Growing(np.int64, n), _Growing(np.float64, n), _Growing(np.uint8, size)
+        self.lengths = _Growing(np.int32, n) if lay.fixed_len is None else None
+
+    def add(self, buf: np.ndarray, p: np.ndarray, length: np.ndarray, base: int) -> None:
+        self.starts.extend(p + base)
+        if self.lengths is not None:
+            self.lengths.extend(length)
+        self.stamps.extend(_stamps_at(buf, p, self.lay))
+        self.frames.extend(_frame_bytes(buf, p, length, self.lay))
+
+    def scan(self, path: str, stats: dict) -> Scan:
+        starts = self.starts.take()
+        lengths = self.lengths.take() if self.lengths is not None else _same_lengths(self.lay, len(starts))
+        return Scan(path, self.lay, starts, lengths, self.stamps.take(), self.frames.take(), stats)
+
+
+def _same_lengths(lay: Layout, n: int) -> np.ndarray:
+    """Lengths of n records of a fixed-length layout: one value seen n times (read-only, no memory)."""
+    return np.broadcast_to(np.int32(lay.fixed_len), (n,))
+
+
+class _ImuColumns:
+    """BP3010 records decoded as they are read: offset, stamp, increments, status, counter."""
+
+    def __init__(self, lay: Layout, size: int, rate_hz: int):
+        n = size // lay.min_len + 1
+        self.lay, self.rate_hz = lay, rate_hz
+        self.lsb = bp3010.dtheta_lsb_rad(rate_hz), bp3010.dv_lsb_mps(rate_hz)
+        self.starts, self.stamps = _Growing(np.int64, n), _Growing(np.float64, n)
+        self.dtheta, self.dv = _Growing(np.float64, n, (3,)), _Growing(np.float64, n, (3,))
+        self.status, self.counter = _Growing(np.uint8, n), _Growing(np.uint8, n)
+
+    def add(self, buf: np.ndarray, p: np.ndarray, length: np.ndarray, base: int) -> None:
+        self.starts.extend(p + base)
+        self.stamps.extend(_stamps_at(buf, p, self.lay))
+        _decode_bp3010(_gather(buf, p + (1 + self.lay.stamp_len), 14), self.lsb, self.dtheta.reserve(len(p)),
+                       self.dv.reserve(len(p)), self.status.reserve(len(p)), self.counter.reserve(len(p)))
+
+    def scan(self, path: str, stats: dict) -> Scan:
+        starts = self.starts.take()
+        imu = ImuLog(self.stamps.take(), self.dtheta.take(), self.dv.take(), self.status.take(), self.counter.take(),
+                     self.rate_hz)
+        return Scan(path, self.lay, starts, _same_lengths(self.lay, len(starts)), imu.stamps, None, stats, imu)
+
+
+def _decode_bp3010(body: np.ndarray, lsb: tuple[float, float], dtheta: np.ndarray, dv: np.ndarray,
+                   status: np.ndarray, counter: np.ndarray) -> None:
+    """(n, 14) frame bodies (after the sync, without the checksum) into the given outputs."""
+    counts = np.ascontiguousarray(body[:, :12]).view("<i2")
+    np.multiply(counts[:, 0:3], lsb[0], out=dtheta)
+    np.multiply(counts[:, 3:6], lsb[1], out=dv)
+    status[:] = body[:, 12]
+    counter[:] = body[:, 13]
+
+
+class _Chain:
+    """The greedy chain of records across blocks, and the damage counts the
+    whole-buffer :func:`scan` makes, decided block by block.
+
+    A block decides everything before its first undecided position u: a
+    header-valid candidate that runs past the block's end, or a place too near
+    the end to hold a header. The chain runs through the valid candidates
+    before u and waits at the last record's end; the bytes from u on are
+    carried into the next block, so a record across a boundary is found once,
+    in the block that holds all of it."""
+
+    def __init__(self, lay: Layout, limits: StampLimits, columns):
+        self.lay, self.columns = lay, columns
+        self.lo, self.hi = limits.lo, limits.hi
+        self.last_end = 0  # end of the last accepted record; the next is the first valid candidate from here
+        self.records = self.covered = self.resyncs = 0
+        self.first_discarded: int | None = None
+        # Places where the chain resumes (0 and every record's end) not yet checked for a record with a good
+        # checksum and an impossible stamp, because the candidate there was not yet complete.
+        self.pending = np.zeros(1, np.int64)
+        self.broken: set[int] = set()
+        self.stats: dict = {}
+
+    def block(self, buf: np.ndarray, base: int, final: bool) -> int:
+        """Decide what buf (at file offset base) decides; returns how many of its bytes are done."""
+        size, lay = len(buf), self.lay
+        p, length, ok, bad_stamp = _candidates(buf, lay, self.lo, self.hi)
+        incomplete = p + length > size
+        u = size
+        if not final:
+            u = max(0, min([size - lay.header_len + 1, *p[incomplete][:1].tolist()]))
+        decided = ok & (p < u)
+        vp, vl = p[decided], length[decided]
+        chosen = _follow(vp, vl, int(np.searchsorted(vp, self.last_end - base)))
+        starts, lengths = vp[chosen], vl[chosen]
+        ends = starts + lengths
+        if len(starts):
+            prev_end = np.concatenate(([self.last_end - base], ends[:-1]))
+            gap = starts != prev_end
+            if self.first_discarded is None and gap.any():
+                self.first_discarded = base + int(prev_end[np.argmax(gap)])
+            self.resyncs += int(np.count_nonzero(gap[1:])) + int(bool(gap[0]) and self.records > 0)
+            self.records += len(starts)
+            self.covered += int(lengths.sum())
+            self.last_end = base + int(ends[-1])
+            self.columns.add(buf, starts, lengths, base)
+        pending = self.pending - base
+        bp_, bl_ = p[bad_stamp], length[bad_stamp]  # few: random bytes that pass the checksum, broken stamps
+        k = np.minimum(np.searchsorted(ends, bp_), max(len(ends) - 1, 0))
+        hit = np.isin(bp_, pending) | (ends[k] == bp_ if len(ends) else False)
+        more = hit
+        while more.any():
+            more = ~hit & np.isin(bp_, bp_[more] + bl_[more])
+            hit |= more
+        self.broken.update((bp_[hit] + base).tolist())
+        later = np.concatenate((pending, ends[-1:], bp_[hit] + bl_[hit]))  # records' ends before u were checked
+        self.pending = np.unique(later[later >= u]) + base
+        if final:
+            self._finish(p, length, incomplete, base, size)
+        return u
+
+    def _finish(self, p: np.ndarray, length: np.ndarray, incomplete: np.ndarray, base: int, size: int) -> None:
+        total = base + size
+        inc = p[incomplete & (p + base >= self.last_end)]
+        tail_offset = base + int(inc[0]) if len(inc) else None
+        tail = total - tail_offset if tail_offset is not None else 0
+        if self.first_discarded is None and self.last_end != total - tail:
+            self.first_discarded = self.last_end
+        broken = sorted(self.broken)
+        self.stats = {
+            "records": self.records,
+            "bad_stamps": len(broken),
+            "first_bad_stamp_offset": broken[0] if broken else None,
+            "bytes": total,
+            "discarded_bytes": total - self.covered - tail,
+            "truncated_tail_bytes": tail,
+            "truncated_tail_offset": tail_offset,
+            "first_discarded_offset": self.first_discarded,
+            "resyncs": self.resyncs,
+        }
+
+
+def _follow(vp: np.ndarray, vl: np.ndarray, k: int) -> np.ndarray:
+    """Which of the valid candidates (positions vp, lengths vl) the chain takes from candidate k on:
+    after a record ending at e, the first valid candidate at or after e."""
+    n = len(vp)
+    chosen = np.zeros(n, dtype=bool)
+    if k >= n:
+        return chosen
+    succ = np.searchsorted(vp, vp + vl)
+    irregular = np.flatnonzero(succ != np.arange(1, n + 1))
+    while k < n:
+        j = np.searchsorted(irregular, k)
+        if j == len(irregular):
+            chosen[k:] = True
+            break
+        stop = irregular[j]
+        chosen[k:stop + 1] = True
+        k = succ[stop]
+    return chosen
+
+
+def _stream(f, layout: Layout, limits: StampLimits, columns, block_bytes: int) -> dict:
+    """Feed the chain block by block from a binary file object; returns the damage counts."""
+    chain = _Chain(layout, limits, columns)
+    carry, base = np.zeros(0, np.uint8), 0
+    while True:
+        buf = np.empty(len(carry) + block_bytes, np.uint8)
+        buf[:len(carry)] = carry
+        got = f.readinto(memoryview(buf)[len(carry):])
+        if not got:
+            chain.block(carry, base, final=True)
+            return chain.stats
+        buf = buf[:len(carry) + got]
+        u = chain.block(buf, base, final=False)
+        carry, base = buf[u:].copy(), base + u
+
+
+def _file_size(f) -> int:
+    try:
+        here = f.tell()
+        end = f.seek(0, 2)
+        f.seek(here)
+        return end - here
+    except (OSError, AttributeError, ValueError):
+        return 1 << 16
+
+
+def scan_stream(f, layout: Layout, path: str = "<stream>", limits: "StampLimits | None" = None,
+                block_bytes: int = BLOCK_BYTES) -> Scan:
+    """The same records and counts as :func:`scan` of the whole content of the
+    binary file object f, read in blocks of block_bytes: memory is the result's
+    columns plus a few blocks, whatever the file's size."""
+    limits = limits or StampLimits()
+    columns = _FrameColumns(layout, _file_size(f))
+    return columns.scan(path, _stream(f, layout, limits, columns, block_bytes))
 
 
 @dataclass(frozen=True)
@@ -313,37 +624,67 @@ def _finite(v) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool) and bool(np.isfinite(v))
 
 
-def reject_bad_stamps(s: Scan, limits: StampLimits) -> Scan:
-    """Drop records whose stamp is impossible (outside the session, or out of
-    line with both its neighbours), count them, keep their neighbours."""
-    if not s.layout.stamped or not s.count:
-        return s
-    st = s.stamps
+OUTLIER_ROWS = 1 << 20  # stamps compared at a time: the temporaries stay a few MB whatever the file
+
+
+def stamp_outliers(st: np.ndarray, limits: StampLimits) -> np.ndarray:
+    """Which stamps are impossible: outside the session, or out of line with both neighbours."""
     bad = ~((st >= limits.lo) & (st <= limits.hi))
     # Neighbour test on the records left: a stamp is damaged when it runs back
     # from the previous record or ahead of the next by more than a clock step,
     # while those two agree with each other. Repeat so a damaged record does
     # not hide its neighbour's damage; each pass only removes records.
     for _ in range(8):
-        keep = np.flatnonzero(~bad)
-        if len(keep) < 2:
+        keep = np.flatnonzero(~bad) if bad.any() else None  # None: all of them, no copy
+        t = st if keep is None else st[keep]
+        if len(t) < 2:
             break
-        t = st[keep]
-        prev = np.concatenate(([-np.inf], t[:-1]))
-        nxt = np.concatenate((t[1:], [np.inf]))
-        back_from_prev = t < prev - limits.back_s
-        ahead_of_next = t > nxt + limits.back_s
-        agree = nxt >= prev - limits.back_s
-        # The ends have one neighbour: it must agree with its own other neighbour.
-        if len(t) >= 3:
-            agree[0] = t[2] >= t[1] - limits.back_s
-            agree[-1] = t[-2] >= t[-3] - limits.back_s
-        else:
-            agree[:] = False
-        out = (back_from_prev | ahead_of_next) & agree
+        out = _out_of_line(t, limits.back_s)
         if not out.any():
             break
-        bad[keep[out]] = True
+        bad[out if keep is None else keep[out]] = True
+    return bad
+
+
+def _out_of_line(t: np.ndarray, back: float) -> np.ndarray:
+    """One pass of the neighbour test over t, a block of rows at a time."""
+    n = len(t)
+    out = np.zeros(n, dtype=bool)
+    for a in range(0, n, OUTLIER_ROWS):
+        b = min(n, a + OUTLIER_ROWS)
+        cur = t[a:b]
+        prev = t[a - 1:b - 1] if a > 0 else np.concatenate(([-np.inf], t[:b - 1]))
+        nxt = t[a + 1:b + 1] if b < n else np.concatenate((t[a + 1:], [np.inf]))
+        agree = nxt >= prev - back
+        # The ends have one neighbour: it must agree with its own other neighbour.
+        if n < 3:
+            agree[:] = False
+        else:
+            if a == 0:
+                agree[0] = t[2] >= t[1] - back
+            if b == n:
+                agree[-1] = t[-2] >= t[-3] - back
+        out[a:b] = ((cur < prev - back) | (cur > nxt + back)) & agree
+    return out
+
+
+def _first_backwards(st: np.ndarray) -> tuple[int, int | None]:
+    """How many stamps run back from the one before, and the index of the first."""
+    count, first = 0, None
+    for a in range(0, len(st) - 1, OUTLIER_ROWS):
+        back = np.flatnonzero(st[a + 1:a + 1 + OUTLIER_ROWS] < st[a:a + OUTLIER_ROWS][:len(st) - 1 - a])
+        count += len(back)
+        if first is None and len(back):
+            first = a + int(back[0]) + 1
+    return count, first
+
+
+def reject_bad_stamps(s: Scan, limits: StampLimits) -> Scan:
+    """Drop records whose stamp is impossible (see :func:`stamp_outliers`),
+    count them, keep their neighbours."""
+    if not s.layout.stamped or not s.count:
+        return s
+    bad = stamp_outliers(s.stamps, limits)
     n_bad = int(np.count_nonzero(bad))
     if n_bad:
         s.stats["bad_stamps"] += n_bad
@@ -352,35 +693,45 @@ def reject_bad_stamps(s: Scan, limits: StampLimits) -> Scan:
         s.stats["first_bad_stamp_offset"] = first if old is None else min(old, first)
         s.stats["discarded_bytes"] += int(s.lengths[bad].sum())
         s.stats["records"] -= n_bad
-        s.starts, s.lengths = s.starts[~bad], s.lengths[~bad]
+        s.keep(~bad)
     return s
 
 
-def read_record_file(path: str | Path, device: str, limits: StampLimits | None = None) -> Scan:
+def read_record_file(path: str | Path, device: str, limits: StampLimits | None = None,
+                     block_bytes: int = BLOCK_BYTES, imu_rate_hz: int | None = None) -> Scan:
+    """A record file read in blocks (see :func:`scan_stream`), impossible stamps
+    dropped. With imu_rate_hz (BP3010 files), the records are decoded as they
+    are read into the Scan's `imu` and their frames are not kept."""
     path = Path(path)
     if device not in LAYOUTS:
         raise LogError(f"{path}: unknown device {device!r} (known: {', '.join(LAYOUTS)})")
+    lay = LAYOUTS[device]
+    if imu_rate_hz is not None and device != "bp3010":
+        raise LogError(f"{path}: only BP3010 records decode as IMU samples, not {device!r}")
+    limits = limits or StampLimits()
     try:
-        buf = np.fromfile(path, dtype=np.uint8)
+        with open(path, "rb", buffering=0) as f:
+            size = _file_size(f)
+            columns = _FrameColumns(lay, size) if imu_rate_hz is None else _ImuColumns(lay, size, imu_rate_hz)
+            out = columns.scan(str(path), _stream(f, lay, limits, columns, block_bytes))
     except OSError as e:
         raise LogError(f"{path}: cannot read: {e.strerror}") from None
-    limits = limits or StampLimits()
-    out = reject_bad_stamps(scan(buf, LAYOUTS[device], str(path), limits), limits)
-    st = out.stamps
-    back = np.flatnonzero(np.diff(st) < 0)
-    out.stats["stamps_backwards"] = int(len(back))
-    out.stats["first_backwards_offset"] = int(out.starts[back[0] + 1]) if len(back) else None
+    out = reject_bad_stamps(out, limits)
+    count, first = _first_backwards(out.stamps)
+    out.stats["stamps_backwards"] = count
+    out.stats["first_backwards_offset"] = int(out.starts[first]) if first is not None else None
     return out
 
 
 def message_ids(s: Scan) -> np.ndarray:
     """Superstar II message ID of every record."""
-    return s.data[s.starts + 1] & 0x7F
+    return s._require_frames()[s.frame_offsets[:-1] + 1] & 0x7F
 
 
 def ubx_class_ids(s: Scan) -> np.ndarray:
     """(n, 2) UBX class and id of every record."""
-    return np.column_stack([s.data[s.starts + 2], s.data[s.starts + 3]])
+    data, off = s._require_frames(), s.frame_offsets[:-1]
+    return np.column_stack([data[off + 2], data[off + 3]])
 
 
 # --- BP3010 -----------------------------------------------------------------------
@@ -398,13 +749,29 @@ class ImuLog:
     def __len__(self) -> int:
         return len(self.stamps)
 
+    def keep(self, keep: np.ndarray) -> None:
+        """Keep only the samples where keep is true, in place, one column at a time."""
+        for name in ("stamps", "dtheta_rad", "dv_mps", "status", "counter"):
+            setattr(self, name, getattr(self, name)[keep])
+
+
+IMU_DECODE_ROWS = 1 << 20  # frames decoded at a time from a Scan's frame bytes
+
 
 def imu_log(s: Scan, rate_hz: int = bp3010.NOMINAL_RATE_HZ) -> ImuLog:
-    body = s.starts + (1 + s.layout.stamp_len)
-    raw = _gather(s.data, body, 14)
-    counts = raw[:, :12].copy().view("<i2").astype(np.float64)
-    return ImuLog(s.stamps, counts[:, 0:3] * bp3010.dtheta_lsb_rad(rate_hz), counts[:, 3:6] * bp3010.dv_lsb_mps(rate_hz),
-                  raw[:, 12].copy(), raw[:, 13].copy(), rate_hz)
+    """The BP3010 records of s as increments (s.imu itself when s was read decoded)."""
+    if s.imu is not None:
+        if s.imu.rate_hz != rate_hz:
+            raise LogError(f"{s.path}: decoded at {s.imu.rate_hz} Hz, asked for {rate_hz} Hz")
+        return s.imu
+    frames = s._require_frames().reshape(-1, bp3010.FRAME_LEN)
+    n = len(frames)
+    out = ImuLog(s.stamps, np.empty((n, 3)), np.empty((n, 3)), np.empty(n, np.uint8), np.empty(n, np.uint8), rate_hz)
+    lsb = bp3010.dtheta_lsb_rad(rate_hz), bp3010.dv_lsb_mps(rate_hz)
+    for a in range(0, n, IMU_DECODE_ROWS):
+        r = slice(a, a + IMU_DECODE_ROWS)
+        _decode_bp3010(frames[r, 1:15], lsb, out.dtheta_rad[r], out.dv_mps[r], out.status[r], out.counter[r])
+    return out
 
 
 # --- sessions ---------------------------------------------------------------------
@@ -427,6 +794,11 @@ class SensorFiles:
     def frames(self) -> list[bytes]:
         return [f for s in self.scans for f in s.frames()]
 
+    def iter_frames(self) -> Iterator[tuple[bytes, float]]:
+        """(frame, stamp) of every record of every file, in order."""
+        for s in self.scans:
+            yield from s.iter_frames()
+
     def stats(self) -> dict:
         keys = ("records", "bytes", "discarded_bytes", "truncated_tail_bytes", "resyncs", "bad_stamps",
                 "stamps_backwards")
@@ -439,15 +811,26 @@ class SessionLog:
     sidecar: dict
     sensors: dict[str, SensorFiles]
 
+    @property
+    def imu_rate_hz(self) -> int:
+        return int(self.sidecar["sensors"]["imu"].get("rate_hz", bp3010.NOMINAL_RATE_HZ))
+
     def imu(self) -> ImuLog:
         files = self.sensors["imu"]
-        rate = int(self.sidecar["sensors"]["imu"].get("rate_hz", bp3010.NOMINAL_RATE_HZ))
+        rate = self.imu_rate_hz
         parts = [imu_log(s, rate) for s in files.scans]
+        if len(parts) == 1:
+            return parts[0]
+        if not parts:
+            return ImuLog(np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, np.uint8),
+                          np.zeros(0, np.uint8), rate)
         return ImuLog(*(np.concatenate([getattr(p, f) for p in parts]) for f in
                         ("stamps", "dtheta_rad", "dv_mps", "status", "counter")), rate)
 
 
-def read_session(directory: str | Path) -> SessionLog:
+def read_session(directory: str | Path, imu_frames: bool = True) -> SessionLog:
+    """A session's record files. imu_frames=False decodes the BP3010 IMU as it
+    is read and keeps no frames of it (replay: the samples are all it needs)."""
     directory = Path(directory)
     side = directory / "session.json"
     try:
@@ -461,11 +844,14 @@ def read_session(directory: str | Path) -> SessionLog:
     limits = stamp_limits(directory, sidecar)
     sensors = {}
     for name, info in sidecar.get("sensors", {}).items():
+        decode = None
+        if not imu_frames and name == "imu" and info["device"] == "bp3010":
+            decode = int(info.get("rate_hz", bp3010.NOMINAL_RATE_HZ))
         scans = []
         for fname in info.get("files", []):
             path = directory / fname
             if path.exists():
-                scans.append(read_record_file(path, info["device"], limits))
+                scans.append(read_record_file(path, info["device"], limits, imu_rate_hz=decode))
         sensors[name] = SensorFiles(name, info["device"], scans)
     return SessionLog(directory, sidecar, sensors)
 

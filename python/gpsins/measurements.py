@@ -14,6 +14,7 @@ Nothing good is dropped silently: every skipped record is counted in
 
 from __future__ import annotations
 
+from array import array
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -33,7 +34,7 @@ class GpsMeasurements:
     week: int  # week of the first measurement block; times below count from its start
     tow: np.ndarray  # (n,) receiver time of each ID 23, s (continuing past the week end)
     stamps: np.ndarray  # (n,) system stamps
-    blocks: list[ss2.Measurements]
+    pseudoranges: np.ndarray  # (k, 5) [t, prn, pseudorange m, C/N0 dB-Hz, lock count]: GPS satellites of every block
     fixes: np.ndarray  # (m, 10) [t, r xyz, v xyz, hdop, vdop, mode], t in the same time base
     fix_sats: np.ndarray  # (m,) satellites used
     ephemerides: list[tuple[float, ss2.EphemerisWords]]  # (receive time, words)
@@ -42,9 +43,7 @@ class GpsMeasurements:
 
     def pseudorange_table(self) -> np.ndarray:
         """(k, 5) [t, prn, pseudorange m, C/N0 dB-Hz, lock count]: GPS satellites of every block."""
-        rows = [(t, o.prn, b.pseudorange_m(o), o.cn0_dbhz, o.lock_count)
-                for t, b in zip(self.tow, self.blocks) for o in b.observations if not o.sbas]
-        return np.array(rows, dtype=float).reshape(-1, 5)
+        return self.pseudoranges
 
     def decoded_ephemerides(self, skipped: Counter | None = None) -> list:
         """The ID 22 subframes decoded (IS-GPS-200) by the core; inconsistent sets are counted and left out."""
@@ -75,20 +74,24 @@ def _bad_imu(status: np.ndarray) -> np.ndarray:
 
 
 def decode_gps(files: logs.SensorFiles, skipped: Counter) -> GpsMeasurements:
-    frames = files.frames()
-    stamps = files.stamps
     week = None
-    tows, tstamps, blocks = [], [], []
+    tows, tstamps = array("d"), array("d")
+    # Per GPS observation: block index, prn, pseudorange, C/N0, lock count; flat doubles, not objects,
+    # so a day's 8 million observations take 40 bytes each.
+    obs = array("d")
     nav_user: list[tuple[float, ss2.NavUser]] = []
     nav_ecef: list[tuple[float, ss2.NavEcef]] = []
     ephs, iono, leap = [], None, None
     weeks = []  # (index in blocks when seen, week)
-    for fr, st in zip(frames, stamps):
+    for fr, st in files.iter_frames():
         try:
             msg_id, payload = ss2.decode_frame(fr)
             if msg_id == ss2.ID_MEASUREMENTS:
                 m = ss2.Measurements.decode(payload)
-                blocks.append(m)
+                k = len(tows)
+                for o in m.observations:
+                    if not o.sbas:
+                        obs.extend((k, o.prn, m.pseudorange_m(o), o.cn0_dbhz, o.lock_count))
                 tows.append(m.tow_s)
                 tstamps.append(st)
             elif msg_id == ss2.ID_NAV_USER:
@@ -96,9 +99,9 @@ def decode_gps(files: logs.SensorFiles, skipped: Counter) -> GpsMeasurements:
             elif msg_id == ss2.ID_NAV_ECEF:
                 e = ss2.NavEcef.decode(payload)
                 nav_ecef.append((st, e))
-                weeks.append((len(blocks), e.week))
+                weeks.append((len(tows), e.week))
             elif msg_id == ss2.ID_RECEIVER_STATUS:
-                weeks.append((len(blocks), ss2.ReceiverStatus.decode(payload).week))
+                weeks.append((len(tows), ss2.ReceiverStatus.decode(payload).week))
             elif msg_id == ss2.ID_EPHEMERIS:
                 ephs.append((st, ss2.EphemerisWords.decode(payload)))
             elif msg_id == ss2.ID_IONO_UTC:
@@ -108,14 +111,16 @@ def decode_gps(files: logs.SensorFiles, skipped: Counter) -> GpsMeasurements:
                 leap = ss2.LeapSeconds.decode(payload).leap_s
         except ss2.ProtocolError:
             skipped["gps frames that do not decode"] += 1
-    if not blocks:
+    if not tows:
         raise logs.LogError("no GPS measurement blocks (ID 23) in the session: GPS time is unknown")
     if not weeks:
         raise logs.LogError("no GPS week in the session (ID 21 or 49)")
     week = weeks[0][1]
-    tow = np.array(tows)
+    tow = np.frombuffer(tows, dtype=np.float64)
     # Time of week continues past a week rollover (tow drops by a week).
     tow = tow + SECONDS_PER_WEEK * np.concatenate([[0], np.cumsum(np.diff(tow) < -SECONDS_PER_WEEK / 2)])
+    prs = np.frombuffer(obs, dtype=np.float64).reshape(-1, 5)  # the array's own memory, no copy
+    prs[:, 0] = tow[prs[:, 0].astype(np.int64)]
 
     # Pair each ID 21 with the ID 20 of the same epoch, by GPS time (stamps can jump with the clock).
     fixes, sats = [], []
@@ -135,7 +140,7 @@ def decode_gps(files: logs.SensorFiles, skipped: Counter) -> GpsMeasurements:
         fixes.append([t, e.x_m, e.y_m, e.z_m, e.vx_mps, e.vy_mps, e.vz_mps, max(u.hdop, 0.1), max(u.vdop, 0.1),
                       mode])
         sats.append(u.sats_used)
-    return GpsMeasurements(week, tow, np.array(tstamps), blocks, np.array(fixes).reshape(-1, 10),
+    return GpsMeasurements(week, tow, np.array(tstamps), prs, np.array(fixes).reshape(-1, 10),
                            np.array(sats, dtype=int), ephs, iono, leap)
 
 
@@ -167,9 +172,10 @@ def _nav_user_times(nav_user: list, nav_ecef: list, ecef_t: np.ndarray, leap: in
     return utc + (leap or 0)
 
 
-def read_counting_damage(directory: str | Path) -> tuple[logs.SessionLog, Counter]:
-    """A session's record files, and what the readers skipped in them, by reason."""
-    session = logs.read_session(directory)
+def read_counting_damage(directory: str | Path, imu_frames: bool = True) -> tuple[logs.SessionLog, Counter]:
+    """A session's record files, and what the readers skipped in them, by reason
+    (imu_frames: see :func:`logs.read_session`)."""
+    session = logs.read_session(directory, imu_frames)
     skipped: Counter = Counter()
     for name, sensor in session.sensors.items():
         st = sensor.stats()
@@ -183,17 +189,23 @@ def read_counting_damage(directory: str | Path) -> tuple[logs.SessionLog, Counte
 
 
 def decode_session(directory: str | Path) -> Decoded:
-    session, skipped = read_counting_damage(directory)
+    """The session decoded for replay; its IMU is decoded as it is read (no frames kept)."""
+    session, skipped = read_counting_damage(directory, imu_frames=False)
     if "gps" not in session.sensors or not session.sensors["gps"].count:
         raise logs.LogError(f"{directory}: no GPS records")
     if "imu" not in session.sensors or not session.sensors["imu"].count:
         raise logs.LogError(f"{directory}: no IMU records")
     gps = decode_gps(session.sensors["gps"], skipped)
+    return Decoded(gps, valid_imu(session, skipped), skipped, session.sidecar, Path(directory))
+
+
+def valid_imu(session: logs.SessionLog, skipped: Counter) -> logs.ImuLog:
+    """The session's IMU samples without the frames flagged invalid, over range or failing
+    their test (counted). The session lets go of its IMU, so no second copy is held."""
     imu = session.imu()
+    del session.sensors["imu"]
     bad = _bad_imu(imu.status)
     if bad.any():
         skipped["imu: frames flagged invalid, over range or test failure"] += int(bad.sum())
-        keep = ~bad
-        imu = logs.ImuLog(imu.stamps[keep], imu.dtheta_rad[keep], imu.dv_mps[keep], imu.status[keep],
-                          imu.counter[keep], imu.rate_hz)
-    return Decoded(gps, imu, skipped, session.sidecar, Path(directory))
+        imu.keep(~bad)
+    return imu

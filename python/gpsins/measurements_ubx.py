@@ -33,7 +33,7 @@ import numpy as np
 from gpsins_logger import ubx
 
 from . import logs
-from .measurements import SECONDS_PER_WEEK, Decoded, _bad_imu, read_counting_damage
+from .measurements import SECONDS_PER_WEEK, Decoded, read_counting_damage, valid_imu
 from .readers import ubx as ubx_reader
 
 ESF_GYRO = {14: 0, 13: 1, 5: 2}
@@ -82,10 +82,8 @@ class UbloxGps:
 
 
 def decode_gps(files: logs.SensorFiles, skipped: Counter, fix_uere_m: float = 3.0) -> UbloxGps:
-    frames = files.frames()
-    stamps = files.stamps
     rawx_t, rawx_stamps, pvt_stamps = [], [], []
-    for fr, st in zip(frames, stamps):
+    for fr, st in files.iter_frames():
         if (fr[2], fr[3]) == ubx.RXM_RAWX and len(fr) >= 8 + 16:
             tow, week = struct.unpack_from("<dH", fr, 6)
             rawx_t.append(week * SECONDS_PER_WEEK + tow)
@@ -93,7 +91,7 @@ def decode_gps(files: logs.SensorFiles, skipped: Counter, fix_uere_m: float = 3.
         elif (fr[2], fr[3]) == ubx.NAV_PVT and len(fr) >= 8 + 92:
             pvt_stamps.append(st)
     try:
-        u = ubx_reader.parse(b"".join(frames), "gps records")
+        u = ubx_reader.parse(b"".join(s.frame_data.tobytes() for s in files.scans), "gps records")
     except ubx_reader.ReaderError as e:
         raise logs.LogError(f"no usable UBX records in the session ({e})") from None
     if rawx_t:
@@ -142,7 +140,7 @@ class EsfSamples:
 def esf_samples(files: logs.SensorFiles, skipped: Counter) -> EsfSamples | None:
     """Complete samples (three gyro and three accelerometer axes sharing a time tag) from ESF-RAW."""
     tags, stamps, rates, accel = [], [], [], []
-    for fr, st in zip(files.frames(), files.stamps):
+    for fr, st in files.iter_frames():
         if (fr[2], fr[3]) != ubx.ESF_RAW:
             continue
         n = (len(fr) - 8 - 4) // 8
@@ -186,19 +184,13 @@ def esf_imu_log(e: EsfSamples, gps_s_per_stamp_s: float = 1.0) -> logs.ImuLog:
 
 
 def decode_session(directory: str | Path, fix_uere_m: float = 3.0) -> Decoded:
-    session, skipped = read_counting_damage(directory)
+    session, skipped = read_counting_damage(directory, imu_frames=False)
     gps_files = session.sensors.get("gps")
     if gps_files is None or not gps_files.count:
         raise logs.LogError(f"{directory}: no GPS records")
     gps = decode_gps(gps_files, skipped, fix_uere_m)
     if "imu" in session.sensors and session.sensors["imu"].count:
-        imu = session.imu()  # a BP3010 on its own port
-        bad = _bad_imu(imu.status)
-        if bad.any():
-            skipped["imu: frames flagged invalid, over range or test failure"] += int(bad.sum())
-            keep = ~bad
-            imu = logs.ImuLog(imu.stamps[keep], imu.dtheta_rad[keep], imu.dv_mps[keep], imu.status[keep],
-                              imu.counter[keep], imu.rate_hz)
+        imu = valid_imu(session, skipped)  # a BP3010 on its own port
     else:
         esf = esf_samples(gps_files, skipped)
         if esf is None:

@@ -19,16 +19,15 @@ import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import matplotlib
+import numpy as np
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from matplotlib.lines import Line2D  # noqa: E402
-from matplotlib.patches import Patch  # noqa: E402
-from scipy.stats import chi2  # noqa: E402
+from . import _core, evaluate, lazy, results
 
-from . import _core, evaluate, results  # noqa: E402
+# Loaded on first use: replay imports this module for its outage table and draws nothing.
+plt = lazy.module("matplotlib.pyplot", before=lazy.agg_backend)
+Line2D = lazy.name("matplotlib.lines", "Line2D", before=lazy.agg_backend)
+Patch = lazy.name("matplotlib.patches", "Patch", before=lazy.agg_backend)
+chi2 = lazy.name("scipy.stats", "chi2")
 
 KIND_FIX3, KIND_FIX2, KIND_PR = 1, 2, 6
 KIND_FIX = (KIND_FIX3, KIND_FIX2)

@@ -57,8 +57,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.ndimage import minimum_filter1d
-from scipy.spatial import ConvexHull, QhullError
 
 METHODS = ("robust", "report")
 GPS_WINDOW = 30  # ID 23 blocks (3 s at 10 Hz) for running minima: longer than a host stall
@@ -82,6 +80,8 @@ class AlignmentError(ValueError):
 
 def _lower_chain(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Indices of the vertices of the points' lower convex hull, by increasing x (x not all equal)."""
+    from scipy.spatial import ConvexHull, QhullError  # here: scipy.spatial takes 0.1 s to import
+
     x0, y0 = x.mean(), y.min()
     xs, ys = (x - x0) / np.ptp(x), y - y0
     try:
@@ -146,6 +146,8 @@ def joint_lower_envelope(x: np.ndarray, y: np.ndarray, group: np.ndarray) -> tup
 
 def _running_min(y: np.ndarray, w: int) -> tuple[np.ndarray, np.ndarray]:
     """Minimum of the w values before i (i excluded) and of the w values from i on; inf where empty."""
+    from scipy.ndimage import minimum_filter1d  # here: scipy.ndimage takes 0.2 s to import
+
     n = len(y)
     w = max(1, min(int(w), n))
     pad = np.full(w, np.inf)
