@@ -38,6 +38,7 @@ constexpr int kImuCols = 7;   // t, dtheta xyz, dv xyz
 constexpr int kFixCols = 10;  // t, r xyz, v xyz, hdop, vdop, mode
 constexpr int kFixColsSigma = 16;  // then sigma n, e, d (m) and sigma vn, ve, vd (m/s): NaN or <= 0 none
 constexpr int kPrCols = 5;    // t, prn, pseudorange, C/N0, lock count
+constexpr int kAttCols = 5;   // t, yaw, pitch (NaN: none), sigma yaw, sigma pitch (rad)
 
 FixInput fix_of(const double* p, int cols) {
   FixInput f;
@@ -87,6 +88,7 @@ py::dict counters_dict(const Counters& c) {
   d["zero_velocity_updates"] = c.zero_velocity_updates;
   d["zero_rate_updates"] = c.zero_rate_updates;
   d["nonholonomic_updates"] = c.nonholonomic_updates;
+  d["baseline_attitude_updates"] = c.baseline_attitude_updates;
   d["updates_rejected"] = c.updates_rejected;
   d["updates_guarded"] = c.updates_guarded;
   d["standstill_samples"] = c.standstill_samples;
@@ -241,7 +243,7 @@ EskfRecorder<NB, NC>* recorder_of(const InsFilter<NB, NC>&, void* p) {
 
 // Input rows of this call within the whole run, for output decimation and messages.
 struct RowOffsets {
-  py::ssize_t imu = 0, fixes = 0, prs = 0;
+  py::ssize_t imu = 0, fixes = 0, prs = 0, att = 0;
 };
 
 // One batch call: every sample, fix and pseudorange epoch of the arrays in time
@@ -250,8 +252,9 @@ struct RowOffsets {
 // one call over the whole arrays. record: keep (or go on keeping) the
 // smoother's record of the forward pass in carry.
 template <int NB, int NC>
-py::dict run_batch(InsFilter<NB, NC>& f, const Array& imu, const Array& fixes, const Array& prs, int output_every,
-                   bool with_cov, bool record, double smooth_chunk_mb, BatchCarry& carry, const RowOffsets& offset) {
+py::dict run_batch(InsFilter<NB, NC>& f, const Array& imu, const Array& fixes, const Array& prs, const Array& att,
+                   int output_every, bool with_cov, bool record, double smooth_chunk_mb, BatchCarry& carry,
+                   const RowOffsets& offset) {
   using Row = StateRow<NB, NC>;
   const py::ssize_t n = imu.shape(0), m = fixes.shape(0);
   const int fc = static_cast<int>(fixes.shape(1));
@@ -269,7 +272,9 @@ py::dict run_batch(InsFilter<NB, NC>& f, const Array& imu, const Array& fixes, c
   const double* pf = fixes.data();
   const double* pp = prs.data();
   const py::ssize_t np_rows = prs.shape(0);
-  py::ssize_t j = 0, q = 0, bad_row = -1;
+  const double* pa = att.data();
+  const py::ssize_t na_rows = att.shape(0);
+  py::ssize_t j = 0, q = 0, g = 0, bad_row = -1;
   const char* bad_what = nullptr;
   double bad_t = 0.0;
   InputStatus bad = InputStatus::Ok;
@@ -304,6 +309,16 @@ py::dict run_batch(InsFilter<NB, NC>& f, const Array& imu, const Array& fixes, c
           break;
         }
         q = e;
+      }
+      if (bad != InputStatus::Ok) break;
+      while (g < na_rows && pa[g * kAttCols] <= r[0]) {
+        const double* a = pa + g * kAttCols;
+        const InputStatus s = f.push_attitude(AttitudeInput{a[0], a[1], a[2], a[3], a[4]});
+        if (s != InputStatus::Ok) {
+          bad = s; bad_row = offset.att + g; bad_what = "attitude"; bad_t = a[0];
+          break;
+        }
+        ++g;
       }
       if (bad != InputStatus::Ok) break;
       const InputStatus s = f.push_imu(r[0], Vec3(r[1], r[2], r[3]), Vec3(r[4], r[5], r[6]));
@@ -420,18 +435,21 @@ class PyFilter {
     ++fix_count_;
   }
   py::dict run(py::handle imu, py::handle fixes, py::handle prs, int output_every, bool with_cov, bool smooth,
-               double smooth_chunk_mb, bool record, py::ssize_t imu_row0, py::ssize_t fix_row0, py::ssize_t pr_row0) {
+               double smooth_chunk_mb, bool record, py::ssize_t imu_row0, py::ssize_t fix_row0, py::ssize_t pr_row0,
+               py::handle attitude, py::ssize_t att_row0) {
     if ((smooth || record) && !(smooth_chunk_mb > 0.0)) throw py::value_error("smooth_chunk_mb must be > 0");
     if (output_every < 1) throw py::value_error("output_every must be >= 1");
-    if (imu_row0 < 0 || fix_row0 < 0 || pr_row0 < 0) throw py::value_error("row offsets must be >= 0");
+    if (imu_row0 < 0 || fix_row0 < 0 || pr_row0 < 0 || att_row0 < 0) throw py::value_error("row offsets must be >= 0");
     const Array a = table(imu, kImuCols, "imu"), b = table(fixes, kFixCols, "fixes", kFixColsSigma);
     const Array c = table(prs.is_none() ? py::handle(Array(std::vector<py::ssize_t>{0, kPrCols})) : prs, kPrCols,
                           "pseudoranges");
     if (c.shape(0) > 0 && !tight_)
       throw py::value_error("pseudoranges given to a loosely coupled filter (mode = 'tight' uses them)");
-    const RowOffsets at{imu_row0, fix_row0, pr_row0};
+    const Array d = table(attitude.is_none() ? py::handle(Array(std::vector<py::ssize_t>{0, kAttCols})) : attitude,
+                          kAttCols, "attitude");
+    const RowOffsets at{imu_row0, fix_row0, pr_row0, att_row0};
     py::dict out = std::visit([&](auto& f) {
-      return run_batch(f, a, b, c, output_every, with_cov, smooth || record, smooth_chunk_mb, carry_, at);
+      return run_batch(f, a, b, c, d, output_every, with_cov, smooth || record, smooth_chunk_mb, carry_, at);
     }, f_);
     if (smooth) {
       py::dict sm = smooth_run(with_cov, py::none(), 0);
@@ -469,6 +487,12 @@ class PyFilter {
     if (s != InputStatus::Ok) input_error("pseudorange epoch", pr_count_, t, s);
     ++pr_count_;
   }
+  void push_attitude(double t, double yaw, double pitch, double sigma_yaw, double sigma_pitch) {
+    const InputStatus s =
+        std::visit([&](auto& f) { return f.push_attitude(AttitudeInput{t, yaw, pitch, sigma_yaw, sigma_pitch}); }, f_);
+    if (s != InputStatus::Ok) input_error("attitude", att_count_, t, s);
+    ++att_count_;
+  }
   bool add_ephemeris(const gnss::Ephemeris& e) { return std::visit([&](auto& f) { return f.add_ephemeris(e); }, f_); }
   void set_klobuchar(const std::vector<double>& alpha, const std::vector<double>& beta) {
     if (alpha.size() != 4 || beta.size() != 4) throw py::value_error("set_klobuchar: 4 alpha and 4 beta values");
@@ -488,7 +512,7 @@ class PyFilter {
   AnyFilter f_;
   BatchCarry carry_;
   bool tight_ = false;
-  py::ssize_t imu_count_ = 0, fix_count_ = 0, pr_count_ = 0;
+  py::ssize_t imu_count_ = 0, fix_count_ = 0, pr_count_ = 0, att_count_ = 0;
 };
 
 }  // namespace
@@ -545,6 +569,7 @@ void bind_filter(py::module_& m) {
   GPSINS_FIELD(heading_min_speed_mps);
   GPSINS_FIELD(heading_sigma_rad);
   GPSINS_FIELD(lever_arm_body_m);
+  GPSINS_FIELD(antenna_baseline_body);
   GPSINS_FIELD(fix_uere_m);
   GPSINS_FIELD(fix_sigma_ecef_m);
   GPSINS_FIELD(use_fix_velocity);
@@ -593,14 +618,15 @@ void bind_filter(py::module_& m) {
       .def("run", &PyFilter::run, py::arg("imu"), py::arg("fixes"), py::arg("pseudoranges") = py::none(),
            py::arg("output_every") = 1, py::arg("covariance") = false, py::arg("smooth") = false,
            py::arg("smooth_chunk_mb") = 256.0, py::arg("record") = false, py::arg("imu_row0") = 0,
-           py::arg("fix_row0") = 0, py::arg("pr_row0") = 0,
+           py::arg("fix_row0") = 0, py::arg("pr_row0") = 0, py::arg("attitude") = py::none(), py::arg("att_row0") = 0,
            "Batch: imu (n, 7) [t, dtheta xyz, dv xyz], fixes (m, 10) [t, r xyz, v xyz, hdop, vdop, mode], "
            "pseudoranges (k, 5) [t, prn, pr, cn0, lock] (tight), rows of one epoch sharing t. smooth: also a "
            "fixed-interval smoother over the run (smooth_state, smooth_covariance, smooth_info); its record of the "
            "forward pass goes to a temporary file in chunks of smooth_chunk_mb. A run split into consecutive "
            "calls (each with the fixes and pseudoranges up to its last IMU time) gives the same rows: *_row0 are "
            "the call's first rows within the whole run (output decimation, messages); record=True keeps the "
-           "smoother's record across calls for smooth().")
+           "smoother's record across calls for smooth(). attitude (j, 5) [t, yaw, pitch (NaN: none), sigma yaw, "
+           "sigma pitch] (rad): dual-antenna heading and pitch.")
       .def("smooth", &PyFilter::smooth_run, py::arg("covariance") = false, py::arg("sink") = py::none(),
            py::arg("block_rows") = 65536,
            "Backward pass over what run(..., record=True) recorded. With a sink, the smoothed rows are handed "
@@ -609,6 +635,10 @@ void bind_filter(py::module_& m) {
            "Both give smooth_info (tape size, wall times).")
       .def("push_pseudoranges", &PyFilter::push_pseudoranges, py::arg("t"), py::arg("prn"), py::arg("pr"),
            py::arg("cn0"), py::arg("lock"))
+      .def("push_attitude", &PyFilter::push_attitude, py::arg("t"), py::arg("yaw"),
+           py::arg("pitch") = std::numeric_limits<double>::quiet_NaN(), py::arg("sigma_yaw"),
+           py::arg("sigma_pitch") = std::numeric_limits<double>::quiet_NaN(),
+           "Dual-antenna heading (and pitch; NaN: none) in rad relative to local NED, with their sigmas.")
       .def("add_ephemeris", &PyFilter::add_ephemeris, py::arg("eph"))
       .def("set_klobuchar", &PyFilter::set_klobuchar, py::arg("alpha"), py::arg("beta"))
       .def_property_readonly("initialised", [](const PyFilter& p) { return p.with([](const auto& f) { return f.initialised(); }); })

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 
+#include "gpsins/aiding/baseline_attitude.hpp"
 #include "gpsins/aiding/measurement.hpp"
 #include "gpsins/aiding/nonholonomic.hpp"
 #include "gpsins/aiding/position_fix.hpp"
@@ -201,7 +202,71 @@ InputStatus InsFilter<NB, NC>::push_imu(double t_s, const Vec3& dtheta_rad, cons
     detect_standstill(inc);
   }
   t_last_ = t_s;
+  while (pending_att_count_ > 0 && pending_att_[0].t_s <= t_last_) {
+    const AttitudeInput a = pending_att_[0];
+    std::copy(pending_att_.begin() + 1, pending_att_.begin() + pending_att_count_, pending_att_.begin());
+    --pending_att_count_;
+    process_attitude(a, inc);
+  }
   return InputStatus::Ok;
+}
+
+template <int NB, int NC>
+InputStatus InsFilter<NB, NC>::push_attitude(const AttitudeInput& a) {
+  if (!std::isfinite(a.t_s) || !std::isfinite(a.yaw_rad) || !std::isfinite(a.sigma_yaw_rad))
+    return InputStatus::NonFinite;
+  if (!(a.sigma_yaw_rad > 0.0) || (std::isfinite(a.pitch_rad) && !(a.sigma_pitch_rad > 0.0)))
+    return InputStatus::BadValue;
+  if (a.t_s < last_att_t_) return InputStatus::TimeNotIncreasing;
+  last_att_t_ = a.t_s;
+  if (have_time_ && a.t_s <= t_last_) {
+    process_attitude(a, last_inc_);
+    return InputStatus::Ok;
+  }
+  if (pending_att_count_ == kPending) {  // keep the newest
+    std::copy(pending_att_.begin() + 1, pending_att_.end(), pending_att_.begin());
+    --pending_att_count_;
+  }
+  pending_att_[static_cast<std::size_t>(pending_att_count_++)] = a;
+  return InputStatus::Ok;
+}
+
+// A dual-antenna heading (and pitch), carried from its time to now with the
+// turn the gyros measured over the last increment. While the heading is not
+// yet known its variance is pi^2 about the vertical (decouple_yaw), and a
+// heading measurement sets it through the ordinary update: the yaw row is
+// linear in the attitude error about the vertical, so one update moves the
+// yaw by the whole (wrapped) innovation.
+template <int NB, int NC>
+void InsFilter<NB, NC>::process_attitude(const AttitudeInput& a, const Increment& inc) {
+  if (!initialised_) return;
+  ++counters_.baseline_attitude_updates;
+  const Vec3 b = cfg_.antenna_baseline_body.normalized();
+  double yaw = a.yaw_rad, pitch = a.pitch_rad;
+  if (inc.dt_s > 0.0) {
+    const Geodetic llh = ecef_to_geodetic(core_.nav.r_ecef_m);
+    const Mat3 c_nb = rot_ned_to_ecef(llh.lat_rad, llh.lon_rad).transpose() * core_.nav.q_eb.toRotationMatrix();
+    const BaselineAngles now = baseline_angles(c_nb * b);
+    const Vec3 u_dot = c_nb * (inc.dtheta_rad / inc.dt_s).cross(b);
+    const Eigen::Vector2d rates = now.d_du * u_dot;
+    const double lag = t_last_ - a.t_s;
+    yaw += rates(0) * lag;
+    pitch += rates(1) * lag;
+  }
+  const bool was_known = heading_known_;
+  heading_known_ = true;  // so that record() does not decouple the yaw just measured
+  // The first heading may turn the attitude by anything: not a divergence.
+  const double limit = was_known ? attitude_limit() : 0.0;
+  auto use = [&](const auto& m, int dof) {
+    const auto r = core_.update(m.y, m.H, m.R, gate(dof), limit);
+    heading_known_ = was_known || r.accepted;
+    record(kBaselineAttitude, r, dof);
+  };
+  if (std::isfinite(pitch))
+    use(baseline_attitude<2>(core_, b, yaw, pitch, a.sigma_yaw_rad, a.sigma_pitch_rad), 2);
+  else
+    use(baseline_attitude<1>(core_, b, yaw, pitch, a.sigma_yaw_rad, 0.0), 1);
+  if (heading_known_ && !was_known) event(kHeadingSet, yaw);
 }
 
 // The nominal step: the median of the last kSteps steps of the time stamps.

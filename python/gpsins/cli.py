@@ -91,7 +91,7 @@ def _cmd_replay(args: argparse.Namespace) -> int:
         res = replay.run_mode(inp, Path(args.out) / mode if len(modes) > 1 else args.out, mode=mode,
                               overrides=overrides, outages=args.outages, reference=args.reference,
                               reference_q=args.reference_q, point=args.point, smooth=args.smooth,
-                              covariance_every=args.covariance_every)
+                              covariance_every=args.covariance_every, aid_heading=args.aid_heading)
         c = res.summary["counters"]
         print(f"{mode}: {res.summary['imu_samples']} IMU samples, {c['fixes_accepted']} fixes used, "
               f"{c['updates_rejected']} updates rejected; results in {res.out}")
@@ -209,6 +209,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the point solution.pos gives (default: antenna)")
     p.add_argument("--smooth", action="store_true",
                    help="also smooth the run (fixed-interval, forward-backward): smoothed.parquet, smoothed.pos")
+    p.add_argument("--aid-heading", action="store_true",
+                   help="aid the filter with the session's dual-antenna heading and pitch (reference.csv), 1 Hz")
     p.add_argument("--covariance-every", type=int, default=0, metavar="N",
                    help="also write the full error-state covariance of every Nth epoch (covariance.parquet)")
     p.add_argument("--nav", help="RINEX 2 navigation file: ephemerides and Klobuchar when the log lacks them")

@@ -43,7 +43,7 @@ PRESETS = ("default", "report2005")
 EVENT_KINDS = {1: "imu_gap_restart", 2: "gnss_reset", 3: "imu_sample_rejected", 4: "heading_set"}
 UPDATE_CHECKS = ("chi_square", "attitude_correction", "both", "none")
 UPDATE_KINDS = {1: "fix_3d", 2: "fix_2d", 3: "fix_velocity", 4: "zero_velocity", 5: "zero_rate", 6: "pseudorange",
-                7: "nonholonomic"}
+                7: "nonholonomic", 8: "baseline_attitude"}
 
 GM_PEAK_PER_SIGMA = 0.617  # ADEV peak of a Gauss-Markov process / its stationary sigma
 FLAT_PER_B = 0.664  # ADEV floor of bias instability B
@@ -455,7 +455,8 @@ class Solution:
 
 def run(imu: np.ndarray, fixes: np.ndarray, config=None, *, mode: str | None = None, output_every: int = 1,
         covariance: bool = False, pseudoranges: np.ndarray | None = None, ephemerides=(), klobuchar=None,
-        gps_time_offset_s: float | None = None, smooth: bool = False, smooth_chunk_mb: float = 256.0) -> Solution:
+        gps_time_offset_s: float | None = None, smooth: bool = False, smooth_chunk_mb: float = 256.0,
+        attitude: np.ndarray | None = None) -> Solution:
     """Run the filter over whole arrays in C++.
 
     imu: (n, 7) [t, dtheta xyz (rad), dv xyz (m/s)] at the IMU's sampling instants.
@@ -470,11 +471,14 @@ def run(imu: np.ndarray, fixes: np.ndarray, config=None, *, mode: str | None = N
     (alpha, beta) and the offset from the time base to GPS seconds since the GPS epoch.
     smooth: also run the fixed-interval smoother; its solution (same epochs) is
     ``extra["smoothed"]``, its tape size and timings ``extra["smooth_info"]``.
+    attitude: (j, 5) [t, yaw, pitch (NaN: none), sigma yaw, sigma pitch] (rad) of a dual-antenna
+    receiver whose baseline is ``antenna_baseline_body``.
     """
     setup = _setup(imu, fixes, config, mode, ephemerides, klobuchar, gps_time_offset_s)
     f, fixes = setup.core_filter, setup.fixes
     prs = None if pseudoranges is None else np.ascontiguousarray(pseudoranges, dtype=float).reshape(-1, 5)
-    out = f.run(np.ascontiguousarray(imu, dtype=float), fixes, prs, output_every, covariance, smooth, smooth_chunk_mb)
+    out = f.run(np.ascontiguousarray(imu, dtype=float), fixes, prs, output_every, covariance, smooth, smooth_chunk_mb,
+                attitude=_attitude_table(attitude))
     sol = Solution.from_batch(out, setup.mode, setup.scale_factors)
     if setup.search is not None:
         sol.extra["heading_search"] = setup.search
@@ -483,6 +487,10 @@ def run(imu: np.ndarray, fixes: np.ndarray, config=None, *, mode: str | None = N
         sol.extra["smoothed"] = Solution.from_batch(sm, setup.mode, setup.scale_factors)
         sol.extra["smooth_info"] = dict(out["smooth_info"])
     return sol
+
+
+def _attitude_table(attitude) -> np.ndarray | None:
+    return None if attitude is None else np.ascontiguousarray(attitude, dtype=float).reshape(-1, 5)
 
 
 @dataclass
@@ -531,13 +539,14 @@ class ChunkedRun:
     def __init__(self, imu: np.ndarray, fixes: np.ndarray, config=None, *, mode: str | None = None,
                  output_every: int = 1, pseudoranges: np.ndarray | None = None, ephemerides=(), klobuchar=None,
                  gps_time_offset_s: float | None = None, record: bool = False, smooth_chunk_mb: float = 256.0,
-                 chunk_rows: int = CHUNK_ROWS):
+                 chunk_rows: int = CHUNK_ROWS, attitude: np.ndarray | None = None):
         if chunk_rows < 1:
             raise ValueError("chunk_rows must be >= 1")
         self.imu = imu
         self._setup = _setup(imu, fixes, config, mode, ephemerides, klobuchar, gps_time_offset_s)
         self.fixes = self._setup.fixes
         self.prs = None if pseudoranges is None else np.ascontiguousarray(pseudoranges, dtype=float).reshape(-1, 5)
+        self.attitude = _attitude_table(attitude)
         self.mode, self.output_every, self.record = self._setup.mode, output_every, record
         self.smooth_chunk_mb, self.chunk_rows = smooth_chunk_mb, chunk_rows
         self.counters: dict = {}
@@ -547,7 +556,7 @@ class ChunkedRun:
     def chunks(self, covariance: bool = True):
         f = self._setup.core_filter
         n = len(self.imu)
-        j = q = 0
+        j = q = g = 0
         for a in range(0, n, self.chunk_rows):
             b = min(n, a + self.chunk_rows)
             imu = np.ascontiguousarray(self.imu[a:b], dtype=float)
@@ -557,10 +566,14 @@ class ChunkedRun:
             if self.prs is not None:
                 q2 = int(np.searchsorted(self.prs[:, 0], t_end, side="right"))
                 prs = self.prs[q:q2]
+            att, g2 = None, g
+            if self.attitude is not None:
+                g2 = int(np.searchsorted(self.attitude[:, 0], t_end, side="right"))
+                att = self.attitude[g:g2]
             out = f.run(imu, self.fixes[j:j2], prs, self.output_every, covariance, False, self.smooth_chunk_mb,
-                        self.record, a, j, q)
+                        self.record, a, j, q, att, g)
             self.counters, self.fixes_after_end = out["counters"], len(self.fixes) - j2 + int(out["fixes_after_end"])
-            j, q = j2, q2
+            j, q, g = j2, q2, g2
             yield Solution.from_batch(out, self.mode, self._setup.scale_factors)
 
     def smooth(self, sink, block_rows: int = 65536, covariance: bool = True) -> dict:

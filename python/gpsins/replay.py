@@ -271,6 +271,24 @@ def _score_reference_system(ref, week: int, rows: dict) -> dict:
     return {"file": reference_mod.FILE_NAME, "damaged_lines": len(ref.damaged_lines), **e.summary()}
 
 
+HEADING_AIDING_INTERVAL_S = 1.0  # the reference's heading errors are partly slow (multipath): not at its full rate
+
+
+def heading_aiding(ref, week: int, interval_s: float = HEADING_AIDING_INTERVAL_S) -> np.ndarray:
+    """A reference system's dual-antenna heading and pitch as the filter's attitude input
+    [t, yaw, pitch, sigma yaw, sigma pitch], at most one epoch per ``interval_s``."""
+    ok = np.isfinite(ref.heading_rad) & np.isfinite(ref.sigma_heading_rad)
+    t = ref.gps_seconds()[ok] - week * measurements.SECONDS_PER_WEEK
+    keep = np.ones(len(t), bool)
+    last = -np.inf
+    for i, x in enumerate(t):  # thin to the interval without drifting off it
+        keep[i] = x - last >= interval_s - 1e-6
+        last = x if keep[i] else last
+    pitch_ok = np.isfinite(ref.pitch_rad[ok]) & np.isfinite(ref.sigma_pitch_rad[ok])
+    return np.column_stack([t, ref.heading_rad[ok], np.where(pitch_ok, ref.pitch_rad[ok], np.nan),
+                            ref.sigma_heading_rad[ok], np.where(pitch_ok, ref.sigma_pitch_rad[ok], np.nan)])[keep]
+
+
 def _reference_system(source: Path):
     """A session's reference system (``reference.csv``), if it has one."""
     if not (source.is_dir() and (source / reference_mod.FILE_NAME).exists()):
@@ -341,7 +359,8 @@ def replay(source: str | Path, out: str | Path, *, mode: str = "loose", config=N
            imu_latency_s: float = DEFAULT_IMU_LATENCY_S, truth: bool = True,
            nav: str | Path | None = None, outages: str | outages_mod.OutageSpec | None = None,
            reference: str | Path | None = None, reference_q=(1,), point: str = "antenna",
-           smooth: bool = False, covariance_every: int = 0, chunk_rows: int = flt.CHUNK_ROWS) -> ReplayResult:
+           smooth: bool = False, covariance_every: int = 0, chunk_rows: int = flt.CHUNK_ROWS,
+           aid_heading: bool = False) -> ReplayResult:
     """Replay a session directory or a data-set TOML (see the module doc); ``outages``: FIRST:LENGTH:PERIOD[:END];
     ``reference``: an RTKLIB .pos (its ``reference_q`` epochs) at the antenna point; ``point``: the point
     solution.pos gives (antenna or imu); ``smooth``: also the fixed-interval smoother (smoothed.parquet,
@@ -353,14 +372,16 @@ def replay(source: str | Path, out: str | Path, *, mode: str = "loose", config=N
                       gps_latency_s=gps_latency_s, imu_latency_s=imu_latency_s, truth=truth, nav=nav)
     return run_mode(inp, out, mode=mode, overrides=overrides, outages=outages, reference=reference,
                     reference_q=reference_q, point=point, smooth=smooth, covariance_every=covariance_every,
-                    chunk_rows=chunk_rows)
+                    chunk_rows=chunk_rows, aid_heading=aid_heading)
 
 
 def run_mode(inp: Inputs, out: str | Path, *, mode: str = "loose", overrides: dict | None = None,
              outages: str | outages_mod.OutageSpec | None = None, reference: str | Path | None = None,
              reference_q=(1,), point: str = "antenna", smooth: bool = False, covariance_every: int = 0,
-             chunk_rows: int = flt.CHUNK_ROWS) -> ReplayResult:
-    """One filter mode over decoded inputs (``load_inputs``), written to ``out`` (see ``replay``)."""
+             chunk_rows: int = flt.CHUNK_ROWS, aid_heading: bool = False) -> ReplayResult:
+    """One filter mode over decoded inputs (``load_inputs``), written to ``out`` (see ``replay``);
+    ``aid_heading``: the session's reference system's dual-antenna heading and pitch (``reference.csv``)
+    aid the filter (then it no longer scores the attitude independently)."""
     if mode not in MODES:
         raise ValueError(f"--mode {mode!r}: one of {', '.join(MODES)}")
     if point not in POINTS:
@@ -387,9 +408,19 @@ def run_mode(inp: Inputs, out: str | Path, *, mode: str = "loose", overrides: di
         tight = dict(pseudoranges=prs if prs is not None else np.zeros((0, 5)), ephemerides=inp.ephemerides,
                      klobuchar=inp.klobuchar, gps_time_offset_s=inp.week * measurements.SECONDS_PER_WEEK)
 
+    ref_system = _reference_system(source)
+    attitude = None
+    if aid_heading:
+        if ref_system is None:
+            raise ValueError(f"{source}: --aid-heading: no dual-antenna reference ({reference_mod.FILE_NAME}) beside "
+                             "the session")
+        attitude = heading_aiding(ref_system, inp.week)
+        if mode == "ins":
+            raise ValueError(f"{source}: --aid-heading and --mode ins: free inertial navigation takes no aiding")
+
     def make_run(cfg_run: dict, fixes_run: np.ndarray, record: bool) -> flt.ChunkedRun:
         return flt.ChunkedRun(inp.imu, fixes_run, cfg_run, mode=filter_mode, record=record, chunk_rows=chunk_rows,
-                              **tight)
+                              attitude=attitude, **tight)
 
     t2 = time.perf_counter()
     free_from, searched = None, None
@@ -424,7 +455,6 @@ def run_mode(inp: Inputs, out: str | Path, *, mode: str = "loose", overrides: di
         ref, scored_point = (tt[::step], found[0].r_ecef[::step], "truth.npz"), "imu"
     has_ref = ref is not None and len(ref[0]) > 0
     score_sched = schedule
-    ref_system = _reference_system(source)
     sys_epochs = (ref_system.gps_seconds() - inp.week * measurements.SECONDS_PER_WEEK) if ref_system else np.zeros(0)
     bracket_epochs = np.concatenate([ref[0] if has_ref else np.zeros(0), sys_epochs])
     lever = np.broadcast_to(np.asarray(cfg.get("lever_arm_body_m", 0.0), float), (3,)).copy()
@@ -518,6 +548,8 @@ def run_mode(inp: Inputs, out: str | Path, *, mode: str = "loose", overrides: di
                "errors": forward.score.summary() if forward.score is not None else {},
                "update_kinds": {flt.UPDATE_KINDS[k]: n for k, n in sorted(update_kinds.items())},
                "solution_point": point,
+               "heading_aiding": ({"source": reference_mod.FILE_NAME, "epochs": int(len(attitude)),
+                                   "interval_s": HEADING_AIDING_INTERVAL_S} if attitude is not None else None),
                "outages": {"spec": spec.text() if spec is not None else None, "schedule": schedule.tolist(),
                            "gnss_first_t": inp.gnss_span[0], "gnss_last_t": inp.gnss_span[1],
                            "fixes_removed": int(fix_out.sum()),

@@ -72,6 +72,9 @@ struct InsConfig {
   // GNSS fix. R from the fix's own sigmas when it states them, else from HDOP/VDOP
   // times the UERE; fixed ECEF sigmas (> 0) override both.
   Vec3 lever_arm_body_m = Vec3::Zero();
+  // Dual-antenna attitude aiding (push_attitude): the baseline, antenna 1 to
+  // antenna 2, in body axes, and a chi-square gate like every other update.
+  Vec3 antenna_baseline_body = Vec3(1.0, 0.0, 0.0);
   double fix_uere_m = 3.0;
   Vec3 fix_sigma_ecef_m = Vec3::Zero();
   bool use_fix_velocity = false;

@@ -57,6 +57,16 @@ struct PseudorangeEpoch {
   std::array<int, kMaxSats> lock_count{};
 };
 
+// Heading (and pitch) of a dual-antenna GNSS baseline at t_s, in local NED
+// (aiding/baseline_attitude.hpp); pitch NaN: heading only.
+struct AttitudeInput {
+  double t_s = 0.0;
+  double yaw_rad = 0.0;
+  double pitch_rad = std::numeric_limits<double>::quiet_NaN();
+  double sigma_yaw_rad = 0.0;
+  double sigma_pitch_rad = 0.0;
+};
+
 enum UpdateKind : int {
   kFix3D = 1,
   kFix2D = 2,
@@ -65,6 +75,7 @@ enum UpdateKind : int {
   kZeroRate = 5,
   kPseudorange = 6,
   kNonholonomic = 7,
+  kBaselineAttitude = 8,
 };
 
 struct UpdateRecord {
@@ -110,6 +121,7 @@ struct Counters {
   std::int64_t zero_velocity_updates = 0;
   std::int64_t zero_rate_updates = 0;
   std::int64_t nonholonomic_updates = 0;
+  std::int64_t baseline_attitude_updates = 0;  // dual-antenna heading/pitch used (accepted or not)
   std::int64_t updates_rejected = 0;
   std::int64_t updates_guarded = 0;
   std::int64_t standstill_samples = 0;
@@ -135,6 +147,9 @@ class InsFilter {
   InputStatus push_fix(const FixInput& fix);
   // Tight coupling only (NC == 2); held until the IMU reaches their time.
   InputStatus push_pseudoranges(const PseudorangeEpoch& epoch);
+  // Dual-antenna heading and pitch; used at the first IMU sample at or after
+  // their time, carried to it with the measured turn rate.
+  InputStatus push_attitude(const AttitudeInput& a);
   bool add_ephemeris(const gnss::Ephemeris& e) { return store_.add(e); }
   void set_klobuchar(const gnss::Klobuchar& k) { iono_ = k; }
 
@@ -172,6 +187,7 @@ class InsFilter {
   void event(int kind, double value);
   void inflate_unknown_heading(const Increment& inc);
   void constrain_vehicle(const Increment& inc);
+  void process_attitude(const AttitudeInput& a, const Increment& inc);
   template <int M>
   void record(int kind, const UpdateResult<M>& r, int dof, int id = 0);
   template <int M, int K>
@@ -231,6 +247,9 @@ class InsFilter {
   bool have_prev_fix_ = false;
   FixInput prev_fix_;
   Mat3 c_vb_ = Mat3::Identity();
+  std::array<AttitudeInput, kPending> pending_att_{};
+  int pending_att_count_ = 0;
+  double last_att_t_ = -1e300;
   double last_nhc_t_ = -1e300;
 };
 
