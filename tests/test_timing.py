@@ -121,3 +121,36 @@ def test_imu_stamps_that_share_no_span_with_the_gps_stamps_are_refused():
     imu_stamps = 1.7e9 - 3600.0 + n / 64.0
     with pytest.raises(timing.AlignmentError, match="do not overlap"):
         timing.align(gps_tow, gps_stamps, 1590, imu_stamps, n % 256, 64.0)
+
+
+def test_numpy_window_minimum_and_lower_hull_equal_scipys():
+    """The alignment's running minimum and lower hull (NumPy, so that replay does not import
+    scipy.ndimage and scipy.spatial) against scipy's own."""
+    from scipy.ndimage import minimum_filter1d
+    from scipy.spatial import ConvexHull
+
+    rng = np.random.default_rng(5)
+    for n in (1, 2, 17, 1000):
+        for w in (1, 3, 31, 2000):
+            y = rng.normal(size=n)
+            ww = max(1, min(w, n))
+            pad = np.full(ww, np.inf)
+            r = minimum_filter1d(np.concatenate([pad, y, pad]), size=ww, mode="constant", cval=np.inf,
+                                 origin=-(ww // 2))
+            left, right = timing._running_min(y, w)
+            np.testing.assert_array_equal(left, r[:n])
+            np.testing.assert_array_equal(right, r[ww:ww + n])
+    for trial in range(60):
+        n = int(rng.integers(3, 2000))
+        x = np.sort(rng.uniform(0, 100, n)) if trial % 2 else np.arange(n) / 64.0
+        y = 0.01 * x + rng.exponential(0.003, n) + (rng.random(n) < 0.01) * 5.0
+        xs, ys = (x - x.mean()) / np.ptp(x), y - y.min()
+        hull = set(ConvexHull(np.column_stack([xs, ys])).vertices.tolist())
+        chain = timing._lower_chain(x, y)
+        assert set(chain.tolist()) <= hull
+        assert np.all(np.diff(x[chain]) > 0)
+        # Every point lies on or above each edge of the chain's span.
+        for a, b in zip(chain[:-1], chain[1:]):
+            inside = (x >= x[a]) & (x <= x[b])
+            line = y[a] + (y[b] - y[a]) * (x[inside] - x[a]) / (x[b] - x[a])
+            assert np.all(y[inside] >= line - 1e-9)

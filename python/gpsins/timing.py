@@ -79,21 +79,29 @@ class AlignmentError(ValueError):
 
 
 def _lower_chain(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Indices of the vertices of the points' lower convex hull, by increasing x (x not all equal)."""
-    from scipy.spatial import ConvexHull, QhullError  # here: scipy.spatial takes 0.1 s to import
+    """Indices of the vertices of the points' lower convex hull, by increasing x (x not all equal).
 
+    A point above the chord of two others is no vertex: whole passes drop every point above the
+    chord of its current neighbours at once (NumPy), which leaves few points on stamps, and a
+    monotone chain finishes on those."""
     x0, y0 = x.mean(), y.min()
     xs, ys = (x - x0) / np.ptp(x), y - y0
-    try:
-        pts = np.unique(ConvexHull(np.column_stack([xs, ys])).vertices)
-    except QhullError:  # all points on a line
-        pts = np.array([np.argmin(xs), np.argmax(xs)])
-    pts = pts[np.lexsort((ys[pts], xs[pts]))]
+    order = np.lexsort((ys, xs))
+    first = np.ones(len(order), bool)
+    first[1:] = xs[order[1:]] != xs[order[:-1]]  # the lowest point of each abscissa
+    pts = order[first]
+    for _ in range(64):
+        if len(pts) < 3:
+            break
+        px, py = xs[pts], ys[pts]
+        cross = (px[1:-1] - px[:-2]) * (py[2:] - py[:-2]) - (py[1:-1] - py[:-2]) * (px[2:] - px[:-2])
+        above = np.concatenate([[False], cross <= 0, [False]])
+        if not above.any():
+            break
+        pts = pts[~above]
     px, py = xs[pts], ys[pts]
     chain: list[int] = []
-    for i in range(len(px)):  # monotone chain over the few hull points
-        if chain and px[i] == px[chain[-1]]:
-            continue  # same abscissa, higher: not on the lower chain
+    for i in range(len(px)):  # monotone chain over what is left
         while len(chain) >= 2:
             a, b = chain[-2], chain[-1]
             if (px[b] - px[a]) * (py[i] - py[a]) - (py[b] - py[a]) * (px[i] - px[a]) <= 0:
@@ -144,15 +152,27 @@ def joint_lower_envelope(x: np.ndarray, y: np.ndarray, group: np.ndarray) -> tup
     return y0 + a - b * x0, b
 
 
+def _window_min(x: np.ndarray, w: int) -> np.ndarray:
+    """min(x[i:i + w]) for every i with a full window (van Herk / Gil-Werman: block prefix and
+    suffix minima, so the cost does not grow with w)."""
+    n = len(x)
+    blocks = -(-n // w)
+    padded = np.full(blocks * w, np.inf)
+    padded[:n] = x
+    b = padded.reshape(blocks, w)
+    prefix = np.minimum.accumulate(b, axis=1).ravel()
+    suffix = np.minimum.accumulate(b[:, ::-1], axis=1)[:, ::-1].ravel()
+    i = np.arange(n - w + 1)
+    return np.minimum(suffix[i], prefix[i + w - 1])
+
+
 def _running_min(y: np.ndarray, w: int) -> tuple[np.ndarray, np.ndarray]:
     """Minimum of the w values before i (i excluded) and of the w values from i on; inf where empty."""
-    from scipy.ndimage import minimum_filter1d  # here: scipy.ndimage takes 0.2 s to import
-
     n = len(y)
     w = max(1, min(int(w), n))
     pad = np.full(w, np.inf)
-    r = minimum_filter1d(np.concatenate([pad, y, pad]), size=w, mode="constant", cval=np.inf, origin=-(w // 2))
-    return r[:n], r[w:w + n]
+    m = _window_min(np.concatenate([pad, y, pad]), w)  # m[j] = min over padded[j : j + w]
+    return m[:n], m[w:w + n]
 
 
 def _damaged_low(y: np.ndarray, w: int, tol: float) -> np.ndarray:
