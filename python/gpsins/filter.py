@@ -401,6 +401,39 @@ def to_toml(cfg: dict) -> str:
 
 
 @dataclass
+class ImuColumns:
+    """IMU samples as the decoders give them: times (n,), angle and velocity increments (n, 3)
+    each. A run takes them a chunk at a time, so the (n, 7) table a batch call wants is never
+    built whole (for a day at 64 Hz that would be another 300 MB); ``[a:b]`` gives its rows."""
+
+    t: np.ndarray
+    dtheta_rad: np.ndarray
+    dv_mps: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    def __getitem__(self, index):
+        rows, cols = (index[0], index[1:]) if isinstance(index, tuple) else (index, ())
+        if isinstance(rows, (int, np.integer)):
+            k = range(len(self))[rows]  # negative rows count from the end; out of range raises
+            out = self[k:k + 1][0]
+            return out[cols] if cols else out
+        if not isinstance(rows, slice):
+            raise TypeError("ImuColumns: rows by an integer or a slice (table() for the whole array)")
+        out = np.column_stack([self.t[rows], self.dtheta_rad[rows], self.dv_mps[rows]])
+        return out[(slice(None),) + cols] if cols else out
+
+    def table(self) -> np.ndarray:
+        """The whole (n, 7) table [t, dtheta xyz, dv xyz]."""
+        return self[:]
+
+
+def _imu_table(imu) -> np.ndarray:
+    return imu.table() if isinstance(imu, ImuColumns) else np.ascontiguousarray(imu, dtype=float)
+
+
+@dataclass
 class Solution:
     """A batch run's output: states at IMU epochs, every update, and the counters."""
 
@@ -474,10 +507,11 @@ def run(imu: np.ndarray, fixes: np.ndarray, config=None, *, mode: str | None = N
     attitude: (j, 5) [t, yaw, pitch (NaN: none), sigma yaw, sigma pitch] (rad) of a dual-antenna
     receiver whose baseline is ``antenna_baseline_body``.
     """
+    imu = _imu_table(imu)
     setup = _setup(imu, fixes, config, mode, ephemerides, klobuchar, gps_time_offset_s)
     f, fixes = setup.core_filter, setup.fixes
     prs = None if pseudoranges is None else np.ascontiguousarray(pseudoranges, dtype=float).reshape(-1, 5)
-    out = f.run(np.ascontiguousarray(imu, dtype=float), fixes, prs, output_every, covariance, smooth, smooth_chunk_mb,
+    out = f.run(imu, fixes, prs, output_every, covariance, smooth, smooth_chunk_mb,
                 attitude=_attitude_table(attitude))
     sol = Solution.from_batch(out, setup.mode, setup.scale_factors)
     if setup.search is not None:
@@ -511,7 +545,7 @@ def _setup(imu, fixes, config, mode, ephemerides, klobuchar, gps_time_offset_s) 
         fixes = fixes.reshape(-1, 10)
     search = None
     if needs_heading_search(cfg):
-        search = search_heading(imu, fixes, cfg)
+        search = search_heading(_imu_table(imu), fixes, cfg)
         if search["yaw_deg"] is not None:
             cfg = _merge(cfg, {"initial_yaw_deg": search["yaw_deg"], "heading_sigma_deg": search["sigma_deg"]})
     core = core_config(cfg)

@@ -112,7 +112,7 @@ class Inputs:
     source: Path
     kind: str  # "session" | "dataset"
     week: int
-    imu: np.ndarray  # (n, 7)
+    imu: "flt.ImuColumns | np.ndarray"  # (n, 7) rows [t, dtheta xyz, dv xyz]
     fixes: np.ndarray  # (m, 10) every fix the receiver (or file) gave
     fix_sats: np.ndarray  # (m,)
     gnss_span: tuple[float, float]  # first and last GNSS epoch: the outage schedule's origin
@@ -146,7 +146,7 @@ def _session_inputs(session: Path, mode: str, config, timing_method: str, gps_la
     al = timing.align(dec.gps.tow, dec.gps.stamps, dec.gps.week, dec.imu.stamps, dec.imu.counter, dec.imu.rate_hz,
                       method=timing_method, gps_latency_s=gps_latency_s, imu_latency_s=imu_latency_s)
     align_s = time.perf_counter() - t1
-    imu = np.column_stack([al.imu_t, dec.imu.dtheta_rad, dec.imu.dv_mps])
+    imu = flt.ImuColumns(al.imu_t, dec.imu.dtheta_rad, dec.imu.dv_mps)
     fixes = dec.gps.fixes
     span = (float(fixes[0, 0]), float(fixes[-1, 0])) if len(fixes) else (float(imu[0, 0]), float(imu[-1, 0]))
     inp = Inputs(session, "session", int(dec.gps.week), imu, fixes, dec.gps.fix_sats, span, base_config=config)
@@ -192,13 +192,13 @@ def _dataset_inputs(path: Path, config, overrides: dict) -> Inputs:
     first, last = ds.gnss_span()
     week = int(min(first, ds.imu.t_abs[0]) // measurements.SECONDS_PER_WEEK)
     t_week = week * measurements.SECONDS_PER_WEEK
-    imu = np.column_stack([ds.imu.t_abs - t_week, ds.imu.dtheta_rad, ds.imu.dv_mps])
+    imu = flt.ImuColumns(ds.imu.t_abs - t_week, ds.imu.dtheta_rad, ds.imu.dv_mps)
     explicit = set(ds.filter_table) if config is None else set(_config_keys(config))
     explicit |= set(overrides)
     base = config if config is not None else (dict(ds.filter_table) or None)
     cfg0 = flt.load_config(base, overrides)
     derived: dict = {"lever_arm_body_m": ds.antenna_m.tolist()}
-    dt = np.diff(imu[:, 0])
+    dt = np.diff(imu.t)
     dt = dt[dt > 0]
     if len(dt):
         derived["imu_rate_hz"] = float(1.0 / np.median(dt))
