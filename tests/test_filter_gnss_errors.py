@@ -16,7 +16,9 @@ from gpsins import evaluate, filter as flt, sim
 sys.path.insert(0, str(Path(__file__).parent))
 from test_tight import both, truth_of  # noqa: E402
 
-WHITE = {"fix_error_gm_sigma_m": 0.0, "fix_uere_m": 3.0}  # the filter before: every fix white
+WHITE = {"fix_error_gm_sigma_m": 0.0, "fix_uere_m": 3.0}  # the preset: every fix white
+# The split of the same budget into white and correlated parts (see presets/default.toml).
+GM = {"fix_uere_m": 2.0, "fix_error_gm_sigma_m": [1.5, 1.5, 2.5], "fix_error_gm_tau_s": 60.0}
 
 
 @pytest.fixture(scope="module")
@@ -35,7 +37,7 @@ def test_fix_error_states_appear_only_when_configured(stop_and_go):
     cfg_w = flt.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), **WHITE})
     white = flt.run(cut, sim.fix_table(s), cfg_w, covariance=True)
     assert white.n_states == 15 and white.fix_error is None
-    gm = _run(s, {}, output_every=64)
+    gm = _run(s, GM, output_every=64)
     assert gm.n_states == 18 and gm.covariance.shape[1:] == (18, 18)
     assert gm.fix_error.shape == (len(gm.t), 3) and np.all(np.isfinite(gm.fix_error))
     # Negligible correlated errors (1 um) leave the white filter's solution.
@@ -47,11 +49,11 @@ def test_fix_error_states_appear_only_when_configured(stop_and_go):
 def test_standing_still_the_fix_error_states_keep_the_position_consistent(stop_and_go):
     """Reproduced: white fixes while standing (zero-velocity updates hold the INS, 1 Hz fixes average
     down) give a position NEES of about 40 against 3. With the preset's Gauss-Markov fix errors it
-    falls by more than three times (the rest: false standstills, not the GNSS model)."""
+    (the split in GM) falls by more than three times (the rest: false standstills, not the GNSS model)."""
     s = stop_and_go
     tr = truth_of(s)
     nees = {}
-    for name, over in (("white", WHITE), ("gm", {})):
+    for name, over in (("white", WHITE), ("gm", GM)):
         sol = _run(s, over, output_every=16)
         err = evaluate.nav_errors(sol, tr)
         standing = sol.heading_known & (np.linalg.norm(tr.at(sol.t).v_ecef, axis=1) < 0.01)
@@ -66,7 +68,7 @@ def test_standing_still_the_fix_error_states_keep_the_position_consistent(stop_a
 def test_smoother_runs_over_the_fix_error_states(stop_and_go):
     s = stop_and_go
     imu = sim.imu_table(s)[:64 * 200]
-    cfg = flt.load_config(None, sim.imu_noise_truth(s.scenario.imu))
+    cfg = flt.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), **GM})
     sol = flt.run(imu, sim.fix_table(s), cfg, covariance=True, smooth=True, output_every=8)
     sm = sol.extra["smoothed"]
     assert sm.n_states == 18 and sm.fix_error.shape == sol.fix_error.shape
