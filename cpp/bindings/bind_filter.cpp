@@ -23,12 +23,18 @@ using namespace gpsins;
 namespace {
 
 using Array = py::array_t<double, py::array::c_style | py::array::forcecast>;
-using AnyFilter = std::variant<InsFilter<5, 0>, InsFilter<7, 0>, InsFilter<5, 2>, InsFilter<7, 2>>;
+using AnyFilter = std::variant<InsFilter<5, 0>, InsFilter<7, 0>, InsFilter<5, 2>, InsFilter<7, 2>, InsFilter<5, 3>,
+                               InsFilter<7, 3>>;
 
+// Tight: clock states (NC = 2). Loose: fix-error states (NC = 3) when configured.
 AnyFilter make_filter(const InsConfig& cfg, bool tight) {
   if (tight) {
     if (cfg.scale_factor_states) return InsFilter<7, 2>(cfg);
     return InsFilter<5, 2>(cfg);
+  }
+  if ((cfg.fix_error_gm_sigma_m.array() > 0.0).any()) {
+    if (cfg.scale_factor_states) return InsFilter<7, 3>(cfg);
+    return InsFilter<5, 3>(cfg);
   }
   if (cfg.scale_factor_states) return InsFilter<7, 0>(cfg);
   return InsFilter<5, 0>(cfg);
@@ -116,7 +122,8 @@ py::dict update_dict(const UpdateRecord& u) {
   return d;
 }
 
-// Row layout of a batch's state output.
+// Row layout of a batch's state output: t, r, v, q, bg, ba, [sg, sa], the NC
+// augmented states (clock bias and drift, or the fix error), sigmas, flags.
 template <int NB, int NC>
 struct StateRow {
   static constexpr int N = 3 * NB + NC;
@@ -141,6 +148,8 @@ struct StateRow {
       o[k++] = e.clock(0);
       o[k++] = e.clock(1);
     }
+    if constexpr (NC == 3)
+      for (int i = 0; i < 3; ++i) o[k++] = e.fix_error(i);
     const auto s = e.sigma();
     for (int i = 0; i < N; ++i) o[k++] = s(i);
     o[k++] = (f.standstill() ? 1.0 : 0.0) + (f.heading_known() ? 2.0 : 0.0);  // flags
@@ -572,6 +581,8 @@ void bind_filter(py::module_& m) {
   GPSINS_FIELD(antenna_baseline_body);
   GPSINS_FIELD(fix_uere_m);
   GPSINS_FIELD(fix_sigma_ecef_m);
+  GPSINS_FIELD(fix_error_gm_sigma_m);
+  GPSINS_FIELD(fix_error_gm_tau_s);
   GPSINS_FIELD(use_fix_velocity);
   GPSINS_FIELD(fix_velocity_sigma_mps);
   GPSINS_FIELD(fix_velocity_sigma_hdop_scaled);
@@ -580,6 +591,8 @@ void bind_filter(py::module_& m) {
   GPSINS_FIELD(pseudorange_min_cn0_dbhz);
   GPSINS_FIELD(pseudorange_settle_s);
   GPSINS_FIELD(pseudorange_decimation);
+  GPSINS_FIELD(pseudorange_error_gm_sigma_m);
+  GPSINS_FIELD(pseudorange_error_gm_tau_s);
   GPSINS_FIELD(pseudorange_ionosphere);
   GPSINS_FIELD(pseudorange_troposphere);
   GPSINS_FIELD(gps_time_offset_s);
@@ -653,6 +666,7 @@ void bind_filter(py::module_& m) {
       .def_property_readonly("gyro_bias", [](const PyFilter& p) { return p.with([](const auto& f) { return Vec3(f.core().imu.gyro_bias_rad_per_s); }); })
       .def_property_readonly("accel_bias", [](const PyFilter& p) { return p.with([](const auto& f) { return Vec3(f.core().imu.accel_bias_mps2); }); })
       .def_property_readonly("clock", [](const PyFilter& p) { return p.with([](const auto& f) { return Eigen::Vector2d(f.core().clock); }); })
+      .def_property_readonly("fix_error", [](const PyFilter& p) { return p.with([](const auto& f) { return Vec3(f.core().fix_error); }); })
       .def_property_readonly("covariance", [](const PyFilter& p) {
         return p.with([](const auto& f) { return Eigen::MatrixXd(f.core().P); }); })
       .def_property_readonly("counters", [](const PyFilter& p) { return p.with([](const auto& f) { return counters_dict(f.counters()); }); })

@@ -54,6 +54,8 @@ ProcessNoise noise_of(const InsConfig& c) {
   bias(c.accel_bias, q.accel_bias_drive_var, q.accel_bias_inv_tau);
   q.clock_bias_var = c.clock_bias_noise_m_per_sqrt_s * c.clock_bias_noise_m_per_sqrt_s;
   q.clock_drift_var = c.clock_drift_noise_mps_per_sqrt_s * c.clock_drift_noise_mps_per_sqrt_s;
+  q.fix_error_var_ned = square(c.fix_error_gm_sigma_m);
+  q.fix_error_inv_tau = c.fix_error_gm_tau_s > 0.0 ? 1.0 / c.fix_error_gm_tau_s : 0.0;
   return q;
 }
 
@@ -101,6 +103,7 @@ InsFilter<NB, NC>::InsFilter(const InsConfig& cfg) : cfg_(cfg), detector_(thresh
   v.pitch_rad = cfg.body_to_vehicle_ypr_rad.y();
   v.roll_rad = cfg.body_to_vehicle_ypr_rad.z();
   c_vb_ = dcm_from_euler(v);
+  pr_used_t_.fill(std::numeric_limits<double>::quiet_NaN());
 }
 
 template <int NB, int NC>
@@ -386,7 +389,7 @@ void InsFilter<NB, NC>::reset_to_fix(const FixInput& fix) {
   event(kGnssReset, fix.t_s - rejected_since_);
   rejecting_ = false;
   auto& P = core_.P;
-  core_.nav.r_ecef_m = fix.r_ecef_m - core_.nav.q_eb * cfg_.lever_arm_body_m;
+  core_.nav.r_ecef_m = fix.r_ecef_m - core_.nav.q_eb * cfg_.lever_arm_body_m - fix_error_estimate();
   double var_v = cfg_.velocity_sigma_mps * cfg_.velocity_sigma_mps;
   if (fix.v_ecef_mps.allFinite()) {
     core_.nav.v_ecef_mps = fix.v_ecef_mps;
@@ -515,6 +518,21 @@ InputStatus InsFilter<NB, NC>::push_pseudoranges(const PseudorangeEpoch& ep) {
   }
 }
 
+// The variance a pseudorange's correlated error adds to this update (see
+// pseudorange_error_gm_sigma_m): sigma(el)^2 (1 + a) / (1 - a), a = exp(-dt / tau),
+// dt since the satellite's previous update (none since acquisition: a = 0).
+template <int NB, int NC>
+double InsFilter<NB, NC>::correlated_variance(int prn, double t, double el_rad) const {
+  if (!(cfg_.pseudorange_error_gm_sigma_m > 0.0) || prn < 1 || prn > 32) return 0.0;
+  const double s = cfg_.pseudorange_error_gm_sigma_m / std::max(std::sin(el_rad), 0.1);
+  const double last = pr_used_t_[static_cast<std::size_t>(prn)];
+  const double dt = t - last;
+  if (!std::isfinite(last) || !(dt > 0.0) || !(cfg_.pseudorange_error_gm_tau_s > 0.0)) return s * s;
+  // (1 + a) / (1 - a) with 1 - a = -expm1(-dt / tau): accurate for dt << tau.
+  const double one_minus_a = -std::expm1(-dt / cfg_.pseudorange_error_gm_tau_s);
+  return s * s * (2.0 - one_minus_a) / one_minus_a;
+}
+
 // The receiver's lock counter grows while a satellite stays locked (saturating);
 // a drop, or a satellite missing from an epoch, means the lock was lost.
 template <int NB, int NC>
@@ -525,7 +543,10 @@ void InsFilter<NB, NC>::track_locks(const PseudorangeEpoch& ep) {
     if (prn < 1 || prn > 32) continue;
     const auto p = static_cast<std::size_t>(prn);
     const int lock = ep.lock_count[static_cast<std::size_t>(i)];
-    if (!tracked_[p] || lock < last_lock_[p]) locked_since_[p] = ep.t_s;
+    if (!tracked_[p] || lock < last_lock_[p]) {
+      locked_since_[p] = ep.t_s;
+      pr_used_t_[p] = std::numeric_limits<double>::quiet_NaN();  // a new track: its errors start afresh
+    }
     last_lock_[p] = lock;
     seen[p] = true;
   }
@@ -571,9 +592,10 @@ void InsFilter<NB, NC>::process_pseudoranges(const PseudorangeEpoch& ep) {
       }
       const double iono = cfg_.pseudorange_ionosphere ? gnss::klobuchar_m(iono_, llh, ae, tow) : 0.0;
       const double trop = cfg_.pseudorange_troposphere ? gnss::saastamoinen_m(llh, ae.el_rad) : 0.0;
-      const double var = cfg_.pseudorange_sigma_m > 0.0
-                             ? cfg_.pseudorange_sigma_m * cfg_.pseudorange_sigma_m
-                             : gnss::pseudorange_variance_m2(ae.el_rad, gnss::ura_m(eph->ura_index), iono);
+      double var = cfg_.pseudorange_sigma_m > 0.0
+                       ? cfg_.pseudorange_sigma_m * cfg_.pseudorange_sigma_m
+                       : gnss::pseudorange_variance_m2(ae.el_rad, gnss::ura_m(eph->ura_index), iono);
+      var += correlated_variance(ep.prn[k], ep.t_s, ae.el_rad);
       // Everything but geometry and the receiver clock moved to the measurement side.
       const double corr = ep.pr_m[k] + gnss::kSpeedOfLight * (st.clock_s - eph->tgd_s) - iono - trop;
       use[static_cast<std::size_t>(n++)] = Use{st.r_ecef_m, corr, gnss::sagnac_m(st.r_ecef_m, r_a), var, ep.prn[k]};
@@ -602,6 +624,7 @@ void InsFilter<NB, NC>::process_pseudoranges(const PseudorangeEpoch& ep) {
       const auto r = apply(m, 1);
       record(kPseudorange, r, 1, u.prn);
       ++(r.accepted ? counters_.pseudoranges_used : counters_.pseudoranges_rejected);
+      if (r.accepted) pr_used_t_[static_cast<std::size_t>(u.prn)] = ep.t_s;
       any = any || r.accepted;
     }
     note_gnss(any, ep.t_s);
@@ -640,6 +663,10 @@ void InsFilter<NB, NC>::initialise(const FixInput& fix) {
     P(Core::kClock, Core::kClock) = cfg_.clock_bias_sigma_m * cfg_.clock_bias_sigma_m;
     P(Core::kClock + 1, Core::kClock + 1) = cfg_.clock_drift_sigma_mps * cfg_.clock_drift_sigma_mps;
   }
+  if constexpr (NC == 3) {  // the fix error starts unknown within its stationary spread
+    core_.fix_error.setZero();
+    P.template block<3, 3>(Core::kFixError, Core::kFixError) = core_.fix_error_stationary_cov();
+  }
   core_.note_restart(0, N);
   initialised_ = true;
   have_prev_fix_ = true;
@@ -673,7 +700,7 @@ void InsFilter<NB, NC>::set_heading(const FixInput& fix, const Vec3& v_ecef, dou
   const Mat3 c_bn_old = core_.nav.q_eb.toRotationMatrix().transpose() * rot_ned_to_ecef(llh.lat_rad, llh.lon_rad);
   const Mat3 old_ned = c_bn_old.transpose() * P.template block<3, 3>(es::att, es::att) * c_bn_old;
   core_.nav.q_eb = quat_body_to_ecef(e, llh.lat_rad, llh.lon_rad);
-  core_.nav.r_ecef_m = fix.r_ecef_m - core_.nav.q_eb * cfg_.lever_arm_body_m;
+  core_.nav.r_ecef_m = fix.r_ecef_m - core_.nav.q_eb * cfg_.lever_arm_body_m - fix_error_estimate();
   core_.nav.v_ecef_mps = v_ecef;
   event(kHeadingSet, course_rad);
   P.template topRows<9>().setZero();
@@ -840,5 +867,7 @@ template class InsFilter<5, 0>;
 template class InsFilter<7, 0>;
 template class InsFilter<5, 2>;
 template class InsFilter<7, 2>;
+template class InsFilter<5, 3>;
+template class InsFilter<7, 3>;
 
 }  // namespace gpsins

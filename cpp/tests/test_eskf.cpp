@@ -206,3 +206,60 @@ TEST_CASE("covariance stays symmetric positive definite over a million steps") {
   CHECK(eig.eigenvalues().minCoeff() > 0.0);
   CHECK(f.P.allFinite());
 }
+
+// The fix-error states' discretisation (eskf.hpp, gauss_markov_step) against an
+// independent numerical integration of the continuous model
+//   dP/dt = F P + P F^T + Qc,  F = -I / tau,  Qc = (2 / tau) C_en diag(sigma^2) C_en^T
+// (RK4, many small steps), from P = 0 over steps from one IMU sample to far beyond tau.
+TEST_CASE("fix-error Gauss-Markov: Qd matches numerical integration of the continuous model") {
+  auto f = realistic_filter<5, 3>();
+  const double tau = 20.0;
+  const Vec3 sigma(1.2, 0.8, 2.5);
+  f.noise.fix_error_inv_tau = 1.0 / tau;
+  f.noise.fix_error_var_ned = sigma.cwiseAbs2();
+  const Geodetic site{59.37 * kDeg, 17.95 * kDeg, 30.0};
+  const Mat3 c_en = rot_ned_to_ecef(site.lat_rad, site.lon_rad);
+  const Mat3 qc = (2.0 / tau) * c_en * sigma.cwiseAbs2().asDiagonal() * c_en.transpose();
+  const Mat3 stationary = c_en * sigma.cwiseAbs2().asDiagonal() * c_en.transpose();
+  const Vec3 w(0.3, -0.2, 0.5), fb(1.0, 0.5, -9.8);
+  const Mat3 c = f.nav.q_eb.toRotationMatrix();
+  constexpr int k = Eskf<5, 3>::kFixError;
+  for (double dt : {1.0 / 400.0, 1.0 / 64.0, 0.1, 1.0, 30.0, 200.0}) {
+    auto g = f;
+    g.P.setZero();
+    g.propagate_covariance(w, fb, c, dt);
+    const Mat3 qd = g.P.block<3, 3>(k, k);
+    // RK4 on dP/dt = -2 P / tau + Qc.
+    Mat3 p = Mat3::Zero();
+    const int steps = 20000;
+    const double h = dt / steps;
+    auto rate = [&](const Mat3& x) -> Mat3 { return -2.0 / tau * x + qc; };
+    for (int i = 0; i < steps; ++i) {
+      const Mat3 k1 = rate(p), k2 = rate(p + 0.5 * h * k1), k3 = rate(p + 0.5 * h * k2), k4 = rate(p + h * k3);
+      p += h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4);
+    }
+    MESSAGE("dt " << dt << " s: Qd relative error " << (qd - p).norm() / p.norm());
+    CHECK((qd - p).norm() < 1e-9 * p.norm());
+    // Nothing leaks into the cross terms from a zero covariance.
+    CHECK(g.P.block<15, 3>(0, k).norm() == 0.0);
+  }
+  // Started at its stationary covariance it stays there, cross terms decay by exp(-dt / tau),
+  // and the estimate decays with the process's mean.
+  auto g = f;
+  g.P.setZero();
+  g.P.block<3, 3>(k, k) = stationary;
+  g.P.block<3, 3>(es::pos, k) = g.P.block<3, 3>(k, es::pos) = 0.5 * stationary;
+  g.P.block<3, 3>(es::pos, es::pos) = 4.0 * Mat3::Identity();
+  g.fix_error = Vec3(1.0, -2.0, 0.5);
+  Increment still;
+  still.dt_s = 1.0 / 64.0;
+  still.dv_mps = -(g.nav.q_eb.conjugate() * normal_gravity_ecef(g.nav.r_ecef_m)) * still.dt_s;
+  const Vec3 b0 = g.fix_error;
+  const Mat3 cross0 = g.P.block<3, 3>(k, es::pos);
+  for (int i = 0; i < 640; ++i) g.propagate(still);
+  const double decay = std::exp(-10.0 / tau);
+  CHECK((g.P.block<3, 3>(k, k) - stationary).norm() < 1e-3 * stationary.norm());  // the frame moves with the position
+  CHECK((g.fix_error - decay * b0).norm() < 1e-12);
+  // Standing (gravity only): position has Phi close to identity, so the cross term decays by phi.
+  CHECK((g.P.block<3, 3>(k, es::pos) - decay * cross0).norm() < 1e-3 * cross0.norm());
+}

@@ -329,3 +329,119 @@ TEST_CASE("every aiding source's H matches finite differences of an independent 
   MESSAGE("omitted columns: gnss_velocity_sg " << worst.rel["gnss_velocity_sg"] << ", zero_rate_sg "
           << worst.rel["zero_rate_sg"] << " (1 = the column is missing; less where the term is small)");
 }
+
+// The loose filter's fix-error states (Eskf<7, 3>): the same two checks. Phi from
+// central differences of propagate() (the estimate decays by exp(-dt / tau), nothing
+// else couples) against the Phi the covariance propagation hands its observer; the
+// fix's H against differences of z = r + C l + b.
+namespace {
+using FixFilter = Eskf<7, 3>;
+constexpr int N3 = FixFilter::N;
+using Vec3N = FixFilter::VecN;
+using Mat3N = FixFilter::MatN;
+
+struct PhiCapture final : EskfObserver<N3> {
+  Mat3N phi = Mat3N::Zero();
+  void on_propagate(const Mat3N& p) override { phi = p; }
+  void on_update(const MatRef&, const MatRef&, const MatRef&, const VecRef&, const Mat3&) override {}
+  void on_transition(const Mat3N&) override {}
+};
+
+FixFilter with_fix_error(const Filter& f, const Vec3& b, double tau_s) {
+  FixFilter g;
+  g.nav = f.nav;
+  g.imu = f.imu;
+  g.noise.fix_error_inv_tau = 1.0 / tau_s;
+  g.noise.fix_error_var_ned = Vec3(1.5, 1.5, 3.0).cwiseAbs2();
+  g.fix_error = b;
+  return g;
+}
+
+Vec3N error_between3(const FixFilter& nominal, const FixFilter& truth) {
+  Vec3N e;
+  e.segment<3>(es::att) = rotvec_from_quat(nominal.nav.q_eb.conjugate() * truth.nav.q_eb);
+  e.segment<3>(es::vel) = truth.nav.v_ecef_mps - nominal.nav.v_ecef_mps;
+  e.segment<3>(es::pos) = truth.nav.r_ecef_m - nominal.nav.r_ecef_m;
+  e.segment<3>(es::bg) = truth.imu.gyro_bias_rad_per_s - nominal.imu.gyro_bias_rad_per_s;
+  e.segment<3>(es::ba) = truth.imu.accel_bias_mps2 - nominal.imu.accel_bias_mps2;
+  e.segment<3>(es::sg) = truth.imu.gyro_scale_factor - nominal.imu.gyro_scale_factor;
+  e.segment<3>(es::sa) = truth.imu.accel_scale_factor - nominal.imu.accel_scale_factor;
+  e.segment<3>(FixFilter::kFixError) = truth.fix_error - nominal.fix_error;
+  return e;
+}
+
+Vec3N fd_steps3() {
+  Vec3N h;
+  h << fd_steps().head<21>(), Vec3::Constant(1.0);
+  return h;
+}
+
+FixFilter injected3(const FixFilter& f, const Vec3N& dx) {
+  FixFilter t = f;
+  t.inject_and_reset(dx);
+  return t;
+}
+}  // namespace
+
+TEST_CASE("fix-error states: Phi and the fix's H match finite differences") {
+  std::mt19937_64 rng(2027);
+  double worst_gm_phi = 0.0, worst_cross = 0.0, worst_nav = 0.0, worst_h = 0.0, worst_h_gm = 0.0;
+  for (int trial = 0; trial < 40; ++trial) {
+    const double dt = trial % 2 ? 1.0 / 64.0 : 1.0 / 400.0;
+    const double tau = 5.0 + 100.0 * std::uniform_real_distribution<double>(0.0, 1.0)(rng);
+    const Case c = random_case(rng, dt);
+    const FixFilter f = with_fix_error(c.f, uniform3(rng, 3.0), tau);
+    // Phi: differences of the filter's own propagation.
+    const Vec3N h = fd_steps3();
+    FixFilter nominal = f;
+    PhiCapture cap;
+    nominal.P = Mat3N::Identity();
+    nominal.observer = &cap;
+    nominal.propagate(c.raw);
+    nominal.observer = nullptr;
+    Mat3N fd;
+    for (int j = 0; j < N3; ++j) {
+      Vec3N dx = Vec3N::Zero();
+      dx(j) = h(j);
+      FixFilter plus = injected3(f, dx), minus = injected3(f, -dx);
+      plus.propagate(c.raw);
+      minus.propagate(c.raw);
+      fd.col(j) = (error_between3(nominal, plus) - error_between3(nominal, minus)) / (2.0 * h(j));
+    }
+    const double phi_gm = std::exp(-dt / tau);
+    worst_gm_phi = std::max(worst_gm_phi, (fd.bottomRightCorner<3, 3>() - phi_gm * Mat3::Identity()).norm() +
+                                              (cap.phi.bottomRightCorner<3, 3>() - phi_gm * Mat3::Identity()).norm());
+    worst_cross = std::max(worst_cross, fd.bottomLeftCorner<3, 21>().norm() + fd.topRightCorner<21, 3>().norm() +
+                                            cap.phi.bottomLeftCorner<3, 21>().norm() +
+                                            cap.phi.topRightCorner<21, 3>().norm());
+    // The navigation block is the one the test above checks; here only that it is the same Phi.
+    worst_nav = std::max(worst_nav, (cap.phi.topLeftCorner<21, 21>() - code_phi(c)).norm());
+
+    // H of the fix: an independent model z = r + C l + b about a nearby origin.
+    World w{c.lever, Vec3::Zero(), Vec3::Zero()};
+    const auto pf = position_fix(f, Vec3::Zero(), Mat3::Identity(), w.lever);
+    Vec3N step = fd_steps3();
+    step.segment<3>(es::att).setConstant(1e-3);
+    Eigen::Matrix<double, 3, N3> hd;
+    for (int j = 0; j < N3; ++j) {
+      Vec3N dx = Vec3N::Zero();
+      dx(j) = step(j);
+      const FixFilter p = injected3(f, dx), m = injected3(f, -dx);
+      const Vec3 zp = (p.nav.r_ecef_m - f.nav.r_ecef_m) + p.nav.q_eb * w.lever + p.fix_error;
+      const Vec3 zm = (m.nav.r_ecef_m - f.nav.r_ecef_m) + m.nav.q_eb * w.lever + m.fix_error;
+      hd.col(j) = (zp - zm) / (2.0 * step(j));
+    }
+    worst_h = std::max(worst_h, rel_err(pf.H.leftCols<21>(), hd.leftCols<21>(), 1e-3));
+    worst_h_gm = std::max(worst_h_gm, (pf.H.rightCols<3>() - hd.rightCols<3>()).norm());
+    // The innovation removes the estimated fix error: z = h(x) gives y = 0.
+    const Vec3 z = f.nav.r_ecef_m + f.nav.q_eb * w.lever + f.fix_error;
+    CHECK((position_fix(f, z, Mat3::Identity(), w.lever).y).norm() < 1e-6);
+  }
+  MESSAGE("fix error: Phi block " << worst_gm_phi << ", cross blocks " << worst_cross << ", nav block vs the 21-state Phi "
+          << worst_nav << "; H nav columns " << worst_h << ", H fix-error columns " << worst_h_gm);
+  CHECK(worst_gm_phi < 1e-7);
+  CHECK(worst_cross < 1e-6);
+  CHECK(worst_nav < 1e-12);
+  CHECK(worst_h < 1e-6);
+  CHECK(worst_h_gm < 1e-9);
+}

@@ -132,8 +132,10 @@ TEST_CASE("smoother tape: bytes per record as documented") {
   using R50 = EskfRecorder<5, 0>;
   using R52 = EskfRecorder<5, 2>;
   using R72 = EskfRecorder<7, 2>;
+  using R53 = EskfRecorder<5, 3>;  // loose with the fix-error states
   // Output record: nominal + packed covariance + trailer; propagation: N^2 + trailer.
   CHECK(R50::kNominal + BackwardPass<15>::kPacked + 1 == 139);
   CHECK(R52::kNominal + BackwardPass<17>::kPacked + 1 == 174);
   CHECK(R72::kNominal + BackwardPass<23>::kPacked + 1 == 303);
+  CHECK(R53::kNominal + BackwardPass<18>::kPacked + 1 == 193);
 }

@@ -161,7 +161,7 @@ def parse_overrides(pairs: list[str]) -> dict:
 # spreads, noise densities, times and rates, which may not.
 _SIGNED = ("_cal", "lever_arm", "initial_yaw", "gps_time_offset_s", "pseudorange_sigma_m", "body_to_vehicle_ypr",
            "vehicle_point_body_m")
-_POSITIVE = {"imu_rate_hz", "heading_search_s", "nhc_interval_s", "fix_uere_m", "bias_tau_s",
+_POSITIVE = {"imu_rate_hz", "heading_search_s", "fix_error_gm_tau_s", "pseudorange_error_gm_tau_s", "nhc_interval_s", "fix_uere_m", "bias_tau_s",
              "zero_velocity_sigma_mps", "zero_rate_sigma_rad_per_s",
              "standstill_window_s", "pseudorange_decimation", "gm_tau_s", "standstill_block_s",
              "gyro_range_rad_per_s", "gyro_range_deg_per_s", "accel_range_mps2"}
@@ -455,6 +455,7 @@ class Solution:
     covariance: np.ndarray | None = None
     extra: dict = field(default_factory=dict)
     events: dict = field(default_factory=dict)  # t, kind (EVENT_KINDS), value: restarts, resets, rejected samples
+    fix_error: np.ndarray | None = None  # (n, 3) loose with fix-error states: the fix's correlated error, ECEF m
 
     @classmethod
     def from_batch(cls, out: dict, mode: str, scale_factors: bool) -> "Solution":
@@ -464,12 +465,18 @@ class Solution:
         sf = None
         if scale_factors:
             sf, k = s[:, k:k + 6], k + 6
-        clock = None
+        # After them the augmented states: the clock (tight) or the fix error (loose, fix_error_gm_sigma_m).
+        clock = fix_error = None
+        augmented = n - 15 - (6 if scale_factors else 0)
         if mode == "tight":
             clock, k = s[:, k:k + 2], k + 2
+        elif augmented == 3:
+            fix_error, k = s[:, k:k + 3], k + 3
+        flags = s[:, k + n].astype(int)
         return cls(mode, n, s[:, 0], s[:, 1:4], s[:, 4:7], s[:, 7:11], s[:, 11:14], s[:, 14:17],
-                   s[:, k:k + n], (s[:, k + n].astype(int) & 1) > 0, (s[:, k + n].astype(int) & 2) > 0, out["updates"], out["counters"], sf, clock,
-                   out.get("covariance"), {"fixes_after_end": out["fixes_after_end"]}, out["events"])
+                   s[:, k:k + n], (flags & 1) > 0, (flags & 2) > 0, out["updates"], out["counters"], sf, clock,
+                   out.get("covariance"), {"fixes_after_end": out["fixes_after_end"]}, out["events"],
+                   fix_error=fix_error)
 
     def event_list(self) -> list[dict]:
         """The filter's events in time order as {t, kind, value} with kind named (EVENT_KINDS)."""

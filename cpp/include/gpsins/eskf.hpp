@@ -7,7 +7,12 @@
 //   dv (3), dr (3)  velocity and position, ECEF
 //   dbg (3), dba (3)  gyro and accelerometer bias
 //   [dsg (3), dsa (3)]  gyro and accelerometer scale factor       (NB = 7)
-//   [clock bias c*dt (m), clock drift (m/s)]                      (NC = 2)
+//   then NC augmented states, by sensor:
+//   [clock bias c*dt (m), clock drift (m/s)]       NC = 2 (tight: pseudoranges)
+//   [fix error db (3), ECEF (m)]                   NC = 3 (loose: Gauss-Markov fix errors)
+// The fix error is the time-correlated part of the receiver's position error
+// (multipath, atmosphere residuals: correlated over tens of seconds); the fix is
+// then z = r_antenna + b + white (aiding/position_fix.hpp).
 // IMU model per axis: measured = (1 + s) true + b + noise, so the corrected
 // increment is (measured - b dt) / (1 + s).
 //
@@ -41,7 +46,27 @@ struct ProcessNoise {
   Vec3 accel_sf_drive_var = Vec3::Zero();
   double clock_bias_var = 0.0;   // m^2/s
   double clock_drift_var = 0.0;  // m^2/s^3
+  // Fix error (NC = 3): first-order Gauss-Markov per local north, east, down axis,
+  // stationary variance (m^2) and 1/tau (1/s), one tau for all axes.
+  Vec3 fix_error_var_ned = Vec3::Zero();
+  double fix_error_inv_tau = 0.0;
 };
+
+// First-order Gauss-Markov process db/dt = -b / tau + w, E[w(t) w(s)] = q delta(t - s)
+// with q = 2 sigma^2 / tau (so the stationary variance is sigma^2). Over dt:
+//   b(t + dt) = exp(-dt / tau) b(t) + int_0^dt exp(-(dt - s) / tau) w(t + s) ds,
+//   Phi = exp(-dt / tau),
+//   Qd  = int_0^dt exp(-2 s / tau) q ds = q tau / 2 (1 - exp(-2 dt / tau))
+//       = sigma^2 (1 - exp(-2 dt / tau)) = sigma^2 (1 - Phi^2),
+// exact for any dt (no series), and the stationary variance is kept: Phi^2 sigma^2 + Qd = sigma^2.
+struct GaussMarkovStep {
+  double phi = 1.0;
+  double qd_per_var = 0.0;  // Qd / sigma^2
+};
+inline GaussMarkovStep gauss_markov_step(double inv_tau, double dt) {
+  const double phi = std::exp(-dt * inv_tau);
+  return GaussMarkovStep{phi, -std::expm1(-2.0 * dt * inv_tau)};
+}
 
 struct ImuErrorEstimate {
   Vec3 gyro_bias_rad_per_s = Vec3::Zero();
@@ -92,10 +117,11 @@ template <int NB, int NC>
 class Eskf {
  public:
   static_assert(NB == 5 || NB == 7, "5 blocks (15 states) or 7 (with scale factors)");
-  static_assert(NC == 0 || NC == 2, "no clock or clock bias + drift");
+  static_assert(NC == 0 || NC == 2 || NC == 3, "none, clock bias + drift, or the fix error");
   static constexpr int kNav = 3 * NB;
   static constexpr int N = kNav + NC;
-  static constexpr int kClock = kNav;
+  static constexpr int kClock = kNav;     // NC == 2
+  static constexpr int kFixError = kNav;  // NC == 3
   using VecN = Eigen::Matrix<double, N, 1>;
   using MatN = Eigen::Matrix<double, N, N>;
   using MatNav = Eigen::Matrix<double, kNav, kNav>;
@@ -103,6 +129,7 @@ class Eskf {
   NavState nav;
   ImuErrorEstimate imu;
   Eigen::Vector2d clock = Eigen::Vector2d::Zero();  // receiver clock bias (m), drift (m/s)
+  Vec3 fix_error = Vec3::Zero();  // NC == 3: the fix's correlated error estimate, ECEF (m)
   MatN P = MatN::Zero();
   ProcessNoise noise;
   EskfObserver<N>* observer = nullptr;  // a smoother recording the forward pass (rts.hpp)
@@ -126,7 +153,16 @@ class Eskf {
     mechanise(nav, c);
     // Clock: bias integrates drift.
     if constexpr (NC == 2) clock(0) += clock(1) * dt;
+    // Fix error: its estimate decays as the process's mean does.
+    if constexpr (NC == 3) fix_error *= gauss_markov_step(noise.fix_error_inv_tau, dt).phi;
     propagate_covariance(w, f, c_mid, dt);
+  }
+
+  // The fix error's stationary covariance in ECEF at the current position.
+  Mat3 fix_error_stationary_cov() const {
+    const Geodetic llh = ecef_to_geodetic(nav.r_ecef_m);
+    const Mat3 c_en = rot_ned_to_ecef(llh.lat_rad, llh.lon_rad);
+    return c_en * noise.fix_error_var_ned.asDiagonal() * c_en.transpose();
   }
 
   // Continuous-time error dynamics F over the interval (block form).
@@ -220,7 +256,7 @@ class Eskf {
     noise_blocks(c, qc);
     discretise(F, qc, dt, phi, qd);
 
-    // P <- Phi P Phi^T + Qd, with Phi = blkdiag(Phi_nav, Phi_clock).
+    // P <- Phi P Phi^T + Qd, with Phi = blkdiag(Phi_nav, Phi of the augmented states).
     MatN m;
     for (int i = 0; i < NB; ++i) {
       auto rows = m.template middleRows<3>(3 * i);
@@ -231,6 +267,12 @@ class Eskf {
     if constexpr (NC == 2) {
       m.template middleRows<2>(kClock) = P.template middleRows<2>(kClock);
       m.row(kClock) += dt * P.row(kClock + 1);
+    }
+    // Fix error: Phi = phi I, Qd = (1 - phi^2) x its stationary covariance.
+    GaussMarkovStep gm;
+    if constexpr (NC == 3) {
+      gm = gauss_markov_step(noise.fix_error_inv_tau, dt);
+      m.template middleRows<3>(kFixError) = gm.phi * P.template middleRows<3>(kFixError);
     }
     for (int j = 0; j < NB; ++j) {
       auto cols = P.template middleCols<3>(3 * j);
@@ -247,6 +289,10 @@ class Eskf {
       P(kClock + 1, kClock) += qdr * dt * dt / 2.0;
       P(kClock + 1, kClock + 1) += qdr * dt;
     }
+    if constexpr (NC == 3) {
+      P.template middleCols<3>(kFixError) = gm.phi * m.template middleCols<3>(kFixError);
+      P.template block<3, 3>(kFixError, kFixError) += gm.qd_per_var * fix_error_stationary_cov();
+    }
     P.template topLeftCorner<kNav, kNav>() += qd;
     symmetrise();
     if (observer) {
@@ -255,6 +301,7 @@ class Eskf {
         for (int k = 0; k < NB; ++k)
           if (phi.has(i, k)) full.template block<3, 3>(3 * i, 3 * k) = phi.at(i, k);
       if constexpr (NC == 2) full.template bottomRightCorner<2, 2>() << 1.0, dt, 0.0, 1.0;
+      if constexpr (NC == 3) full.template bottomRightCorner<3, 3>() = gm.phi * Mat3::Identity();
       observer->on_propagate(full);
     }
   }
@@ -334,6 +381,7 @@ class Eskf {
       imu.accel_scale_factor += dx.template segment<3>(sa);
     }
     if constexpr (NC == 2) clock += dx.template segment<2>(kClock);
+    if constexpr (NC == 3) fix_error += dx.template segment<3>(kFixError);
     // Reset: the attitude error is now relative to the corrected q (seed 003).
     const Mat3 g = Mat3::Identity() - skew(0.5 * dth);
     P.template middleRows<3>(att) = (g * P.template middleRows<3>(att)).eval();

@@ -77,6 +77,13 @@ struct InsConfig {
   Vec3 antenna_baseline_body = Vec3(1.0, 0.0, 0.0);
   double fix_uere_m = 3.0;
   Vec3 fix_sigma_ecef_m = Vec3::Zero();
+  // Time-correlated fix errors (multipath, ionosphere and troposphere residuals
+  // stay correlated for tens of seconds): first-order Gauss-Markov states per
+  // local north, east, down axis with these stationary sigmas and one correlation
+  // time, loose coupling only. The fix's own R (its stated sigmas or UERE x DOP)
+  // is then its white part only. All sigmas 0: no states, every fix white.
+  Vec3 fix_error_gm_sigma_m = Vec3::Zero();
+  double fix_error_gm_tau_s = 60.0;
   bool use_fix_velocity = false;
   double fix_velocity_sigma_mps = 0.1;  // per axis (unless the fix states its own); times HDOP when scaled
   bool fix_velocity_sigma_hdop_scaled = false;
@@ -92,6 +99,15 @@ struct InsConfig {
   // of the receiver's 10 Hz epochs as if they were independent makes the filter
   // several times too confident. 1 Hz keeps it consistent (and is the report's rate).
   int pseudorange_decimation = 10;
+  // Their correlated part, for updating at any rate (tight coupling's alternative to
+  // per-satellite bias states): a first-order Gauss-Markov error with this sigma at
+  // zenith (growing as 1 / sin(elevation), as multipath does) and correlation time.
+  // Each update of a satellite adds sigma^2 (1 + a) / (1 - a) to its variance, a =
+  // exp(-dt / tau), dt the time since that satellite's previous update: N updates
+  // then carry the information of their mean, sigma^2 (1 + a) / ((1 - a) N), as
+  // correlated samples do, so the rate no longer decides the confidence. 0: off.
+  double pseudorange_error_gm_sigma_m = 0.0;
+  double pseudorange_error_gm_tau_s = 60.0;
   bool pseudorange_ionosphere = true;
   bool pseudorange_troposphere = true;
   double gps_time_offset_s = 0.0;  // filter time + this = GPS seconds since the GPS epoch

@@ -146,6 +146,7 @@ class InsFilter {
   InputStatus push_imu(double t_s, const Vec3& dtheta_rad, const Vec3& dv_mps);
   InputStatus push_fix(const FixInput& fix);
   // Tight coupling only (NC == 2); held until the IMU reaches their time.
+  // NC == 3 is loose coupling with the fix-error states (fix_error_gm_sigma_m).
   InputStatus push_pseudoranges(const PseudorangeEpoch& epoch);
   // Dual-antenna heading and pitch; used at the first IMU sample at or after
   // their time, carried to it with the measured turn rate.
@@ -175,6 +176,7 @@ class InsFilter {
   void process_fix(const FixInput& fix);
   void process_pseudoranges(const PseudorangeEpoch& epoch);
   void track_locks(const PseudorangeEpoch& epoch);
+  double correlated_variance(int prn, double t, double el_rad) const;
   void initialise(const FixInput& fix);
   void decouple_yaw();
   void set_heading(const FixInput& fix, const Vec3& v_ecef, double course_rad);
@@ -184,6 +186,11 @@ class InsFilter {
   void restart_after_gap(double gap_s, double t_end);
   void note_gnss(bool accepted, double t);
   void reset_to_fix(const FixInput& fix);
+  // The fix's correlated error as estimated (zero without those states).
+  Vec3 fix_error_estimate() const {
+    if constexpr (NC == 3) return core_.fix_error;
+    return Vec3::Zero();
+  }
   void event(int kind, double value);
   void inflate_unknown_heading(const Increment& inc);
   void constrain_vehicle(const Increment& inc);
@@ -241,6 +248,7 @@ class InsFilter {
   std::array<int, 33> last_lock_{};
   std::array<double, 33> locked_since_{};
   std::array<bool, 33> tracked_{};
+  std::array<double, 33> pr_used_t_{};  // time of each satellite's last update (NaN: none since acquisition)
   bool clock_set_ = false;
   bool have_fix_time_ = false;
   double last_fix_t_ = 0.0;
@@ -257,5 +265,7 @@ extern template class InsFilter<5, 0>;
 extern template class InsFilter<7, 0>;
 extern template class InsFilter<5, 2>;
 extern template class InsFilter<7, 2>;
+extern template class InsFilter<5, 3>;
+extern template class InsFilter<7, 3>;
 
 }  // namespace gpsins

@@ -163,7 +163,7 @@ class EskfRecorder final : public EskfObserver<3 * NB + NC> {
   using Core = Eskf<NB, NC>;
   using MatN = Eigen::Matrix<double, N, N>;
   using Base = EskfObserver<N>;
-  // Nominal payload: t, r, v, q (w x y z), bg, ba, [sg, sa], [clock], flags.
+  // Nominal payload: t, r, v, q (w x y z), bg, ba, [sg, sa], [clock or fix error], flags.
   static constexpr int kNominal = 1 + 3 + 3 + 4 + 6 + (NB == 7 ? 6 : 0) + NC + 1;
   using Pass = BackwardPass<N>;
 
@@ -205,6 +205,8 @@ class EskfRecorder final : public EskfObserver<3 * NB + NC> {
       for (int i = 0; i < 3; ++i) *o++ = e.imu.accel_scale_factor(i);
     }
     if constexpr (NC == 2) { *o++ = e.clock(0); *o++ = e.clock(1); }
+    if constexpr (NC == 3)
+      for (int i = 0; i < 3; ++i) *o++ = e.fix_error(i);
     *o++ = flags;
     Pass::pack(e.P, o);
     ++outputs_;
