@@ -59,6 +59,8 @@ def epoch_arrays(sol: flt.Solution) -> dict:
              sigma_v_ned_mps=sigma_v_ned, standstill=sol.standstill, heading_known=sol.heading_known)
     if sol.clock is not None:
         a["clock"] = sol.clock
+    if getattr(sol, "fix_error", None) is not None:
+        a["fix_error"] = sol.fix_error
     return a
 
 
