@@ -74,8 +74,8 @@ def aggregate_nis(cells: list[dict], alpha: float = 0.05) -> dict:
     total_dof, total = float(dof.sum()), float(nis.sum())
     out = {"cells": int(used.sum()), "dof_total": total_dof,
            "mean_per_dof": total / total_dof if total_dof else float("nan"),
-           "band_mean_per_dof": ([float(chi2.ppf(alpha / 2, total_dof) / total_dof),
-                                  float(chi2.ppf(1 - alpha / 2, total_dof) / total_dof)] if total_dof else [None, None]),
+           "band_mean_per_dof": ([float(chi2.ppf(q, total_dof) / total_dof) for q in (alpha / 2, 1 - alpha / 2)]
+                                 if total_dof else [None, None]),
            **{k.replace("epochs", "cells"): v for k, v in _fractions(per_dof, lo, hi).items()},
            "series": {"per_dof": per_dof, "lower": lo, "upper": hi}}
     return out

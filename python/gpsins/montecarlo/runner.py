@@ -52,6 +52,9 @@ class Plan:
 
         return _merge(self.overrides, parse_overrides([f"{self.sweep_key}={value}"]))
 
+    def session_dir(self, seed: int) -> Path:
+        return self.out / f"seed-{seed:04d}" / "session"
+
     def run_dir(self, seed: int, i_value: int, mode: str) -> Path:
         base = self.out / f"seed-{seed:04d}"
         return (base / f"sweep-{i_value:02d}" / mode) if self.sweep_key else base / mode
@@ -81,8 +84,9 @@ def open_client(scheduler: str | None = None, workers: int | None = None):
             client.close()
         return
     n = workers or os.cpu_count() or 1
-    # Processes, not threads: the simulator and replay hold the GIL for much of their time.
-    with LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, \
+    # Processes, not threads: the simulator and replay hold the GIL for much of their time. The
+    # scheduler's HTTP port is any free one, so two clusters on one machine do not collide.
+    with LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster, \
             Client(cluster) as client:
         yield client
 
@@ -105,7 +109,7 @@ def run_plan(plan: Plan, client, progress: bool = True) -> Outcome:
     client.run(_warm)
     workers = len(client.scheduler_info().get("workers", {}))
     token = uuid.uuid4().hex[:8]
-    sims = {seed: client.submit(tasks.simulate_task, plan.scenario, seed, str(plan.out / f"seed-{seed:04d}" / "session"),
+    sims = {seed: client.submit(tasks.simulate_task, plan.scenario, seed, str(plan.session_dir(seed)),
                                 key=f"simulate-{seed}-{token}", pure=False)
             for seed in plan.seeds}
     futures = {}
@@ -131,10 +135,8 @@ def run_plan(plan: Plan, client, progress: bool = True) -> Outcome:
             advance(s)
     for f in sims.values():
         f.release()
-    order = {(seed, mode, v): k for k, (seed, v, mode) in enumerate(
-        (seed, v, mode) for seed in plan.seeds for v in (plan.sweep_texts if plan.sweep_key else [None])
-        for mode in plan.modes)}
-    summaries.sort(key=lambda s: order[(s["seed"], s["mode"], s["value"])])
+    values = plan.sweep_texts if plan.sweep_key else [None]
+    summaries.sort(key=lambda s: (plan.seeds.index(s["seed"]), values.index(s["value"]), plan.modes.index(s["mode"])))
     wall = time.perf_counter() - t0
     aggregate, files = write_outputs(plan, summaries, wall, workers)
     return Outcome(summaries, aggregate, files, wall, workers)
@@ -182,10 +184,9 @@ def write_outputs(plan: Plan, summaries: list[dict], wall_s: float, workers: int
     groups = []
     for key in dict.fromkeys(_group_key(s) for s in summaries):
         members = [s for s in summaries if _group_key(s) == key]
-        g = {"mode": key[0], value_col if plan.sweep_key else "value": key[1], **agg.aggregate_group(members, plan.alpha)}
-        groups.append(g)
+        groups.append({"mode": key[0], value_col: key[1], **agg.aggregate_group(members, plan.alpha)})
     name = getattr(plan.scenario, "name", str(plan.scenario))
-    for i, g in enumerate(groups):
+    for g in groups:
         if g.get("succeeded"):
             label = f"{g['mode']}" + (f", {plan.sweep_key} = {g[plan.sweep_key]}" if plan.sweep_key else "")
             stem = f"montecarlo_{g['mode']}" + (f"_{plan.sweep_texts.index(g[plan.sweep_key]):02d}"
