@@ -280,7 +280,7 @@ def test_the_aggregate_nees_is_the_run_average_of_each_runs_nees_on_the_grid(rem
 def test_a_sweep_on_a_local_cluster_reaches_the_filter(short_scenario, tmp_path):
     sc = sim.load(short_scenario)
     plan = Plan(scenario=sc, seeds=[1, 2], out=tmp_path / "sweep", sweep_key="fix_uere_m",
-                sweep_values=["1.0", "10.0"], sweep_texts=["1.0", "10.0"])
+                sweep_values=["1.0", "10.0"], sweep_texts=["1.0", "10.0"], keep="results")
     with open_client(workers=1) as client:
         outcome = run_plan(plan, client, progress=False)
     rows = _table(tmp_path / "sweep" / "runs.csv")
@@ -291,6 +291,9 @@ def test_a_sweep_on_a_local_cluster_reaches_the_filter(short_scenario, tmp_path)
     assert nis["10.0"] < nis["1.0"] / 5
     configs = [(tmp_path / "sweep" / f"seed-0001/sweep-0{i}/loose/config.toml").read_text() for i in (0, 1)]
     assert "fix_uere_m = 1.0" in configs[0] and "fix_uere_m = 10.0" in configs[1]
+    # keep="results": each seed's session went once its replays had read it.
+    assert not (tmp_path / "sweep" / "seed-0001" / "session").exists()
+    assert (tmp_path / "sweep" / "seed-0002" / "sweep-01" / "loose" / "results.npz").is_file()
 
 
 def test_bad_command_lines_fail_in_one_line(short_scenario, tmp_path, capsys):

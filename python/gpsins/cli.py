@@ -166,6 +166,9 @@ def _montecarlo_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--workers", type=int, metavar="K", help="local cluster: worker processes (default: one per core)")
     p.add_argument("--grid", type=float, default=1.0, metavar="S",
                    help="common time grid of the aggregate NEES, NIS and errors, s (default 1)")
+    p.add_argument("--keep", choices=("all", "results", "none"), default="all",
+                   help="what stays in --out besides the tables: sessions and replay results (all, default), "
+                        "replay results only, or none")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_montecarlo)
 

@@ -68,7 +68,7 @@ def plan_from_args(args, sweep_key: str | None, sweep_texts: list[str]):
     return Plan(scenario=sc, seeds=seeds_of(args.seeds, args.first_seed), out=out, modes=modes, config=args.config,
                 overrides=overrides, outages=args.outages, sweep_key=sweep_key,
                 sweep_values=sweep_texts if sweep_key else [None], sweep_texts=sweep_texts if sweep_key else [""],
-                grid_s=args.grid)
+                grid_s=args.grid, keep=args.keep)
 
 
 def run(args) -> int:

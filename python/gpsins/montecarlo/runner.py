@@ -43,7 +43,7 @@ class Plan:
     sweep_texts: list[str] = field(default_factory=lambda: [""])
     grid_s: float = 1.0
     alpha: float = 0.05
-    latencies: dict = field(default_factory=dict)
+    keep: str = "all"  # all: sessions and replay results; results: replay results; none: the tables only
 
     def overrides_for(self, value) -> dict:
         if self.sweep_key is None:
@@ -118,10 +118,17 @@ def run_plan(plan: Plan, client, progress: bool = True) -> Outcome:
             for mode in plan.modes:
                 run = {"mode": mode, "out": str(plan.run_dir(seed, i, mode)), "config": plan.config,
                        "overrides": plan.overrides_for(value), "outages": plan.outages,
-                       "value": plan.sweep_texts[i] if plan.sweep_key else None, "latencies": plan.latencies}
+                       "value": plan.sweep_texts[i] if plan.sweep_key else None}
                 fut = client.submit(tasks.replay_task, sims[seed], run, plan.grid_s,
                                     key=f"replay-{mode}-{seed}-{i}-{token}", pure=False)
                 futures[fut] = run | {"seed": seed}
+    cleanups = []
+    if plan.keep != "all":  # once a seed's replays are done, on a worker (the client may not see --out)
+        for seed in plan.seeds:
+            mine = [f for f, run in futures.items() if run["seed"] == seed]
+            where = plan.session_dir(seed) if plan.keep == "results" else plan.session_dir(seed).parent
+            cleanups.append(client.submit(tasks.discard_task, str(where), *mine, key=f"discard-{seed}-{token}",
+                                          pure=False))
     summaries = []
     with _progress(len(futures), progress) as advance:
         for fut in as_completed(futures):
@@ -133,6 +140,7 @@ def run_plan(plan: Plan, client, progress: bool = True) -> Outcome:
                      "error": f"worker: {type(e).__name__}: {e}".splitlines()[0][:200]}
             summaries.append(s)
             advance(s)
+    client.gather(cleanups)
     for f in sims.values():
         f.release()
     values = plan.sweep_texts if plan.sweep_key else [None]

@@ -9,6 +9,7 @@ heavy modules themselves: a worker process pays that once, the client never.
 from __future__ import annotations
 
 import os
+import shutil
 import socket
 import time
 import traceback
@@ -64,8 +65,8 @@ def simulate_task(scenario, seed: int, directory: str) -> dict:
 def replay_task(simulated: dict, run: dict, grid_s: float) -> dict:
     """Replay one simulated session once and summarise it.
 
-    ``run``: mode, out (directory), config, overrides, outages, value (the swept value or None),
-    latencies. Returns the summary of ``summarise`` plus the run's identity and wall times.
+    ``run``: mode, out (directory), config, overrides, outages, value (the swept value or None).
+    Returns the summary of ``summarise`` plus the run's identity and wall times.
     """
     head = {"seed": simulated["seed"], "mode": run["mode"], "value": run.get("value"), "out": run["out"]}
     if "error" in simulated:
@@ -75,8 +76,7 @@ def replay_task(simulated: dict, run: dict, grid_s: float) -> dict:
     t0 = time.perf_counter()
     try:
         res = replay.replay(simulated["session"], run["out"], mode=run["mode"], config=run.get("config"),
-                            overrides=run.get("overrides") or {}, outages=run.get("outages"),
-                            **run.get("latencies", {}))
+                            overrides=run.get("overrides") or {}, outages=run.get("outages"))
         out = summarise(Path(run["out"]), res.summary, grid_s)
     except Exception as e:
         return {**head, "error": f"replay: {_failure(e)}", "simulate_s": simulated["simulate_s"]}
@@ -85,6 +85,12 @@ def replay_task(simulated: dict, run: dict, grid_s: float) -> dict:
                    "task_s": time.perf_counter() - t0}
     out["worker"] = _where()
     return out
+
+
+def discard_task(path: str, *done) -> str:
+    """Delete a seed's session (or its whole directory) once the replays in ``done`` have read it."""
+    shutil.rmtree(path, ignore_errors=True)
+    return path
 
 
 def grid_index(tau: np.ndarray, grid_s: float, n: int) -> tuple[np.ndarray, np.ndarray]:
