@@ -296,6 +296,23 @@ def test_a_sweep_on_a_local_cluster_reaches_the_filter(short_scenario, tmp_path)
     assert (tmp_path / "sweep" / "seed-0002" / "sweep-01" / "loose" / "results.npz").is_file()
 
 
+def test_a_run_that_fails_is_a_row_with_its_error(tmp_path, capsys):
+    from gpsins.montecarlo import cli as mc_cli, runner
+
+    missing = tmp_path / "no-session"
+    failed = tasks.replay_task({"seed": 7, "session": str(missing), "simulate_s": 0.5},
+                               {"mode": "loose", "out": str(tmp_path / "r")}, 1.0)
+    assert failed["error"].startswith("replay: ") and str(missing) in failed["error"]
+    plan = Plan(scenario=sim.load("default"), seeds=[7], out=tmp_path / "mc")
+    plan.out.mkdir()
+    agg, files = runner.write_outputs(plan, [failed], 1.0, 1)
+    (row,) = _table(plan.out / "runs.csv")
+    assert row["status"] == "failed" and row["seed"] == "7" and str(missing) in row["error"]
+    assert agg["failed"] == 1 and agg["groups"][0]["succeeded"] == 0
+    mc_cli.print_summary(runner.Outcome([failed], agg, files, 1.0, 1), None)
+    assert "every run failed" in capsys.readouterr().out
+
+
 def test_bad_command_lines_fail_in_one_line(short_scenario, tmp_path, capsys):
     assert cli.main(["sweep", str(short_scenario), "--key", "gate_probability", "--values", "0.9,2", "--seeds", "2",
                      "--out", str(tmp_path / "a")]) == 2

@@ -106,7 +106,10 @@ def run_plan(plan: Plan, client, progress: bool = True) -> Outcome:
     t0 = time.perf_counter()
     plan.out = Path(plan.out).resolve()
     plan.out.mkdir(parents=True, exist_ok=True)
-    client.run(_warm)
+    try:
+        client.run(_warm)
+    except ImportError as e:
+        raise ValueError(f"a Dask worker cannot import gpsins ({e}); install it where the workers run") from None
     workers = len(client.scheduler_info().get("workers", {}))
     token = uuid.uuid4().hex[:8]
     sims = {seed: client.submit(tasks.simulate_task, plan.scenario, seed, str(plan.session_dir(seed)),

@@ -49,7 +49,7 @@ def _failure(e: BaseException) -> str:
     """One line for the table; the traceback's last frame says where."""
     tb = traceback.extract_tb(e.__traceback__)
     at = f" ({Path(tb[-1].filename).name}:{tb[-1].lineno})" if tb else ""
-    return (f"{type(e).__name__}: {e}".splitlines()[0][:200] + at).replace(",", ";")
+    return f"{type(e).__name__}: {e}".splitlines()[0][:200] + at
 
 
 def simulate_task(scenario, seed: int, directory: str) -> dict:
