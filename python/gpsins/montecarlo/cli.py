@@ -65,10 +65,21 @@ def plan_from_args(args, sweep_key: str | None, sweep_texts: list[str]):
     out = Path(args.out or f"out/montecarlo-{sc.name}")
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
         raise UsageError(f"{out}: exists and is not empty; give a new --out directory")
-    return Plan(scenario=sc, seeds=seeds_of(args.seeds, args.first_seed), out=out, modes=modes, config=args.config,
+    return Plan(scenario=sc, seeds=seeds_of(args.seeds, args.first_seed), out=out, modes=modes,
+                config=_shipped_config(args.config),
                 overrides=overrides, outages=args.outages, sweep_key=sweep_key,
                 sweep_values=sweep_texts if sweep_key else [None], sweep_texts=sweep_texts if sweep_key else [""],
                 grid_s=args.grid, keep=args.keep)
+
+
+def _shipped_config(config: str | None):
+    """A --config file as its table (workers elsewhere need not see the file); a preset by its name."""
+    if config is None or not Path(config).is_file():
+        return config
+    import tomllib
+
+    data = tomllib.loads(Path(config).read_text(encoding="utf-8"))
+    return dict(data.get("filter", data))
 
 
 def run(args) -> int:

@@ -35,7 +35,7 @@ class Plan:
     seeds: list[int]
     out: Path
     modes: list[str] = field(default_factory=lambda: ["loose"])
-    config: str | None = None
+    config: str | dict | None = None  # a preset name or a configuration table (load_config)
     overrides: dict = field(default_factory=dict)
     outages: str | None = None
     sweep_key: str | None = None
@@ -112,11 +112,12 @@ def run_plan(plan: Plan, client, progress: bool = True) -> Outcome:
         raise ValueError(f"a Dask worker cannot import gpsins ({e}); install it where the workers run") from None
     workers = len(client.scheduler_info().get("workers", {}))
     token = uuid.uuid4().hex[:8]
-    sims = {seed: client.submit(tasks.simulate_task, plan.scenario, seed, str(plan.session_dir(seed)),
-                                key=f"simulate-{seed}-{token}", pure=False)
-            for seed in plan.seeds}
-    futures = {}
+    # Seed by seed, so a seed's replays run (and its session can go) before later seeds are simulated.
+    sims, futures, cleanups = {}, {}, []
     for seed in plan.seeds:
+        sims[seed] = client.submit(tasks.simulate_task, plan.scenario, seed, str(plan.session_dir(seed)),
+                                   key=f"simulate-{seed}-{token}", pure=False)
+        mine = []
         for i, value in enumerate(plan.sweep_values):
             for mode in plan.modes:
                 run = {"mode": mode, "out": str(plan.run_dir(seed, i, mode)), "config": plan.config,
@@ -125,10 +126,8 @@ def run_plan(plan: Plan, client, progress: bool = True) -> Outcome:
                 fut = client.submit(tasks.replay_task, sims[seed], run, plan.grid_s,
                                     key=f"replay-{mode}-{seed}-{i}-{token}", pure=False)
                 futures[fut] = run | {"seed": seed}
-    cleanups = []
-    if plan.keep != "all":  # once a seed's replays are done, on a worker (the client may not see --out)
-        for seed in plan.seeds:
-            mine = [f for f, run in futures.items() if run["seed"] == seed]
+                mine.append(fut)
+        if plan.keep != "all":  # on a worker, after the seed's replays: the client may not see --out
             where = plan.session_dir(seed) if plan.keep == "results" else plan.session_dir(seed).parent
             cleanups.append(client.submit(tasks.discard_task, str(where), *mine, key=f"discard-{seed}-{token}",
                                           pure=False))
