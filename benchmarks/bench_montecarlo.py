@@ -37,9 +37,12 @@ def measure(scenario, seeds: list[int], mode: str, workers: int, out: Path) -> d
         t2 = time.perf_counter()
     t3 = time.perf_counter()
     agg = outcome.aggregate
-    busy = agg["task_time_s"]["simulate_s"] + agg["task_time_s"]["replay_tasks_s"]
+    tt = agg["task_time_s"]
+    busy = tt["simulate_s"] + tt["replay_tasks_s"]
+    cpu = tt["simulate_cpu_s"] + tt["replay_tasks_cpu_s"]
     return {"workers": outcome.workers, "whole_s": t3 - t0, "startup_s": t1 - t0, "run_plan_s": t2 - t1,
-            "busy_s": busy, "utilisation": busy / (outcome.wall_s * outcome.workers),
+            "busy_s": busy, "utilisation": busy / (outcome.wall_s * outcome.workers), "task_cpu_s": cpu,
+            "cpu_share": cpu / busy,
             "client_cpu_s": sum(os.times()[:2]) - sum(cpu0[:2]), "failed": agg["failed"], "aggregate": agg,
             "load": os.getloadavg()[0]}
 
@@ -67,7 +70,8 @@ def main() -> int:
                 out = root / f"w{k}-r{r}"
                 m = measure(sc, list(range(a.seeds)), a.mode, k, out)
                 print(f"  {k} worker(s): whole {m['whole_s']:.1f} s (cluster start {m['startup_s']:.1f} s, run "
-                      f"{m['run_plan_s']:.1f} s), task time {m['busy_s']:.1f} s, workers busy "
+                      f"{m['run_plan_s']:.1f} s), task time {m['busy_s']:.1f} s (CPU {m['task_cpu_s']:.1f} s: "
+                      f"{100 * m['cpu_share']:.0f} % of it on a core), workers busy "
                       f"{100 * m['utilisation']:.0f} %, client CPU {m['client_cpu_s']:.1f} s, failed {m['failed']}, "
                       f"load average {m['load']:.2f}", flush=True)
                 if k not in best or m["whole_s"] < best[k]["whole_s"]:

@@ -219,9 +219,12 @@ def write_outputs(plan: Plan, summaries: list[dict], wall_s: float, workers: int
 
 def _task_times(summaries: list[dict]) -> dict:
     """Summed time on the workers: simulations (once per seed) and replay tasks."""
-    sim_s = {s["seed"]: s["wall"]["simulate_s"] for s in summaries if "wall" in s}
-    return {"simulate_s": float(sum(sim_s.values())),
-            "replay_tasks_s": float(sum(s["wall"]["task_s"] for s in summaries if "wall" in s))}
+    done = [s["wall"] for s in summaries if "wall" in s]
+    per_seed = {s["seed"]: s["wall"] for s in summaries if "wall" in s}
+    return {"simulate_s": float(sum(w["simulate_s"] for w in per_seed.values())),
+            "simulate_cpu_s": float(sum(w["simulate_cpu_s"] for w in per_seed.values())),
+            "replay_tasks_s": float(sum(w["task_s"] for w in done)),
+            "replay_tasks_cpu_s": float(sum(w["task_cpu_s"] for w in done))}
 
 
 def _row(s: dict, value_col: str) -> list[dict]:
