@@ -5,12 +5,13 @@
 
 Each measurement is ``gpsins montecarlo SCENARIO --seeds N --workers K`` through the Python API
 (``montecarlo.open_client`` + ``run_plan``), timed as a whole (cluster start-up, simulations,
-replays, tables, aggregate and figures) and its compute phase alone (first submission to last
-result: ``run_plan`` minus writing the outputs). Task times summed over the workers show how
-busy they were: on a machine shared with other work, CPU contention, not the cluster, limits
-the speed-up, and the utilisation figure says so. ``--repeat`` alternates the worker counts
-and keeps each one's fastest run. The aggregate printed is the one of the last run (identical
-for every worker count: the seeds fix every number).
+replays, tables, aggregate and figures) and without the cluster's start-up. Task times summed
+over the workers show how busy they were. On a machine shared with other work, CPU contention,
+not the cluster, limits the speed-up; the share of task time spent on a core (CPU / wall of the
+worker processes) says how much. ``--repeat`` alternates the worker counts and keeps each one's
+fastest run; ``--wait-quiet`` starts each measurement only when the CPUs are mostly free (Linux
+pressure stall information). The aggregate printed is that of the last run (the same for every
+worker count: the seeds fix every number).
 """
 
 from __future__ import annotations
@@ -47,6 +48,25 @@ def measure(scenario, seeds: list[int], mode: str, workers: int, out: Path) -> d
             "load": os.getloadavg()[0]}
 
 
+def cpu_pressure() -> float | None:
+    """Share of the last 10 s in which some runnable task waited for a CPU (Linux PSI), percent."""
+    try:
+        line = Path("/proc/pressure/cpu").read_text().splitlines()[0]
+    except (OSError, IndexError):
+        return None
+    return float(line.split()[1].split("=")[1])
+
+
+def wait_quiet(max_wait_s: float, below_pct: float = 20.0) -> str:
+    """Wait (up to max_wait_s) until other work leaves the CPUs mostly free; say how it looked."""
+    t0 = time.monotonic()
+    while True:
+        p = cpu_pressure()
+        if p is None or p < below_pct or time.monotonic() - t0 > max_wait_s:
+            return f"CPU pressure {p if p is not None else float('nan'):.0f} % after {time.monotonic() - t0:.0f} s"
+        time.sleep(5)
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scenario", default="default")
@@ -55,6 +75,8 @@ def main() -> int:
     ap.add_argument("--workers", default="1,2", help="worker counts to compare, comma-separated")
     ap.add_argument("--repeat", type=int, default=1, help="alternate the worker counts this many times")
     ap.add_argument("--keep", help="keep the outputs under this directory")
+    ap.add_argument("--wait-quiet", type=float, default=0.0, metavar="S",
+                    help="before each measurement wait up to S seconds for the CPUs to be mostly free of other work")
     a = ap.parse_args()
     from gpsins import sim
 
@@ -68,12 +90,13 @@ def main() -> int:
         for r in range(a.repeat):
             for k in counts:
                 out = root / f"w{k}-r{r}"
+                quiet = wait_quiet(a.wait_quiet) if a.wait_quiet else ""
                 m = measure(sc, list(range(a.seeds)), a.mode, k, out)
                 print(f"  {k} worker(s): whole {m['whole_s']:.1f} s (cluster start {m['startup_s']:.1f} s, run "
                       f"{m['run_plan_s']:.1f} s), task time {m['busy_s']:.1f} s (CPU {m['task_cpu_s']:.1f} s: "
                       f"{100 * m['cpu_share']:.0f} % of it on a core), workers busy "
                       f"{100 * m['utilisation']:.0f} %, client CPU {m['client_cpu_s']:.1f} s, failed {m['failed']}, "
-                      f"load average {m['load']:.2f}", flush=True)
+                      f"load average {m['load']:.2f}{'; before it ' + quiet if quiet else ''}", flush=True)
                 if k not in best or m["whole_s"] < best[k]["whole_s"]:
                     best[k] = m
                 if not a.keep:
