@@ -13,6 +13,7 @@ import csv
 import json
 import math
 import os
+import threading
 import time
 import uuid
 from dataclasses import dataclass, field
@@ -99,6 +100,14 @@ def _warm() -> str:
     return tasks._where()
 
 
+def _preload_outputs() -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot  # noqa: F401
+    import scipy.stats  # noqa: F401
+
+
 def run_plan(plan: Plan, client, progress: bool = True) -> Outcome:
     """Run every seed x mode x value on the client's cluster and write the tables, aggregate and figures."""
     from dask.distributed import as_completed
@@ -131,6 +140,9 @@ def run_plan(plan: Plan, client, progress: bool = True) -> Outcome:
             where = plan.session_dir(seed) if plan.keep == "results" else plan.session_dir(seed).parent
             cleanups.append(client.submit(tasks.discard_task, str(where), *mine, key=f"discard-{seed}-{token}",
                                           pure=False))
+    # The client's own imports for the outputs, while the workers compute: not a serial tail after them.
+    preload = threading.Thread(target=_preload_outputs, daemon=True)
+    preload.start()
     summaries = []
     with _progress(len(futures), progress) as advance:
         for fut in as_completed(futures):
@@ -147,6 +159,7 @@ def run_plan(plan: Plan, client, progress: bool = True) -> Outcome:
         f.release()
     values = plan.sweep_texts if plan.sweep_key else [None]
     summaries.sort(key=lambda s: (plan.seeds.index(s["seed"]), values.index(s["value"]), plan.modes.index(s["mode"])))
+    preload.join()
     wall = time.perf_counter() - t0
     aggregate, files = write_outputs(plan, summaries, wall, workers)
     return Outcome(summaries, aggregate, files, wall, workers)
