@@ -148,6 +148,36 @@ def _cmd_spp(args: argparse.Namespace) -> int:
     return spp.main(args)
 
 
+def _cmd_montecarlo(args: argparse.Namespace) -> int:
+    from .montecarlo import cli as mc_cli
+
+    return mc_cli.run(args)
+
+
+def _montecarlo_options(p: argparse.ArgumentParser) -> None:
+    """Options shared by ``montecarlo`` and ``sweep``."""
+    p.add_argument("scenario", help="built-in scenario name (default, long, ...) or a TOML file")
+    p.add_argument("--seeds", type=int, required=True, metavar="N", help="number of runs (seeds FIRST..FIRST+N-1)")
+    p.add_argument("--first-seed", type=int, default=0, metavar="FIRST", help="first seed (default 0)")
+    p.add_argument("--mode", choices=("loose", "tight", "both", "ins"), default="loose",
+                   help="filter(s) each session is replayed through (default loose)")
+    p.add_argument("--config", help="filter configuration: TOML file or preset name")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override one configuration key")
+    p.add_argument("--outages", metavar="FIRST:LENGTH:PERIOD[:END]", help="simulated GNSS outages (as replay)")
+    p.add_argument("--out", help="output directory, new or empty (default out/montecarlo-SCENARIO)")
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help="an existing Dask scheduler (tcp://host:port, or its scheduler file) instead of a local "
+                        "cluster; its workers must see --out at the same path")
+    p.add_argument("--workers", type=int, metavar="K", help="local cluster: worker processes (default: one per core)")
+    p.add_argument("--grid", type=float, default=1.0, metavar="S",
+                   help="common time grid of the aggregate NEES, NIS and errors, s (default 1)")
+    p.add_argument("--keep", choices=("all", "results", "none"), default="all",
+                   help="what stays in --out besides the tables: sessions and replay results (all, default), "
+                        "replay results only, or none")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=_cmd_montecarlo)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="gpsins", description=__doc__)
     parser.add_argument("--version", action="version", version=f"gpsins {__version__}")
@@ -272,6 +302,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-iono", action="store_true")
     p.add_argument("--no-trop", action="store_true")
     p.set_defaults(func=_cmd_spp)
+
+    p = sub.add_parser("montecarlo", help="Monte Carlo: simulate + replay per seed as Dask tasks, aggregate NEES/NIS")
+    _montecarlo_options(p)
+    p.add_argument("--sweep", metavar="KEY=v1,v2,...", help="also sweep a configuration key over these values")
+
+    p = sub.add_parser("sweep", help="parameter sweep: a configuration key over values, each a Monte Carlo")
+    _montecarlo_options(p)
+    p.add_argument("--key", required=True, help="configuration key (TABLE.KEY inside a table)")
+    p.add_argument("--values", required=True, metavar="v1,v2,...", help="TOML values, comma-separated")
 
     sub.add_parser("log", help="run the logger daemon (same as gpsins-logger; gpsins log --help)", add_help=False)
     return parser
