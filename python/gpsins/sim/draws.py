@@ -17,38 +17,32 @@ ATOM = 4096  # rows per independently seeded piece of a stream
 class Stream:
     """Rows of one distribution, ``rows(i0, i1)`` of shape (i1 - i0, width) (or (i1 - i0,) for width None)."""
 
-    def __init__(self, key: tuple[int, ...], kind: str = "normal", width: int | None = None):
+    def __init__(self, key: tuple[int, ...], kind: str = "normal", width: int | None = None, atom: int = ATOM,
+                 cache: bool = True):
         if kind not in ("normal", "uniform", "exponential"):
             raise ValueError(f"unknown distribution {kind!r}")
         self.key, self.kind, self.width = tuple(int(k) for k in key), kind, width
+        self.atom, self.cache = int(atom), cache  # cache: keep the last atom (for streams read in order)
         self._cached: tuple[int, np.ndarray] | None = None
 
     def _atom(self, a: int) -> np.ndarray:
         if self._cached is not None and self._cached[0] == a:
             return self._cached[1]
         g = np.random.Generator(np.random.PCG64(np.random.SeedSequence([*self.key, a])))
-        shape = (ATOM,) if self.width is None else (ATOM, self.width)
+        shape = (self.atom,) if self.width is None else (self.atom, self.width)
         x = getattr(g, "standard_" + self.kind)(shape) if self.kind != "uniform" else g.random(shape)
-        self._cached = (a, x)
+        if self.cache:
+            self._cached = (a, x)
         return x
 
     def rows(self, i0: int, i1: int) -> np.ndarray:
         if i1 <= i0:
             return np.empty((0,) if self.width is None else (0, self.width))
-        parts = []
-        for a in range(i0 // ATOM, (i1 - 1) // ATOM + 1):
-            lo, hi = max(i0, a * ATOM) - a * ATOM, min(i1, (a + 1) * ATOM) - a * ATOM
+        parts, size = [], self.atom
+        for a in range(i0 // size, (i1 - 1) // size + 1):
+            lo, hi = max(i0, a * size) - a * size, min(i1, (a + 1) * size) - a * size
             parts.append(self._atom(a)[lo:hi])
         return parts[0].copy() if len(parts) == 1 else np.concatenate(parts)
-
-    def at(self, idx: np.ndarray) -> np.ndarray:
-        """Rows at arbitrary (sorted or not) indices."""
-        idx = np.asarray(idx, dtype=np.int64)
-        out = np.empty(idx.shape if self.width is None else idx.shape + (self.width,))
-        for a in np.unique(idx // ATOM):
-            sel = idx // ATOM == a
-            out[sel] = self._atom(int(a))[idx[sel] - a * ATOM]
-        return out
 
 
 class Sequential:

@@ -153,7 +153,9 @@ class Receiver:
             (("clock frequency", None), ("clock phase", None), ("multipath", MAX_PRN), ("code", MAX_PRN),
              ("carrier", MAX_PRN), ("cn0", MAX_PRN), ("fix velocity", 3)), start=1)}
         self.obstruction_spans = np.array([(o.t0_s, o.t1_s) for o in sc.obstructions]).reshape(-1, 2)
-        self.flicker = [Stream(key + (100, j), "uniform", MAX_PRN) for j in range(len(sc.obstructions))]
+        # Small pieces, not kept: a day's drive has thousands of obstructions, each active for seconds.
+        self.flicker = [Stream(key + (100, j), "uniform", MAX_PRN, atom=64, cache=False)
+                        for j in range(len(sc.obstructions))]
         self.per_fix = int(round(model.measurement_rate_hz / model.fix_rate_hz))
         self.reacquire = int(round(model.reacquire_s * model.measurement_rate_hz))
         # Carried state: next epoch, clock random walks, multipath, tracking and lock runs.
