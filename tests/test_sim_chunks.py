@@ -129,3 +129,15 @@ def test_truth_file_opens_memory_mapped_and_the_replay_reads_it(sessions):
     truth, extra = found
     assert np.array_equal(truth.t, loaded["tow_s"] + int(loaded["gps_week"]) * 604800.0)
     assert np.array_equal(truth.r_ecef, loaded["r_ecef"]) and list(extra["seg_labels"])[:2] == ["stand", "go"]
+
+
+def test_the_data_set_in_blocks_is_the_whole_runs(tmp_path):
+    """`gpsins sim --dataset` writes the data set from the same blocks: the same files as from the whole run."""
+    from gpsins.sim.dataset_writer import write_dataset
+
+    sc = _scenario()
+    whole = write_dataset(sim.simulate(sc, 5), tmp_path / "whole").parent
+    simulate_session(sc, 5, tmp_path / "s", 16.0, dataset=tmp_path / "blocks")
+    assert _files(tmp_path / "blocks") == _files(whole)
+    rows = (whole / "receiver.pos").read_text().splitlines()
+    assert len(rows) - 3 == len(np.arange(0.137, sim.simulate(sc, 5).imu_t[-1] - 0.5, 0.2))

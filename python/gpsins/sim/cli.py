@@ -37,21 +37,14 @@ def run_sim(args) -> int:
         print(f"gpsins sim: --block-s must be > 0 s, got {block_s:g}", file=sys.stderr)
         return 2
     t = time.perf_counter()
-    if getattr(args, "dataset", False):  # the data set's writer takes the whole run in memory
-        from .session import write_session
+    from .session import simulate_session
 
-        sim = simulate(sc, args.seed)
-        write_session(sim, out)
-    else:
-        from .session import simulate_session
-
-        simulate_session(sc, args.seed, out, block_s or DEFAULT_BLOCK_S)
+    dataset = out / "dataset" if getattr(args, "dataset", False) else None
+    simulate_session(sc, args.seed, out, block_s or DEFAULT_BLOCK_S, dataset)
     print(f"simulated {sc.name} ({sc.duration_s:.0f} s, IMU at {sc.imu.rate_hz} Hz, seed {args.seed}) in "
           f"{time.perf_counter() - t:.1f} s: {out}")
-    if getattr(args, "dataset", False):
-        from .dataset_writer import write_dataset
-
-        print(f"data set (known mounting, lever arm, IMU time offset): {write_dataset(sim, out / 'dataset')}")
+    if dataset is not None:
+        print(f"data set (known mounting, lever arm, IMU time offset): {dataset / 'dataset.toml'}")
     return 0
 
 

@@ -256,15 +256,25 @@ def write_session(sim: Simulation, directory: str | Path) -> Path:
     return w.close()
 
 
-def simulate_session(sc, seed: int, directory: str | Path, block_s: float | None = DEFAULT_BLOCK_S) -> Path:
-    """Simulate and write a session block by block: memory bounded by the block, not the drive."""
+def simulate_session(sc, seed: int, directory: str | Path, block_s: float | None = DEFAULT_BLOCK_S,
+                     dataset: str | Path | None = None) -> Path:
+    """Simulate and write a session block by block: memory bounded by the block, not the drive.
+    ``dataset``: also write the run as a data set there (``dataset_writer``, default options)."""
+    from .dataset_writer import DatasetWriter
+
+    sim = Simulator(sc, seed)
     w = SessionWriter(sc, seed, directory)
+    ds = DatasetWriter(sc, seed, dataset, sim.truth.t_end) if dataset is not None else None
     try:
-        for b in Simulator(sc, seed).blocks(block_s):
+        for b in sim.blocks(block_s):
             w.add(b)
+            if ds is not None:
+                ds.add(b)
     except BaseException:
         w.truth.abort()
         raise
+    if ds is not None:
+        ds.close()
     return w.close()
 
 
