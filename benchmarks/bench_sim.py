@@ -52,7 +52,8 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--block-s", type=float, default=sim.DEFAULT_BLOCK_S, help="block length (default %(default)s s)")
     ap.add_argument("--whole", action="store_true", help="the in-memory path: simulate() then write_session()")
-    ap.add_argument("--day", action="store_true", help="add the 24-hour drive (scenario long_24h; about 2.9 GB of files)")
+    ap.add_argument("--day", action="store_true",
+                    help="add the 24-hour drive (scenario long_24h; about 2.9 GB of files)")
     ap.add_argument("--out-dir", help="where the temporary session goes (default: the system's temporary directory)")
     ap.add_argument("--one", action="store_true", help=argparse.SUPPRESS)  # child: one profile, JSON out
     a = ap.parse_args()

@@ -122,7 +122,8 @@ class DatasetWriter:
         self.mount, self.antenna_m = imu_to_body_ypr_deg, antenna_m
         self.m = ypr_matrix(*imu_to_body_ypr_deg)
         self.imu_time_offset_s, self.imu_format, self.gnss_rate_hz = imu_time_offset_s, imu_format, gnss_rate_hz
-        self.fix_sigma_range_m, self.float_every, self.zero_sigma_every = fix_sigma_range_m, float_every, zero_sigma_every
+        self.fix_sigma_range_m = fix_sigma_range_m
+        self.float_every, self.zero_sigma_every = float_every, zero_sigma_every
         self.velocity_sigma_mps = velocity_sigma_mps
         self.t_start_abs = sc.start.gps_week * 604800.0 + sc.start.gps_tow_s  # run time 0 in GPS seconds
         key = (seed, seed_offset, 16)

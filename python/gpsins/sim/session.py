@@ -34,7 +34,10 @@ from .. import reference as reference_file
 from . import DEFAULT_BLOCK_S, Simulation, Simulator, reference
 from .draws import Stream
 from .messages import GpsMessages
-from .truthfile import TruthWriter, load_truth, write_truth  # noqa: F401  (the truth file's writers and reader)
+from .truthfile import TruthWriter, load_truth, write_truth
+
+__all__ = ["SessionWriter", "simulate_session", "write_session", "write_reference", "write_truth", "load_truth",
+           "realtime", "imu_frames", "imu_records"]
 
 GPS_UNIX_OFFSET_S = 315964800.0  # 1980-01-06 in Unix time
 STAMP = struct.Struct("<d")
