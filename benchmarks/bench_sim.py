@@ -10,6 +10,8 @@ default path simulates and writes the session block by block (truth at the
 internal rate near 1 kHz, IMU errors, receiver epochs and fixes, the reference,
 the encoded frames and the truth file), so the peak grows with the block, not
 the drive. Target (issue 17): the 24-hour drive at 64 Hz within 1.5 GB peak.
+"cpu s" is the process's user + system time (wall time suffers on a shared
+machine); "s per h" is wall seconds per hour of drive.
 """
 
 import argparse
@@ -40,7 +42,9 @@ def one(name: str, rate: int | None, seed: int, block_s: float, whole: bool, out
             simulate_session(sc, seed, Path(d) / "s", block_s)
         wall = time.perf_counter() - t0
         files = {p.name: p.stat().st_size / 1e6 for p in (Path(d) / "s").iterdir()}
+    ru = resource.getrusage(resource.RUSAGE_SELF)
     return {"profile": sc.name, "rate_hz": sc.imu.rate_hz, "duration_s": sc.duration_s, "wall_s": wall,
+            "cpu_s": ru.ru_utime + ru.ru_stime,
             "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
             "session_mb": sum(v for k, v in files.items() if k != "truth.npz"), "truth_mb": files["truth.npz"]}
 
@@ -64,8 +68,8 @@ def main() -> None:
         return
     how = "in memory" if a.whole else f"in blocks of {a.block_s:g} s"
     print(f"gpsins sim {how}, seed {a.seed}")
-    print(f"{'profile':<15}{'rate':>5}{'drive s':>9}{'wall s':>9}{'s per h':>9}{'peak MB':>9}{'session MB':>12}"
-          f"{'truth MB':>10}")
+    print(f"{'profile':<15}{'rate':>5}{'drive s':>9}{'wall s':>9}{'cpu s':>8}{'s per h':>9}{'peak MB':>9}"
+          f"{'session MB':>12}{'truth MB':>10}")
     for name in profiles:
         for r in rates:
             cmd = [sys.executable, __file__, name, "--one", "--seed", str(a.seed), "--block-s", str(a.block_s)]
@@ -76,7 +80,7 @@ def main() -> None:
                 print(f"{name}: failed\n{out.stderr}", file=sys.stderr)
                 continue
             x = json.loads(out.stdout.splitlines()[-1])
-            print(f"{x['profile']:<15}{x['rate_hz']:>5}{x['duration_s']:>9.0f}{x['wall_s']:>9.1f}"
+            print(f"{x['profile']:<15}{x['rate_hz']:>5}{x['duration_s']:>9.0f}{x['wall_s']:>9.1f}{x['cpu_s']:>8.1f}"
                   f"{x['wall_s'] / x['duration_s'] * 3600:>9.0f}{x['peak_mb']:>9.0f}{x['session_mb']:>12.1f}"
                   f"{x['truth_mb']:>10.1f}", flush=True)
 
