@@ -69,6 +69,11 @@ def _matrix(rng, sf, mis_std, m: ImuModel) -> np.ndarray:
     return a
 
 
+def _g_sensitivity(rng, m: ImuModel) -> np.ndarray | None:
+    return rng.normal(0.0, m.gyro_g_sensitivity_rad_per_s_per_mps2, (3, 3)) \
+        if m.gyro_g_sensitivity_rad_per_s_per_mps2 > 0 else None
+
+
 def _systematic(dtheta, dv, e: ImuErrors, dt: float, gyro_drift, accel_drift):
     """Matrices, biases and g-sensitivity applied to ideal increments (no white noise)."""
     g = dtheta @ e.gyro_matrix.T + (e.gyro_bias_rad_per_s + gyro_drift) * dt
@@ -87,7 +92,7 @@ class ImuErrorProcess:
     normal rows (3 wide) addressed by sample index (``draws.Stream``), so any cut into
     ranges gives the same output. The bias processes carry their state from range to range."""
 
-    def __init__(self, m: ImuModel, constants: np.random.Generator, noise):
+    def __init__(self, m: ImuModel, constants: np.random.Generator, noise, draw_g_sensitivity: bool = True):
         self.m, self.dt = m, 1.0 / m.rate_hz
         rng = constants
         gb = _vec(m.gyro_bias_rad_per_s) + rng.normal(0.0, m.gyro_bias_residual_rad_per_s, 3)
@@ -101,8 +106,7 @@ class ImuErrorProcess:
                          self._bias_terms(rng, "accel", _vec(m.accel_bias_instability_mps2),
                                           _vec(m.accel_rrw_mps2_per_sqrt_s), noise)]
         # Drawn last and only when asked for, so the other terms' draws stay the same per seed.
-        gg = rng.normal(0.0, m.gyro_g_sensitivity_rad_per_s_per_mps2, (3, 3)) \
-            if m.gyro_g_sensitivity_rad_per_s_per_mps2 > 0 else None
+        gg = _g_sensitivity(rng, m) if draw_g_sensitivity else None
         self.constants = ImuErrors(gb, ab, gm, am, np.zeros((0, 3)), np.zeros((0, 3)), gg)
         self._white = [noise("gyro white"), noise("accel white")] if m.terms["white_noise"] else None
         self._next = 0
@@ -155,11 +159,12 @@ class ImuErrorProcess:
 
 def draw_errors(m: ImuModel, n: int, rng: np.random.Generator) -> ImuErrors:
     """A unit's errors over n samples in one piece, every draw from rng in turn (the IMU lab's way)."""
-    p = ImuErrorProcess(m, rng, lambda name: Sequential(rng, 3))
+    p = ImuErrorProcess(m, rng, lambda name: Sequential(rng, 3), draw_g_sensitivity=False)
     gd, ad = p.drift(n)
     e = p.constants
+    # The g-sensitivity after everything else here too, so switching it on changes no other term.
     return ImuErrors(e.gyro_bias_rad_per_s, e.accel_bias_mps2, e.gyro_matrix, e.accel_matrix, gd, ad,
-                     e.gyro_g_matrix)
+                     _g_sensitivity(rng, m))
 
 
 def measure(dtheta: np.ndarray, dv: np.ndarray, m: ImuModel, err: ImuErrors,
