@@ -141,3 +141,13 @@ def test_the_data_set_in_blocks_is_the_whole_runs(tmp_path):
     assert _files(tmp_path / "blocks") == _files(whole)
     rows = (whole / "receiver.pos").read_text().splitlines()
     assert len(rows) - 3 == len(np.arange(0.137, sim.simulate(sc, 5).imu_t[-1] - 0.5, 0.2))
+
+
+def test_a_fast_receiver_keeps_its_message_order_across_blocks(tmp_path):
+    """At 50 Hz a fix's messages (60 ms after its epoch) come after the next epochs' measurements (20 ms after
+    theirs), also across a block's end."""
+    sc = _scenario()
+    sc.gnss.measurement_rate_hz = 50
+    a = write_session(sim.simulate(sc, 2), tmp_path / "a")
+    b = simulate_session(sc, 2, tmp_path / "b", 8.0)
+    assert _files(a) == _files(b)

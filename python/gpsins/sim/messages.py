@@ -43,8 +43,10 @@ class GpsMessages:
         self.leap_s = leap_s
         self._sent_eph: set[int] = set()
         self._last_eph_t = -math.inf
+        self._held: list[TimedMessage] = []  # fix messages that a later block's measurements may precede
 
-    def __call__(self, g: GnssSim) -> list[TimedMessage]:
+    def __call__(self, g: GnssSim, last: bool = True) -> list[TimedMessage]:
+        """The messages of block g that no later block's can precede (all that remain if last)."""
         leap_s, out = self.leap_s, []
         for k in range(len(g.t)):
             obs = []
@@ -55,6 +57,7 @@ class GpsMessages:
             # The receiver stamps measurements just under the epoch (as real logs show).
             out.append(TimedMessage(float(g.t[k]) + MEASUREMENT_DELAY_S, ss2.ID_MEASUREMENTS,
                                     ss2.Measurements(float(g.tow_rx[k]) - 3e-8, obs).encode(), float(g.tow_rx[k])))
+        out_fixes: list[TimedMessage] = []
         for f in g.fixes:
             t = f.t + FIX_DELAY_S
             week = g.week
@@ -69,27 +72,36 @@ class GpsMessages:
                 nav = ss2.NavUser(hh, mm, ss, dd, mo, yy, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 999.0, 999.0, 99.9,
                                   99.9, 0, f.sats, 2)
                 ecef = ss2.NavEcef(f.tow_s, week, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-            out.append(TimedMessage(t, ss2.ID_NAV_USER, nav.encode()))
-            out.append(TimedMessage(t, ss2.ID_NAV_ECEF, ecef.encode()))
-            out.append(TimedMessage(t, ss2.ID_RECEIVER_STATUS, ss2.ReceiverStatus(week).encode()))
+            out_fixes.append(TimedMessage(t, ss2.ID_NAV_USER, nav.encode()))
+            out_fixes.append(TimedMessage(t, ss2.ID_NAV_ECEF, ecef.encode()))
+            out_fixes.append(TimedMessage(t, ss2.ID_RECEIVER_STATUS, ss2.ReceiverStatus(week).encode()))
             whole = round(f.tow_s)
             if whole % LEAP_PERIOD_S == 0:
-                out.append(TimedMessage(t, ss2.ID_LEAP, ss2.LeapSeconds(leap_s).encode()))
+                out_fixes.append(TimedMessage(t, ss2.ID_LEAP, ss2.LeapSeconds(leap_s).encode()))
             if whole % IONO_PERIOD_S == 0:
-                out.append(TimedMessage(t, ss2.ID_IONO_UTC, ss2.IonoUtc(tuple(g.ion_alpha), tuple(g.ion_beta),
+                out_fixes.append(TimedMessage(t, ss2.ID_IONO_UTC, ss2.IonoUtc(tuple(g.ion_alpha), tuple(g.ion_beta),
                                                                         leap_s).encode()))
             due = f.t - self._last_eph_t >= EPHEMERIS_PERIOD_S
             for prn in f.prns:
                 if due or prn not in self._sent_eph:
                     words = ephemeris.encode_subframes(g.ephemerides[prn])
-                    out.append(TimedMessage(t, ss2.ID_EPHEMERIS, ss2.EphemerisWords(prn, words).encode()))
+                    out_fixes.append(TimedMessage(t, ss2.ID_EPHEMERIS, ss2.EphemerisWords(prn, words).encode()))
                     self._sent_eph.add(prn)
             if due:
                 self._last_eph_t = f.t
-        # Stable: same-time messages keep their order. A block's epochs are whole (measurements 20 ms and
-        # fix messages 60 ms after an epoch, epochs 100 ms apart), so blocks never interleave.
-        out.sort(key=lambda m: m.t)
-        return out
+        # In the whole run's order: measurements, then fix messages, stably sorted by time (same-time messages
+        # keep their order). Fix messages come 60 ms after their epoch, so at receiver rates above 25 Hz the
+        # next block's first measurements may precede them: those wait for it.
+        out = sorted(out + self._held + out_fixes, key=lambda m: m.t)
+        if last:
+            self._held = []
+            return out
+        if not len(g.t):
+            self._held = out
+            return []
+        final = float(g.t[-1]) + MEASUREMENT_DELAY_S  # no later message comes before this block's last measurement
+        self._held = [m for m in out if m.t > final]
+        return [m for m in out if m.t <= final]
 
 
 def gps_messages(g: GnssSim, leap_s: int) -> list[TimedMessage]:

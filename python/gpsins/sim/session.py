@@ -165,7 +165,7 @@ class SessionWriter:
     def add(self, b: Simulation) -> None:
         sc, tm = self.scenario, self.scenario.timing
         # GPS: frames queue on the line in emission order.
-        msgs = self.messages(b.gnss)
+        msgs = self.messages(b.gnss, b.last)
         if msgs:
             first = np.empty(len(msgs))
             free = self.gps_free
