@@ -90,8 +90,9 @@ def _join(blocks):
 
 def test_joined_blocks_pass_the_physics_checks():
     sc = sim.load("default")
-    blocks = list(Simulator(sc, 0).blocks(40.0))
-    assert len(blocks) >= 7
+    sc.segments = sc.segments[:9]  # standing, pulling away, the first turns and hills: 106 s
+    blocks = list(Simulator(sc, 0).blocks(16.0))
+    assert len(blocks) >= 6
     s = _join(blocks)
     whole = sim.simulate(sc, 0)
     for name in ("imu_t", "ideal_dtheta", "ideal_dv", "imu_dtheta", "imu_dv"):
