@@ -89,10 +89,12 @@ class GnssSim:
     multipath_m: np.ndarray
     sat_pos: np.ndarray  # (m, 32, 3) at transmission, in the ECEF frame of reception
     sat_clock_s: np.ndarray  # (m, 32) incl. relativistic term and TGD
-    ephemerides: dict[int, ephemeris.Ephemeris]
+    ephemerides: dict[int, ephemeris.Ephemeris]  # per satellite, the latest ephemeris the epochs use
     ion_alpha: tuple
     ion_beta: tuple
     k0: int = 0  # index of the first epoch in the run (a block's epochs start there)
+    eph_toe: np.ndarray | None = None  # (m, 32) toe of the ephemeris each satellite's epoch uses, NaN for none
+    eph_table: dict = field(default_factory=dict)  # (prn, toe) -> every ephemeris the epochs use
     fixes: list[Fix] = field(default_factory=list)
 
 
@@ -137,11 +139,13 @@ class Receiver:
         self.m = int(np.floor(sc.duration_s * model.measurement_rate_hz)) + 1
         self.t_start = sc.start.gps_week * ephemeris.WEEK_S + sc.start.gps_tow_s
         self.week = sc.start.gps_week + int(sc.start.gps_tow_s // ephemeris.WEEK_S)
-        self.ephs: dict[int, ephemeris.Ephemeris] = {}
-        for prn in range(1, MAX_PRN + 1):
-            e = ephemeris.select(nav.ephemerides, prn, self.t_start + 0.5 * sc.duration_s)
-            if e is not None:
-                self.ephs[prn] = ephemeris.quantised(e)
+        # Every healthy broadcast ephemeris per satellite: each epoch uses the one with the nearest toe (within
+        # the 2-hour validity, as ephemeris.select), so a day-long drive goes through the day's uploads.
+        self.ephs: dict[int, list[ephemeris.Ephemeris]] = {}
+        for e in sorted(nav.ephemerides, key=lambda e: (e.prn, e.t_oe)):
+            if e.health == 0 and 1 <= e.prn <= MAX_PRN:
+                self.ephs.setdefault(e.prn, []).append(ephemeris.quantised(e))
+        self.toes = {prn: np.array([e.t_oe for e in lst]) for prn, lst in self.ephs.items()}
         const = np.random.default_rng([seed, 2, 0])
         self.mp_first = const.normal(0.0, 1.0, MAX_PRN)  # unit stationary std
         self.ambiguity = const.integers(-10_000, 10_000, MAX_PRN)
@@ -208,17 +212,27 @@ class Receiver:
         sat_clk = np.full(shape, np.nan)
         rng_geo = np.full(shape, np.nan)
         t_rx = self.t_start + t
-        for prn, e in self.ephs.items():
-            tau = np.full(n, 0.075)
-            for _ in range(4):
-                rs = ephemeris.sat_position(e, t_rx - tau)
-                c, s = np.cos(earth.OMEGA_E * tau), np.sin(earth.OMEGA_E * tau)
-                rot = np.stack([c * rs[:, 0] + s * rs[:, 1], -s * rs[:, 0] + c * rs[:, 1], rs[:, 2]], -1)
-                rho = np.linalg.norm(rot - r_rx, axis=-1)
-                tau = rho / ephemeris.C
-            sat_pos[:, prn - 1] = rot
-            rng_geo[:, prn - 1] = rho
-            sat_clk[:, prn - 1] = ephemeris.sat_clock(e, t_rx - tau)
+        eph_toe = np.full(shape, np.nan)
+        in_use: dict[int, ephemeris.Ephemeris] = {}
+        table: dict[tuple[int, float], ephemeris.Ephemeris] = {}
+        for prn, lst in self.ephs.items():
+            toes = self.toes[prn]
+            j = np.abs(t_rx[:, None] - toes[None, :]).argmin(axis=1)
+            ok = np.abs(t_rx - toes[j]) <= 7200.0 + 1.0
+            for jj in np.unique(j[ok]):
+                e, sel = lst[jj], ok & (j == jj)
+                tau = np.full(int(sel.sum()), 0.075)
+                for _ in range(4):
+                    rs = ephemeris.sat_position(e, t_rx[sel] - tau)
+                    c, s = np.cos(earth.OMEGA_E * tau), np.sin(earth.OMEGA_E * tau)
+                    rot = np.stack([c * rs[:, 0] + s * rs[:, 1], -s * rs[:, 0] + c * rs[:, 1], rs[:, 2]], -1)
+                    rho = np.linalg.norm(rot - r_rx[sel], axis=-1)
+                    tau = rho / ephemeris.C
+                sat_pos[sel, prn - 1] = rot
+                rng_geo[sel, prn - 1] = rho
+                sat_clk[sel, prn - 1] = ephemeris.sat_clock(e, t_rx[sel] - tau)
+                eph_toe[sel, prn - 1] = e.t_oe
+                in_use[prn] = table[(prn, e.t_oe)] = e
         az, el = az_el(r_rx[:, None, :], sat_pos, lat_k[:, None], lon_k[:, None])
         have = np.isfinite(rng_geo)
         visible = have & (el >= np.radians(model.elevation_mask_deg))
@@ -253,7 +267,8 @@ class Receiver:
         for a in (pr, carrier, cn0):
             a[nan] = np.nan
         out = GnssSim(t, tow_rx % ephemeris.WEEK_S, self.week, clock, tracked, visible, pr, carrier, cn0, lock,
-                      el, az, iono, trop, mp, sat_pos, sat_clk, self.ephs, self.ion_alpha, self.ion_beta, k0=k0)
+                      el, az, iono, trop, mp, sat_pos, sat_clk, in_use, self.ion_alpha, self.ion_beta, k0=k0,
+                      eph_toe=eph_toe, eph_table=table)
         out.fixes = self._fixes(out, tr)
         return out
 
@@ -261,7 +276,8 @@ class Receiver:
         z = np.zeros((0, MAX_PRN))
         return GnssSim(np.zeros(0), np.zeros(0), self.week, ReceiverClock(np.zeros(0), np.zeros(0)),
                        z.astype(bool), z.astype(bool), z, z, z, z.astype(np.int64), z, z, z, z, z,
-                       np.zeros((0, MAX_PRN, 3)), z, self.ephs, self.ion_alpha, self.ion_beta, k0=self.next)
+                       np.zeros((0, MAX_PRN, 3)), z, {}, self.ion_alpha, self.ion_beta, k0=self.next,
+                       eph_toe=z.copy())
 
     def _fixes(self, g: GnssSim, tr: Truth) -> list[Fix]:
         """The receiver's fixes at this block's fix epochs, each starting from the last one's position."""
@@ -313,7 +329,9 @@ def concatenate(parts: list[GnssSim]) -> GnssSim:
                   *(cat(name) for name in ("tracked", "visible", "pseudorange_m", "carrier_cycles", "cn0_dbhz",
                                            "lock_count", "elevation", "azimuth", "iono_m", "trop_m", "multipath_m",
                                            "sat_pos", "sat_clock_s")),
-                  first.ephemerides, first.ion_alpha, first.ion_beta, k0=first.k0)
+                  {prn: e for p in parts for prn, e in p.ephemerides.items()}, first.ion_alpha, first.ion_beta,
+                  k0=first.k0, eph_toe=cat("eph_toe"),
+                  eph_table={k: e for p in parts for k, e in p.eph_table.items()})
     out.fixes = [f for p in parts for f in p.fixes]
     return out
 

@@ -41,7 +41,7 @@ class GpsMessages:
 
     def __init__(self, leap_s: int):
         self.leap_s = leap_s
-        self._sent_eph: set[int] = set()
+        self._sent_eph: dict[int, float] = {}  # prn -> toe of the ephemeris last sent
         self._last_eph_t = -math.inf
         self._held: list[TimedMessage] = []  # fix messages that a later block's measurements may precede
 
@@ -81,12 +81,15 @@ class GpsMessages:
             if whole % IONO_PERIOD_S == 0:
                 out_fixes.append(TimedMessage(t, ss2.ID_IONO_UTC, ss2.IonoUtc(tuple(g.ion_alpha), tuple(g.ion_beta),
                                                                         leap_s).encode()))
+            # Ephemerides: all tracked satellites every 30 s, a newly tracked one or a new upload at once.
             due = f.t - self._last_eph_t >= EPHEMERIS_PERIOD_S
+            k = int(np.searchsorted(g.t, f.t))
             for prn in f.prns:
-                if due or prn not in self._sent_eph:
-                    words = ephemeris.encode_subframes(g.ephemerides[prn])
+                toe = float(g.eph_toe[k, prn - 1])
+                if due or self._sent_eph.get(prn) != toe:
+                    words = ephemeris.encode_subframes(g.eph_table[(prn, toe)])
                     out_fixes.append(TimedMessage(t, ss2.ID_EPHEMERIS, ss2.EphemerisWords(prn, words).encode()))
-                    self._sent_eph.add(prn)
+                    self._sent_eph[prn] = toe
             if due:
                 self._last_eph_t = f.t
         # In the whole run's order: measurements, then fix messages, stably sorted by time (same-time messages
