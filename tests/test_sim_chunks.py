@@ -152,3 +152,19 @@ def test_a_fast_receiver_keeps_its_message_order_across_blocks(tmp_path):
     a = write_session(sim.simulate(sc, 2), tmp_path / "a")
     b = simulate_session(sc, 2, tmp_path / "b", 8.0)
     assert _files(a) == _files(b)
+
+
+def test_a_degenerate_geometry_gives_no_fix_rather_than_an_error(monkeypatch):
+    """A day's drive met a singular least-squares geometry: the receiver reports no fix for that epoch."""
+    real, calls = gnss._solve, []
+
+    def singular_once(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 5:
+            raise np.linalg.LinAlgError("Singular matrix")
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(gnss, "_solve", singular_once)
+    s = sim.simulate(parse({"name": "stand", "start": START, "segment": [{"label": "s", "duration_s": 10.0}]}), 0)
+    modes = [f.mode for f in s.gnss.fixes]
+    assert modes[4] == 0 and all(m == 2 for i, m in enumerate(modes) if i != 4), modes

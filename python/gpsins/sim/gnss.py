@@ -279,9 +279,30 @@ class Receiver:
                        np.zeros((0, MAX_PRN, 3)), z, {}, self.ion_alpha, self.ion_beta, k0=self.next,
                        eph_toe=z.copy())
 
+    def _solve_fix(self, g: GnssSim, k: int, use: np.ndarray, n: int):
+        """(position, llh, C_en, hdop, vdop) of epoch k from satellites `use` (3: height held)."""
+        gm = self.sc.gnss
+        el = g.elevation[k, use]
+        w = 1.0 / (gm.code_noise_m ** 2 / np.sin(el) + (gm.multipath_m / np.sin(el)) ** 2)
+        r, _, geo = _solve(g.pseudorange_m[k, use], g.sat_pos[k, use], g.sat_clock_s[k, use], w,
+                           self.r_last, None if n >= 4 else self.h_last, g.tow_rx[k], g.ion_alpha, g.ion_beta)
+        llh = earth.ecef_to_geodetic(r)
+        c_en = earth.ecef_to_ned_matrix(llh[0], llh[1])
+        gl = np.hstack([geo[:, :3] @ c_en, geo[:, 3:]])  # north, east, down, clock
+        if n >= 4:
+            cov = np.linalg.inv(gl.T @ gl)
+            hdop, vdop = float(np.sqrt(cov[0, 0] + cov[1, 1])), float(np.sqrt(cov[2, 2]))
+        else:  # 2D: the held height is a perfect extra measurement
+            aug = np.vstack([gl, [0.0, 0.0, 1.0, 0.0]])
+            cov = np.linalg.inv(aug.T @ aug)
+            hdop, vdop = float(np.sqrt(cov[0, 0] + cov[1, 1])), 99.9
+        if not (np.all(np.isfinite(r)) and np.isfinite(hdop) and np.isfinite(vdop)):
+            return None
+        return r, llh, c_en, hdop, vdop
+
     def _fixes(self, g: GnssSim, tr: Truth) -> list[Fix]:
         """The receiver's fixes at this block's fix epochs, each starting from the last one's position."""
-        sc, per = self.sc, self.per_fix
+        per = self.per_fix
         ks = [k for k in range(len(g.t)) if (g.k0 + k) % per == 0]
         if not ks:
             return []
@@ -294,21 +315,14 @@ class Receiver:
             v_true = tr.velocity_at(g.t[k])
             fix = Fix(float(g.t[k]), float(g.tow_rx[k]), 0, np.full(3, np.nan), (np.nan,) * 3, np.full(3, np.nan),
                       np.full(3, np.nan), 99.9, 99.9, n, tuple(int(p + 1) for p in use))
+            solved = None
             if n >= 3 and (n >= 4 or self.h_last is not None):
-                el = g.elevation[k, use]
-                w = 1.0 / (sc.gnss.code_noise_m ** 2 / np.sin(el) + (sc.gnss.multipath_m / np.sin(el)) ** 2)
-                r, _, geo = _solve(g.pseudorange_m[k, use], g.sat_pos[k, use], g.sat_clock_s[k, use], w,
-                                   self.r_last, None if n >= 4 else self.h_last, g.tow_rx[k], g.ion_alpha, g.ion_beta)
-                llh = earth.ecef_to_geodetic(r)
-                c_en = earth.ecef_to_ned_matrix(llh[0], llh[1])
-                gl = np.hstack([geo[:, :3] @ c_en, geo[:, 3:]])  # north, east, down, clock
-                if n >= 4:
-                    cov = np.linalg.inv(gl.T @ gl)
-                    hdop, vdop = float(np.sqrt(cov[0, 0] + cov[1, 1])), float(np.sqrt(cov[2, 2]))
-                else:  # 2D: the held height is a perfect extra measurement
-                    aug = np.vstack([gl, [0.0, 0.0, 1.0, 0.0]])
-                    cov = np.linalg.inv(aug.T @ aug)
-                    hdop, vdop = float(np.sqrt(cov[0, 0] + cov[1, 1])), 99.9
+                try:
+                    solved = self._solve_fix(g, k, use, n)
+                except np.linalg.LinAlgError:  # a degenerate geometry: no solution this epoch, as a receiver says
+                    solved = None
+            if solved is not None:
+                r, llh, c_en, hdop, vdop = solved
                 v = v_true + vn * (0.05 * min(hdop, 10.0))
                 fix = Fix(fix.t, fix.tow_s, 2 if n >= 4 else 3, r, llh, v, c_en.T @ v, min(hdop, 99.9),
                           min(vdop, 99.9), n, fix.prns)
