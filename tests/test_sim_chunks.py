@@ -155,16 +155,19 @@ def test_a_fast_receiver_keeps_its_message_order_across_blocks(tmp_path):
 
 
 def test_a_degenerate_geometry_gives_no_fix_rather_than_an_error(monkeypatch):
-    """A day's drive met a singular least-squares geometry: the receiver reports no fix for that epoch."""
+    """A day's drive met a singular least-squares geometry, then one whose iterations diverged (a position
+    too large for the message's float): the receiver reports no fix for those epochs and goes on."""
     real, calls = gnss._solve, []
 
-    def singular_once(*args, **kwargs):
+    def degenerate(*args, **kwargs):
         calls.append(1)
         if len(calls) == 5:
             raise np.linalg.LinAlgError("Singular matrix")
-        return real(*args, **kwargs)
+        r, clock, geo, step = real(*args, **kwargs)
+        return (r * 1e40, clock, geo, 1e40) if len(calls) == 7 else (r, clock, geo, step)
 
-    monkeypatch.setattr(gnss, "_solve", singular_once)
-    s = sim.simulate(parse({"name": "stand", "start": START, "segment": [{"label": "s", "duration_s": 10.0}]}), 0)
+    monkeypatch.setattr(gnss, "_solve", degenerate)
+    sc = parse({"name": "stand", "start": START, "segment": [{"label": "s", "duration_s": 10.0}]})
+    s = sim.simulate(sc, 0)
     modes = [f.mode for f in s.gnss.fixes]
-    assert modes[4] == 0 and all(m == 2 for i, m in enumerate(modes) if i != 4), modes
+    assert modes[4] == 0 and modes[6] == 0 and all(m == 2 for i, m in enumerate(modes) if i not in (4, 6)), modes

@@ -284,8 +284,10 @@ class Receiver:
         gm = self.sc.gnss
         el = g.elevation[k, use]
         w = 1.0 / (gm.code_noise_m ** 2 / np.sin(el) + (gm.multipath_m / np.sin(el)) ** 2)
-        r, _, geo = _solve(g.pseudorange_m[k, use], g.sat_pos[k, use], g.sat_clock_s[k, use], w,
-                           self.r_last, None if n >= 4 else self.h_last, g.tow_rx[k], g.ion_alpha, g.ion_beta)
+        r, _, geo, step = _solve(g.pseudorange_m[k, use], g.sat_pos[k, use], g.sat_clock_s[k, use], w,
+                                 self.r_last, None if n >= 4 else self.h_last, g.tow_rx[k], g.ion_alpha, g.ion_beta)
+        if not (step < 1.0 and np.all(np.isfinite(r))):  # diverged (a near-singular geometry): no solution
+            return None
         llh = earth.ecef_to_geodetic(r)
         c_en = earth.ecef_to_ned_matrix(llh[0], llh[1])
         gl = np.hstack([geo[:, :3] @ c_en, geo[:, 3:]])  # north, east, down, clock
@@ -296,7 +298,7 @@ class Receiver:
             aug = np.vstack([gl, [0.0, 0.0, 1.0, 0.0]])
             cov = np.linalg.inv(aug.T @ aug)
             hdop, vdop = float(np.sqrt(cov[0, 0] + cov[1, 1])), 99.9
-        if not (np.all(np.isfinite(r)) and np.isfinite(hdop) and np.isfinite(vdop)):
+        if not (np.isfinite(hdop) and np.isfinite(vdop)):
             return None
         return r, llh, c_en, hdop, vdop
 
@@ -318,7 +320,8 @@ class Receiver:
             solved = None
             if n >= 3 and (n >= 4 or self.h_last is not None):
                 try:
-                    solved = self._solve_fix(g, k, use, n)
+                    with np.errstate(all="ignore"):  # a diverging solution is found out below, not warned about
+                        solved = self._solve_fix(g, k, use, n)
                 except np.linalg.LinAlgError:  # a degenerate geometry: no solution this epoch, as a receiver says
                     solved = None
             if solved is not None:
@@ -354,7 +357,8 @@ def concatenate(parts: list[GnssSim]) -> GnssSim:
 
 
 def _solve(pr, sats, clk, weights, r0, height_hold: float | None, tow: float, alpha, beta):
-    """Iterated weighted least squares with the receiver's corrections; returns (r, clock bias in m, geometry)."""
+    """Iterated weighted least squares with the receiver's corrections; returns (r, clock bias in m, geometry,
+    the last step's length in m)."""
     x = np.append(r0, 0.0)
     for _ in range(10):
         lat, lon, h = earth.ecef_to_geodetic(x[:3])
@@ -378,4 +382,4 @@ def _solve(pr, sats, clk, weights, r0, height_hold: float | None, tow: float, al
         x += dx
         if np.linalg.norm(dx[:3]) < 1e-4:
             break
-    return x[:3], x[3], g[:len(pr)]
+    return x[:3], x[3], g[:len(pr)], float(np.linalg.norm(dx[:3]))
