@@ -68,13 +68,23 @@ def write(path: str | Path, gps_week: int, tow_s: np.ndarray, r_ecef_m: np.ndarr
           heading_rad: np.ndarray, pitch_rad: np.ndarray, sigma_heading_rad, sigma_pitch_rad,
           comment: str = "") -> None:
     """Write a reference file; NaN values become empty fields. tow_s may run past one week."""
+    lines = header_lines(comment) + row_lines(gps_week, tow_s, r_ecef_m, sigma_ned_m, heading_rad, pitch_rad,
+                                              sigma_heading_rad, sigma_pitch_rad)
+    Path(path).write_text("\n".join(lines) + "\n", encoding="ascii")
+
+
+def header_lines(comment: str = "") -> list[str]:
+    """The file's first lines (a writer appending rows block by block starts with these)."""
+    return [MAGIC] + [f"# {c}" for c in comment.splitlines()] + [",".join(COLUMNS)]
+
+
+def row_lines(gps_week: int, tow_s: np.ndarray, r_ecef_m: np.ndarray, sigma_ned_m: np.ndarray,
+              heading_rad: np.ndarray, pitch_rad: np.ndarray, sigma_heading_rad, sigma_pitch_rad) -> list[str]:
+    """One text row per epoch (see ``write``)."""
     n = len(tow_s)
     sh = np.broadcast_to(np.degrees(sigma_heading_rad), (n,))
     sp = np.broadcast_to(np.degrees(sigma_pitch_rad), (n,))
-    lines = [MAGIC]
-    if comment:
-        lines += [f"# {c}" for c in comment.splitlines()]
-    lines.append(",".join(COLUMNS))
+    lines = []
     for k in range(n):
         week = gps_week + int(tow_s[k] // 604800.0)
         tow = tow_s[k] - 604800.0 * (week - gps_week)
@@ -84,7 +94,7 @@ def write(path: str | Path, gps_week: int, tow_s: np.ndarray, r_ecef_m: np.ndarr
                _fmt(np.degrees(heading_rad[k]), 4), _fmt(np.degrees(pitch_rad[k]), 4),
                _fmt(sh[k], 4) if has_att else "", _fmt(sp[k], 4) if has_att else ""]
         lines.append(",".join(row))
-    Path(path).write_text("\n".join(lines) + "\n", encoding="ascii")
+    return lines
 
 
 def read(path: str | Path) -> Reference:

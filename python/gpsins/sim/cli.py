@@ -8,7 +8,7 @@ from pathlib import Path
 
 from gpsins_logger import bp3010
 
-from . import load, simulate
+from . import DEFAULT_BLOCK_S, load, simulate
 from .scenario import ScenarioError, with_imu_rate
 
 
@@ -32,17 +32,19 @@ def run_sim(args) -> int:
     if out.exists():
         print(f"gpsins sim: {out} exists; give a new directory", file=sys.stderr)
         return 2
-    from .session import write_session
-
+    block_s = getattr(args, "block_s", None)
+    if block_s is not None and not block_s > 0:
+        print(f"gpsins sim: --block-s must be > 0 s, got {block_s:g}", file=sys.stderr)
+        return 2
     t = time.perf_counter()
-    sim = simulate(sc, args.seed)
-    write_session(sim, out)
+    from .session import simulate_session
+
+    dataset = out / "dataset" if getattr(args, "dataset", False) else None
+    simulate_session(sc, args.seed, out, block_s or DEFAULT_BLOCK_S, dataset)
     print(f"simulated {sc.name} ({sc.duration_s:.0f} s, IMU at {sc.imu.rate_hz} Hz, seed {args.seed}) in "
           f"{time.perf_counter() - t:.1f} s: {out}")
-    if getattr(args, "dataset", False):
-        from .dataset_writer import write_dataset
-
-        print(f"data set (known mounting, lever arm, IMU time offset): {write_dataset(sim, out / 'dataset')}")
+    if dataset is not None:
+        print(f"data set (known mounting, lever arm, IMU time offset): {dataset / 'dataset.toml'}")
     return 0
 
 

@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from . import Simulation, imu_noise_truth
+from .draws import Stream
 from .earth import ecef_to_geodetic, ecef_to_ned_matrix
 
 GPS_UNIX_OFFSET_S = 315964800.0  # 1980-01-06 in Unix time (no leap seconds: gpst_unix)
@@ -76,17 +77,23 @@ def antenna_truth(sim: Simulation, t: np.ndarray, antenna_m) -> tuple[np.ndarray
     return r, v
 
 
-def _pos_lines(t_abs, r, q, ns, sd_neu, v_neu, sd_v, program: str) -> list[str]:
-    llh = _llh_deg(r)
-    lines = [f"% program   : {program}", "% (lat/lon/height=WGS84/ellipsoidal,Q=1:fix,2:float,5:single)",
-             "%  GPST                   latitude(deg) longitude(deg)  height(m)   Q  ns   sdn(m)   sde(m)   sdu(m)"
-             "  sdne(m)  sdeu(m)  sdun(m) age(s)  ratio    vn(m/s)    ve(m/s)    vu(m/s)     sdvn     sdve     sdvu"
-             "    sdvne    sdveu    sdvun"]
-    for ts, (la, lo, h), qq, n, s, v, sv in zip(_gpst_text(t_abs), llh, q, ns, sd_neu, v_neu, sd_v):
+POS_HEADER = ("%  GPST                   latitude(deg) longitude(deg)  height(m)   Q  ns   sdn(m)   sde(m)   sdu(m)"
+              "  sdne(m)  sdeu(m)  sdun(m) age(s)  ratio    vn(m/s)    ve(m/s)    vu(m/s)     sdvn     sdve     sdvu"
+              "    sdvne    sdveu    sdvun")
+
+
+def _pos_header(program: str) -> str:
+    return "\n".join([f"% program   : {program}", "% (lat/lon/height=WGS84/ellipsoidal,Q=1:fix,2:float,5:single)",
+                      POS_HEADER]) + "\n"
+
+
+def _pos_rows(t_abs, r, q, ns, sd_neu, v_neu, sd_v) -> str:
+    lines = []
+    for ts, (la, lo, h), qq, n, s, v, sv in zip(_gpst_text(t_abs), _llh_deg(r), q, ns, sd_neu, v_neu, sd_v):
         lines.append(f"{ts} {la:14.9f} {lo:14.9f} {h:10.4f} {int(qq):3d} {int(n):3d} {s[0]:8.4f} {s[1]:8.4f} "
                      f"{s[2]:8.4f} {0.0:8.4f} {0.0:8.4f} {0.0:8.4f} {0.0:6.2f} {0.0:6.1f} {v[0]:10.5f} {v[1]:10.5f} "
-                     f"{v[2]:10.5f} {sv[0]:8.5f} {sv[1]:8.5f} {sv[2]:8.5f} {0.0:8.5f} {0.0:8.5f} {0.0:8.5f}")
-    return lines
+                     f"{v[2]:10.5f} {sv[0]:8.5f} {sv[1]:8.5f} {sv[2]:8.5f} {0.0:8.5f} {0.0:8.5f} {0.0:8.5f}\n")
+    return "".join(lines)
 
 
 def _toml_value(v) -> str:
@@ -97,82 +104,129 @@ def _toml_value(v) -> str:
     return repr(float(v)) if isinstance(v, float) else str(v)
 
 
-def write_dataset(sim: Simulation, directory: str | Path, *, imu_to_body_ypr_deg=(-90.0, 3.0, 180.0),
-                  antenna_m=(0.6, -0.3, -1.1), imu_time_offset_s: float = 0.05, imu_format: str = "increments",
-                  gnss_rate_hz: float = 5.0, gnss_phase_s: float = 0.137, fix_sigma_range_m=(0.01, 0.04),
-                  float_every: int = 13, zero_sigma_every: int = 7, velocity_sigma_mps: float = 0.03,
-                  seed: int = 0) -> Path:
-    """Write the data set of ``sim`` into ``directory`` (created); returns the data-set file."""
-    if imu_format not in ("increments", "rates"):
-        raise ValueError(f"imu_format {imu_format!r}: increments or rates")
-    out = Path(directory)
-    out.mkdir(parents=True, exist_ok=True)
-    sc = sim.scenario
-    rng = np.random.default_rng([sim.seed, seed, 16])
-    t_start_abs = sc.start.gps_week * 604800.0 + sc.start.gps_tow_s  # run time 0 in GPS seconds
-    m = ypr_matrix(*imu_to_body_ypr_deg)
+class DatasetWriter:
+    """The data set written block by block (``Simulation`` blocks in order), then ``close``. The fixes'
+    draws are addressed by fix, so the files are the same however the run is cut. ``t_last_sample``:
+    the run's last IMU sampling instant (the fixes and the truth stop short of it)."""
 
-    # IMU in its own axes, stamped early by the offset.
-    dth_imu, dv_imu = sim.imu_dtheta @ m, sim.imu_dv @ m  # rows: (M^T v)^T = v^T M
-    t_end = sim.imu_t
-    dt = np.diff(np.concatenate([[t_end[0] - (t_end[1] - t_end[0])], t_end]))
-    if imu_format == "increments":
-        t_stamp, acc, gyr, units = t_end, dv_imu, dth_imu, ("m/s", "rad")
-    else:
-        t_stamp, acc, gyr, units = t_end - dt / 2, dv_imu / dt[:, None], dth_imu / dt[:, None], ("m/s^2", "rad/s")
-    unix = t_start_abs + GPS_UNIX_OFFSET_S + t_stamp - imu_time_offset_s
-    table = np.column_stack([unix, acc, gyr])
-    np.savetxt(out / "imu.csv", table, delimiter=",", fmt=["%.6f"] + ["%.10e"] * 6,
-               header="t_gpst_unix,ax,ay,az,gx,gy,gz", comments="")
+    def __init__(self, sc, seed: int, directory: str | Path, t_last_sample: float, *,
+                 imu_to_body_ypr_deg=(-90.0, 3.0, 180.0), antenna_m=(0.6, -0.3, -1.1), imu_time_offset_s: float = 0.05,
+                 imu_format: str = "increments", gnss_rate_hz: float = 5.0, gnss_phase_s: float = 0.137,
+                 fix_sigma_range_m=(0.01, 0.04), float_every: int = 13, zero_sigma_every: int = 7,
+                 velocity_sigma_mps: float = 0.03, seed_offset: int = 0):
+        if imu_format not in ("increments", "rates"):
+            raise ValueError(f"imu_format {imu_format!r}: increments or rates")
+        self.out = Path(directory)
+        self.out.mkdir(parents=True, exist_ok=True)
+        self.sc, self.seed = sc, seed
+        self.mount, self.antenna_m = imu_to_body_ypr_deg, antenna_m
+        self.m = ypr_matrix(*imu_to_body_ypr_deg)
+        self.imu_time_offset_s, self.imu_format, self.gnss_rate_hz = imu_time_offset_s, imu_format, gnss_rate_hz
+        self.fix_sigma_range_m = fix_sigma_range_m
+        self.float_every, self.zero_sigma_every = float_every, zero_sigma_every
+        self.velocity_sigma_mps = velocity_sigma_mps
+        self.t_start_abs = sc.start.gps_week * 604800.0 + sc.start.gps_tow_s  # run time 0 in GPS seconds
+        key = (seed, seed_offset, 16)
+        self.draw = {"sigma": Stream(key + (1,), "uniform"), "position": Stream(key + (2,), width=3),
+                     "velocity": Stream(key + (3,), width=3)}
+        # Fixes off whole seconds and the antenna's truth at 10 Hz: a few MB of times for a day's drive.
+        self.t_fix = np.arange(gnss_phase_s, t_last_sample - 0.5, 1.0 / gnss_rate_hz)
+        self.t_ref = np.arange(0.05, t_last_sample - 0.05, 0.1)
+        self._next_fix = self._next_ref = 0
+        self._t_prev: float | None = None  # the last IMU sample written
+        self.units = ("m/s", "rad") if imu_format == "increments" else ("m/s^2", "rad/s")
+        self.imu_file = open(self.out / "imu.csv", "w", encoding="ascii")
+        self.imu_file.write("t_gpst_unix,ax,ay,az,gx,gy,gz\n")
+        self.fix_file = open(self.out / "receiver.pos", "w", encoding="ascii")
+        self.fix_file.write(_pos_header("gpsins sim (receiver)"))
+        self.ref_file = open(self.out / "truth.pos", "w", encoding="ascii")
+        self.ref_file.write(_pos_header("gpsins sim (truth of the antenna)"))
 
-    # Receiver fixes of the antenna, off whole seconds.
-    t_fix = np.arange(gnss_phase_s, sim.imu_t[-1] - 0.5, 1.0 / gnss_rate_hz)
-    r_true, v_true = antenna_truth(sim, t_fix, antenna_m)
-    n = len(t_fix)
-    idx = np.arange(n)
-    q = np.where(idx % float_every == float_every - 1, 2, 1)
-    s_h = rng.uniform(*fix_sigma_range_m, n) * np.where(q == 2, 5.0, 1.0)
-    s_v = 1.6 * s_h
-    stated_zero = idx % zero_sigma_every == 3
-    drawn_h, drawn_v = np.where(stated_zero, 0.01, s_h), np.where(stated_zero, 0.015, s_v)
-    lat, lon = np.array([ecef_to_geodetic(x)[:2] for x in r_true]).T
-    c_en = ecef_to_ned_matrix(lat, lon)  # (n, 3, 3) NED -> ECEF
-    e_ned = rng.normal(size=(n, 3)) * np.column_stack([drawn_h, drawn_h, drawn_v])
-    r_fix = r_true + np.einsum("nij,nj->ni", c_en, e_ned)
-    v_ned = np.einsum("nji,nj->ni", c_en, v_true) + rng.normal(0, velocity_sigma_mps, (n, 3))
-    sd = np.column_stack([s_h, s_h, s_v]) * ~stated_zero[:, None]
-    sdv = np.full((n, 3), velocity_sigma_mps)
-    ns = np.full(n, 9)
-    (out / "receiver.pos").write_text("\n".join(_pos_lines(
-        t_start_abs + t_fix, r_fix, q, ns, sd, v_ned * [1, 1, -1], sdv, "gpsins sim (receiver)")) + "\n")
+    def _times(self, times: np.ndarray, start: int, b: Simulation) -> tuple[int, int]:
+        """The range of `times` from `start` that falls in block b's truth (all that remain in the last)."""
+        end = len(times) if b.last else start + int(np.searchsorted(times[start:], b.truth.t[-1], side="left"))
+        return start, end
 
-    # The antenna's truth at 10 Hz as the reference.
-    t_ref = np.arange(0.05, sim.imu_t[-1] - 0.05, 0.1)
-    r_ref, v_ref = antenna_truth(sim, t_ref, antenna_m)
-    lat, lon = np.array([ecef_to_geodetic(x)[:2] for x in r_ref]).T
-    v_ref_ned = np.einsum("nji,nj->ni", ecef_to_ned_matrix(lat, lon), v_ref)
-    z = np.zeros((len(t_ref), 3))
-    (out / "truth.pos").write_text("\n".join(_pos_lines(
-        t_start_abs + t_ref, r_ref, np.ones(len(t_ref)), np.full(len(t_ref), 9), z, v_ref_ned * [1, 1, -1], z,
-        "gpsins sim (truth of the antenna)")) + "\n")
+    def add(self, b: Simulation) -> None:
+        # IMU in its own axes, stamped early by the offset.
+        dth_imu, dv_imu = b.imu_dtheta @ self.m, b.imu_dv @ self.m  # rows: (M^T v)^T = v^T M
+        t_end = b.imu_t
+        before = t_end[0] - (t_end[1] - t_end[0]) if self._t_prev is None else self._t_prev
+        dt = np.diff(np.concatenate([[before], t_end]))
+        self._t_prev = float(t_end[-1])
+        if self.imu_format == "increments":
+            t_stamp, acc, gyr = t_end, dv_imu, dth_imu
+        else:
+            t_stamp, acc, gyr = t_end - dt / 2, dv_imu / dt[:, None], dth_imu / dt[:, None]
+        unix = self.t_start_abs + GPS_UNIX_OFFSET_S + t_stamp - self.imu_time_offset_s
+        np.savetxt(self.imu_file, np.column_stack([unix, acc, gyr]), delimiter=",", fmt=["%.6f"] + ["%.10e"] * 6)
 
-    noise = imu_noise_truth(sc.imu)
-    lines = [f'name = "{sc.name}_seed{sim.seed}"',
-             f'description = "gpsins sim --dataset: {sc.name}, seed {sim.seed}, '
-             f'IMU {sim.imu_rate_hz} Hz ({imu_format}), fixes {gnss_rate_hz:g} Hz"', "",
-             "[imu]", 'file = "imu.csv"', 'format = "csv"', 'columns = ["t", "ax", "ay", "az", "gx", "gy", "gz"]',
-             'time = "gpst_unix"', f'accel_unit = "{units[0]}"', f'gyro_unit = "{units[1]}"', "skip_rows = 1",
-             f"time_offset_s = {imu_time_offset_s!r}",
-             f"imu_to_body_ypr_deg = {_toml_value([float(x) for x in imu_to_body_ypr_deg])}", "",
-             "[gnss]", 'file = "receiver.pos"', 'format = "rtklib-pos"',
-             f"antenna_m = {_toml_value([float(x) for x in antenna_m])}", "",
-             "[vehicle]", 'kind = "none"', "",
-             "[scoring]", 'reference = "truth.pos"', "reference_q = [1]", "",
-             "[filter]", 'preset = "default"',
-             f"gyro_bias_residual_rad_per_s = {noise['gyro_bias_residual_rad_per_s']!r}",
-             f"accel_bias_residual_mps2 = {noise['accel_bias_residual_mps2']!r}", "",
-             "[filter.imu_noise]"] + [f"{k} = {_toml_value(v)}" for k, v in noise["imu_noise"].items()]
-    path = out / "dataset.toml"
-    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
-    return path
+        # Receiver fixes of the antenna, off whole seconds.
+        i0, i1 = self._times(self.t_fix, self._next_fix, b)
+        self._next_fix = i1
+        if i1 > i0:
+            t_fix = self.t_fix[i0:i1]
+            r_true, v_true = antenna_truth(b, t_fix, self.antenna_m)
+            n = len(t_fix)
+            idx = np.arange(i0, i1)
+            q = np.where(idx % self.float_every == self.float_every - 1, 2, 1)
+            lo, hi = self.fix_sigma_range_m
+            s_h = (lo + (hi - lo) * self.draw["sigma"].rows(i0, i1)) * np.where(q == 2, 5.0, 1.0)
+            s_v = 1.6 * s_h
+            stated_zero = idx % self.zero_sigma_every == 3
+            drawn_h, drawn_v = np.where(stated_zero, 0.01, s_h), np.where(stated_zero, 0.015, s_v)
+            lat, lon = np.array([ecef_to_geodetic(x)[:2] for x in r_true]).T
+            c_en = ecef_to_ned_matrix(lat, lon)  # (n, 3, 3) NED -> ECEF
+            e_ned = self.draw["position"].rows(i0, i1) * np.column_stack([drawn_h, drawn_h, drawn_v])
+            r_fix = r_true + np.einsum("nij,nj->ni", c_en, e_ned)
+            v_ned = (np.einsum("nji,nj->ni", c_en, v_true)
+                     + self.draw["velocity"].rows(i0, i1) * self.velocity_sigma_mps)
+            sd = np.column_stack([s_h, s_h, s_v]) * ~stated_zero[:, None]
+            sdv = np.full((n, 3), self.velocity_sigma_mps)
+            self.fix_file.write(_pos_rows(self.t_start_abs + t_fix, r_fix, q, np.full(n, 9), sd, v_ned * [1, 1, -1],
+                                          sdv))
 
+        # The antenna's truth at 10 Hz as the reference.
+        i0, i1 = self._times(self.t_ref, self._next_ref, b)
+        self._next_ref = i1
+        if i1 > i0:
+            t_ref = self.t_ref[i0:i1]
+            r_ref, v_ref = antenna_truth(b, t_ref, self.antenna_m)
+            lat, lon = np.array([ecef_to_geodetic(x)[:2] for x in r_ref]).T
+            v_ref_ned = np.einsum("nji,nj->ni", ecef_to_ned_matrix(lat, lon), v_ref)
+            z = np.zeros((len(t_ref), 3))
+            self.ref_file.write(_pos_rows(self.t_start_abs + t_ref, r_ref, np.ones(len(t_ref)),
+                                          np.full(len(t_ref), 9), z, v_ref_ned * [1, 1, -1], z))
+
+    def close(self) -> Path:
+        for f in (self.imu_file, self.fix_file, self.ref_file):
+            f.close()
+        sc, seed = self.sc, self.seed
+        noise = imu_noise_truth(sc.imu)
+        lines = [f'name = "{sc.name}_seed{seed}"',
+                 f'description = "gpsins sim --dataset: {sc.name}, seed {seed}, '
+                 f'IMU {sc.imu.rate_hz} Hz ({self.imu_format}), fixes {self.gnss_rate_hz:g} Hz"', "",
+                 "[imu]", 'file = "imu.csv"', 'format = "csv"',
+                 'columns = ["t", "ax", "ay", "az", "gx", "gy", "gz"]', 'time = "gpst_unix"',
+                 f'accel_unit = "{self.units[0]}"', f'gyro_unit = "{self.units[1]}"', "skip_rows = 1",
+                 f"time_offset_s = {self.imu_time_offset_s!r}",
+                 f"imu_to_body_ypr_deg = {_toml_value([float(x) for x in self.mount])}", "",
+                 "[gnss]", 'file = "receiver.pos"', 'format = "rtklib-pos"',
+                 f"antenna_m = {_toml_value([float(x) for x in self.antenna_m])}", "",
+                 "[vehicle]", 'kind = "none"', "",
+                 "[scoring]", 'reference = "truth.pos"', "reference_q = [1]", "",
+                 "[filter]", 'preset = "default"',
+                 f"gyro_bias_residual_rad_per_s = {noise['gyro_bias_residual_rad_per_s']!r}",
+                 f"accel_bias_residual_mps2 = {noise['accel_bias_residual_mps2']!r}", "",
+                 "[filter.imu_noise]"] + [f"{k} = {_toml_value(v)}" for k, v in noise["imu_noise"].items()]
+        path = self.out / "dataset.toml"
+        path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+        return path
+
+
+def write_dataset(sim: Simulation, directory: str | Path, *, seed: int = 0, **options) -> Path:
+    """Write the data set of a whole simulation ``sim`` into ``directory`` (created); returns the data-set
+    file. Options as ``DatasetWriter``'s; ``seed`` offsets its draws from the simulation's seed."""
+    w = DatasetWriter(sim.scenario, sim.seed, directory, float(sim.imu_t[-1]), seed_offset=seed, **options)
+    w.add(sim)
+    return w.close()

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import nnls
 
+from .draws import Sequential
 from .processes import gauss_markov
 from .scenario import ImuModel
 
@@ -57,22 +58,6 @@ def _vec(x) -> np.ndarray:
     return np.broadcast_to(np.asarray(x, dtype=float), (3,)).copy()
 
 
-def _drift(rng, n: int, dt: float, b: np.ndarray, k: np.ndarray, m: ImuModel) -> np.ndarray:
-    out = np.zeros((n, 3))
-    if m.terms["bias_instability"] and np.any(b > 0):
-        tc = np.asarray(m.bias_instability_tau_s, dtype=float)
-        var = bias_instability_weights(m.bias_instability_tau_s)
-        for T, v in zip(tc, var):
-            phi = np.exp(-dt / T)
-            sig = np.sqrt(v) * b  # stationary std per axis
-            x0 = rng.normal(0.0, 1.0, 3) * sig  # start in the stationary distribution
-            drive = rng.normal(0.0, 1.0, (n, 3)) * sig * np.sqrt(1.0 - phi * phi)
-            out += gauss_markov(x0, drive, phi)
-    if m.terms["rate_random_walk"] and np.any(k > 0):
-        out += np.cumsum(rng.normal(0.0, 1.0, (n, 3)) * k * np.sqrt(dt), axis=0)
-    return out
-
-
 def _matrix(rng, sf, mis_std, m: ImuModel) -> np.ndarray:
     a = np.eye(3)
     if m.terms["scale_factor"]:
@@ -84,31 +69,110 @@ def _matrix(rng, sf, mis_std, m: ImuModel) -> np.ndarray:
     return a
 
 
-def draw_errors(m: ImuModel, n: int, rng: np.random.Generator) -> ImuErrors:
-    dt = 1.0 / m.rate_hz
-    gb = _vec(m.gyro_bias_rad_per_s) + rng.normal(0.0, m.gyro_bias_residual_rad_per_s, 3)
-    ab = _vec(m.accel_bias_mps2) + rng.normal(0.0, m.accel_bias_residual_mps2, 3)
-    if not m.terms["turn_on_bias"]:
-        gb[:], ab[:] = 0.0, 0.0
-    gm = _matrix(rng, m.gyro_scale_factor, m.gyro_misalignment_rad, m)
-    am = _matrix(rng, m.accel_scale_factor, m.accel_misalignment_rad, m)
-    gd = _drift(rng, n, dt, _vec(m.gyro_bias_instability_rad_per_s), _vec(m.gyro_rrw_rad_per_s_sqrt_s), m)
-    ad = _drift(rng, n, dt, _vec(m.accel_bias_instability_mps2), _vec(m.accel_rrw_mps2_per_sqrt_s), m)
-    # Drawn last and only when asked for, so the other terms' draws stay the same per seed.
-    gg = rng.normal(0.0, m.gyro_g_sensitivity_rad_per_s_per_mps2, (3, 3)) \
+def _g_sensitivity(rng, m: ImuModel) -> np.ndarray | None:
+    return rng.normal(0.0, m.gyro_g_sensitivity_rad_per_s_per_mps2, (3, 3)) \
         if m.gyro_g_sensitivity_rad_per_s_per_mps2 > 0 else None
-    return ImuErrors(gb, ab, gm, am, gd, ad, gg)
+
+
+def _systematic(dtheta, dv, e: ImuErrors, dt: float, gyro_drift, accel_drift):
+    """Matrices, biases and g-sensitivity applied to ideal increments (no white noise)."""
+    g = dtheta @ e.gyro_matrix.T + (e.gyro_bias_rad_per_s + gyro_drift) * dt
+    a = dv @ e.accel_matrix.T + (e.accel_bias_mps2 + accel_drift) * dt
+    if e.gyro_g_matrix is not None:
+        g += dv @ e.gyro_g_matrix.T
+    return g, a
+
+
+class ImuErrorProcess:
+    """One simulated unit's errors, sample range by sample range in order.
+
+    The constant terms (turn-on bias, scale factor and misalignment matrices, the bias
+    processes' starting values, g-sensitivity) are drawn once from ``constants``; the
+    processes' drives and the white noise come from ``noise(name)``, a source of standard
+    normal rows (3 wide) addressed by sample index (``draws.Stream``), so any cut into
+    ranges gives the same output. The bias processes carry their state from range to range."""
+
+    def __init__(self, m: ImuModel, constants: np.random.Generator, noise, draw_g_sensitivity: bool = True):
+        self.m, self.dt = m, 1.0 / m.rate_hz
+        rng = constants
+        gb = _vec(m.gyro_bias_rad_per_s) + rng.normal(0.0, m.gyro_bias_residual_rad_per_s, 3)
+        ab = _vec(m.accel_bias_mps2) + rng.normal(0.0, m.accel_bias_residual_mps2, 3)
+        if not m.terms["turn_on_bias"]:
+            gb[:], ab[:] = 0.0, 0.0
+        gm = _matrix(rng, m.gyro_scale_factor, m.gyro_misalignment_rad, m)
+        am = _matrix(rng, m.accel_scale_factor, m.accel_misalignment_rad, m)
+        self._sensors = [self._bias_terms(rng, "gyro", _vec(m.gyro_bias_instability_rad_per_s),
+                                          _vec(m.gyro_rrw_rad_per_s_sqrt_s), noise),
+                         self._bias_terms(rng, "accel", _vec(m.accel_bias_instability_mps2),
+                                          _vec(m.accel_rrw_mps2_per_sqrt_s), noise)]
+        # Drawn last and only when asked for, so the other terms' draws stay the same per seed.
+        gg = _g_sensitivity(rng, m) if draw_g_sensitivity else None
+        self.constants = ImuErrors(gb, ab, gm, am, np.zeros((0, 3)), np.zeros((0, 3)), gg)
+        self._white = [noise("gyro white"), noise("accel white")] if m.terms["white_noise"] else None
+        self._next = 0
+
+    def _bias_terms(self, rng, name: str, b: np.ndarray, k: np.ndarray, noise) -> dict:
+        """Gauss-Markov terms [(phi, drive std, state, source)] and the random walk (std, state, source)."""
+        m, dt = self.m, self.dt
+        gms, rw = [], None
+        if m.terms["bias_instability"] and np.any(b > 0):
+            var = bias_instability_weights(m.bias_instability_tau_s)
+            for j, (T, v) in enumerate(zip(np.asarray(m.bias_instability_tau_s, dtype=float), var)):
+                phi = np.exp(-dt / T)
+                sig = np.sqrt(v) * b  # stationary std per axis
+                x0 = rng.normal(0.0, 1.0, 3) * sig  # start in the stationary distribution
+                gms.append([phi, sig * np.sqrt(1.0 - phi * phi), x0, noise(f"{name} bias instability {j}")])
+        if m.terms["rate_random_walk"] and np.any(k > 0):
+            rw = [k * np.sqrt(dt), np.zeros(3), noise(f"{name} rate random walk")]
+        return {"gm": gms, "rw": rw}
+
+    def drift(self, i1: int) -> tuple[np.ndarray, np.ndarray]:
+        """Time-varying bias parts (gyro, accel) at samples self._next..i1-1; advances."""
+        i0, out = self._next, []
+        for s in self._sensors:
+            d = np.zeros((i1 - i0, 3))
+            for term in s["gm"]:
+                phi, std, x, src = term
+                y = gauss_markov(x, src.rows(i0, i1) * std, phi)
+                term[2] = y[-1] if len(y) else x
+                d += y
+            if s["rw"] is not None:
+                std, x, src = s["rw"]
+                y = np.cumsum(np.concatenate([x[None], src.rows(i0, i1) * std]), axis=0)
+                s["rw"][1] = y[-1]
+                d += y[1:]
+            out.append(d)
+        self._next = i1
+        return out[0], out[1]
+
+    def measure(self, i0: int, dtheta: np.ndarray, dv: np.ndarray, gyro_drift: np.ndarray,
+                accel_drift: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Increments of samples i0.. as the unit reports them (before the frame's quantisation)."""
+        m, dt = self.m, self.dt
+        g, a = _systematic(dtheta, dv, self.constants, dt, gyro_drift, accel_drift)
+        if self._white is not None:
+            i1 = i0 + len(dtheta)
+            g += self._white[0].rows(i0, i1) * _vec(m.gyro_arw_rad_per_sqrt_s) * np.sqrt(dt)
+            a += self._white[1].rows(i0, i1) * _vec(m.accel_vrw_mps_per_sqrt_s) * np.sqrt(dt)
+        return g, a
+
+
+def draw_errors(m: ImuModel, n: int, rng: np.random.Generator) -> ImuErrors:
+    """A unit's errors over n samples in one piece, every draw from rng in turn (the IMU lab's way)."""
+    p = ImuErrorProcess(m, rng, lambda name: Sequential(rng, 3), draw_g_sensitivity=False)
+    gd, ad = p.drift(n)
+    e = p.constants
+    # The g-sensitivity after everything else here too, so switching it on changes no other term.
+    return ImuErrors(e.gyro_bias_rad_per_s, e.accel_bias_mps2, e.gyro_matrix, e.accel_matrix, gd, ad,
+                     _g_sensitivity(rng, m))
 
 
 def measure(dtheta: np.ndarray, dv: np.ndarray, m: ImuModel, err: ImuErrors,
             rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """Increments as the unit reports them (before the frame's quantisation)."""
+    """Increments as the unit reports them (before the frame's quantisation), white noise from rng."""
     n = len(dtheta)
     dt = 1.0 / m.rate_hz
-    g = dtheta @ err.gyro_matrix.T + (err.gyro_bias_rad_per_s + err.gyro_bias_drift) * dt
-    a = dv @ err.accel_matrix.T + (err.accel_bias_mps2 + err.accel_bias_drift) * dt
-    if err.gyro_g_matrix is not None:
-        g += dv @ err.gyro_g_matrix.T
+    g, a = _systematic(dtheta, dv, err, dt, err.gyro_bias_drift, err.accel_bias_drift)
     if m.terms["white_noise"]:
         g += rng.normal(0.0, 1.0, (n, 3)) * _vec(m.gyro_arw_rad_per_sqrt_s) * np.sqrt(dt)
         a += rng.normal(0.0, 1.0, (n, 3)) * _vec(m.accel_vrw_mps_per_sqrt_s) * np.sqrt(dt)

@@ -35,53 +35,81 @@ def _utc_fields(week: int, tow: float, leap: int):
             int(ymd[1]), int(ymd[0]))
 
 
+class GpsMessages:
+    """The receiver's messages for consecutive blocks of epochs (``GnssSim``), in emission order. The
+    ephemeris schedule (all tracked satellites every 30 s, a newly tracked one at once) carries over."""
+
+    def __init__(self, leap_s: int):
+        self.leap_s = leap_s
+        self._sent_eph: dict[int, float] = {}  # prn -> toe of the ephemeris last sent
+        self._last_eph_t = -math.inf
+        self._held: list[TimedMessage] = []  # fix messages that a later block's measurements may precede
+
+    def __call__(self, g: GnssSim, last: bool = True) -> list[TimedMessage]:
+        """The messages of block g that no later block's can precede (all that remain if last)."""
+        leap_s, out = self.leap_s, []
+        for k in range(len(g.t)):
+            obs = []
+            for j in np.flatnonzero(g.tracked[k]):
+                obs.append(ss2.Observation(int(j + 1), float(g.cn0_dbhz[k, j]),
+                                           ss2.code_phase_from_pseudorange(g.tow_rx[k], g.pseudorange_m[k, j]),
+                                           ss2.carrier_raw(g.carrier_cycles[k, j]), int(g.lock_count[k, j])))
+            # The receiver stamps measurements just under the epoch (as real logs show).
+            out.append(TimedMessage(float(g.t[k]) + MEASUREMENT_DELAY_S, ss2.ID_MEASUREMENTS,
+                                    ss2.Measurements(float(g.tow_rx[k]) - 3e-8, obs).encode(), float(g.tow_rx[k])))
+        out_fixes: list[TimedMessage] = []
+        for f in g.fixes:
+            t = f.t + FIX_DELAY_S
+            week = g.week
+            hh, mm, ss, dd, mo, yy = _utc_fields(week, f.tow_s, leap_s)
+            if f.mode:
+                vn, ve, vd = f.v_ned
+                nav = ss2.NavUser(hh, mm, ss, dd, mo, yy, f.llh[0], f.llh[1], f.llh[2], float(math.hypot(vn, ve)),
+                                  float(math.atan2(ve, vn) % (2 * math.pi)), float(vn), float(ve), float(-vd),
+                                  2.0 * f.hdop, 2.0 * f.vdop, f.hdop, f.vdop, f.mode, f.sats, 3)
+                ecef = ss2.NavEcef(f.tow_s, week, *map(float, f.r_ecef), *map(float, f.v_ecef))
+            else:
+                nav = ss2.NavUser(hh, mm, ss, dd, mo, yy, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 999.0, 999.0, 99.9,
+                                  99.9, 0, f.sats, 2)
+                ecef = ss2.NavEcef(f.tow_s, week, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+            out_fixes.append(TimedMessage(t, ss2.ID_NAV_USER, nav.encode()))
+            out_fixes.append(TimedMessage(t, ss2.ID_NAV_ECEF, ecef.encode()))
+            out_fixes.append(TimedMessage(t, ss2.ID_RECEIVER_STATUS, ss2.ReceiverStatus(week).encode()))
+            whole = round(f.tow_s)
+            if whole % LEAP_PERIOD_S == 0:
+                out_fixes.append(TimedMessage(t, ss2.ID_LEAP, ss2.LeapSeconds(leap_s).encode()))
+            if whole % IONO_PERIOD_S == 0:
+                out_fixes.append(TimedMessage(t, ss2.ID_IONO_UTC, ss2.IonoUtc(tuple(g.ion_alpha), tuple(g.ion_beta),
+                                                                        leap_s).encode()))
+            # Ephemerides: all tracked satellites every 30 s, a newly tracked one or a new upload at once.
+            due = f.t - self._last_eph_t >= EPHEMERIS_PERIOD_S
+            k = int(np.searchsorted(g.t, f.t))
+            for prn in f.prns:
+                toe = float(g.eph_toe[k, prn - 1])
+                if due or self._sent_eph.get(prn) != toe:
+                    words = ephemeris.encode_subframes(g.eph_table[(prn, toe)])
+                    out_fixes.append(TimedMessage(t, ss2.ID_EPHEMERIS, ss2.EphemerisWords(prn, words).encode()))
+                    self._sent_eph[prn] = toe
+            if due:
+                self._last_eph_t = f.t
+        # In the whole run's order: measurements, then fix messages, stably sorted by time (same-time messages
+        # keep their order). Fix messages come 60 ms after their epoch, so at receiver rates above 25 Hz the
+        # next block's first measurements may precede them: those wait for it.
+        out = sorted(out + self._held + out_fixes, key=lambda m: m.t)
+        if last:
+            self._held = []
+            return out
+        if not len(g.t):
+            self._held = out
+            return []
+        final = float(g.t[-1]) + MEASUREMENT_DELAY_S  # no later message comes before this block's last measurement
+        self._held = [m for m in out if m.t > final]
+        return [m for m in out if m.t <= final]
+
+
 def gps_messages(g: GnssSim, leap_s: int) -> list[TimedMessage]:
-    out: list[TimedMessage] = []
-    for k in range(len(g.t)):
-        obs = []
-        for j in np.flatnonzero(g.tracked[k]):
-            obs.append(ss2.Observation(int(j + 1), float(g.cn0_dbhz[k, j]),
-                                       ss2.code_phase_from_pseudorange(g.tow_rx[k], g.pseudorange_m[k, j]),
-                                       ss2.carrier_raw(g.carrier_cycles[k, j]), int(g.lock_count[k, j])))
-        # The receiver stamps measurements just under the epoch (as real logs show).
-        out.append(TimedMessage(float(g.t[k]) + MEASUREMENT_DELAY_S, ss2.ID_MEASUREMENTS,
-                                ss2.Measurements(float(g.tow_rx[k]) - 3e-8, obs).encode(), float(g.tow_rx[k])))
-    sent_eph: set[int] = set()
-    last_eph_t = -math.inf
-    for f in g.fixes:
-        t = f.t + FIX_DELAY_S
-        week = g.week
-        hh, mm, ss, dd, mo, yy = _utc_fields(week, f.tow_s, leap_s)
-        if f.mode:
-            vn, ve, vd = f.v_ned
-            nav = ss2.NavUser(hh, mm, ss, dd, mo, yy, f.llh[0], f.llh[1], f.llh[2], float(math.hypot(vn, ve)),
-                              float(math.atan2(ve, vn) % (2 * math.pi)), float(vn), float(ve), float(-vd),
-                              2.0 * f.hdop, 2.0 * f.vdop, f.hdop, f.vdop, f.mode, f.sats, 3)
-            ecef = ss2.NavEcef(f.tow_s, week, *map(float, f.r_ecef), *map(float, f.v_ecef))
-        else:
-            nav = ss2.NavUser(hh, mm, ss, dd, mo, yy, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 999.0, 999.0, 99.9,
-                              99.9, 0, f.sats, 2)
-            ecef = ss2.NavEcef(f.tow_s, week, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-        out.append(TimedMessage(t, ss2.ID_NAV_USER, nav.encode()))
-        out.append(TimedMessage(t, ss2.ID_NAV_ECEF, ecef.encode()))
-        out.append(TimedMessage(t, ss2.ID_RECEIVER_STATUS, ss2.ReceiverStatus(week).encode()))
-        whole = round(f.tow_s)
-        if whole % LEAP_PERIOD_S == 0:
-            out.append(TimedMessage(t, ss2.ID_LEAP, ss2.LeapSeconds(leap_s).encode()))
-        if whole % IONO_PERIOD_S == 0:
-            out.append(TimedMessage(t, ss2.ID_IONO_UTC, ss2.IonoUtc(tuple(g.ion_alpha), tuple(g.ion_beta),
-                                                                    leap_s).encode()))
-        # Ephemerides: all tracked satellites every 30 s, a newly tracked one at once.
-        due = f.t - last_eph_t >= EPHEMERIS_PERIOD_S
-        for prn in f.prns:
-            if due or prn not in sent_eph:
-                words = ephemeris.encode_subframes(g.ephemerides[prn])
-                out.append(TimedMessage(t, ss2.ID_EPHEMERIS, ss2.EphemerisWords(prn, words).encode()))
-                sent_eph.add(prn)
-        if due:
-            last_eph_t = f.t
-    out.sort(key=lambda m: m.t)  # stable: same-time messages keep their order
-    return out
+    """Every message of a whole run's epochs."""
+    return GpsMessages(leap_s)(g)
 
 
 def combine_increments(dtheta: np.ndarray, dv: np.ndarray, m: int) -> tuple[np.ndarray, np.ndarray]:

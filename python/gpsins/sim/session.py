@@ -31,15 +31,20 @@ from gpsins_logger import bp3010
 from gpsins_logger import superstar2 as ss2
 
 from .. import reference as reference_file
-from . import Simulation, reference
-from .messages import SimSource
+from . import DEFAULT_BLOCK_S, Simulation, Simulator, reference
+from .draws import Stream
+from .messages import GpsMessages
+from .truthfile import TruthWriter, load_truth, write_truth
+
+__all__ = ["SessionWriter", "simulate_session", "write_session", "write_reference", "write_truth", "load_truth",
+           "realtime", "imu_frames", "imu_records"]
 
 GPS_UNIX_OFFSET_S = 315964800.0  # 1980-01-06 in Unix time
 STAMP = struct.Struct("<d")
 
 
-def realtime(sim: Simulation, t: np.ndarray) -> np.ndarray:
-    """System clock reading at true run time t."""
+def realtime(sim, t: np.ndarray) -> np.ndarray:
+    """System clock reading at true run time t (``sim``: anything with the run's ``scenario``)."""
     sc = sim.scenario
     base = GPS_UNIX_OFFSET_S + sc.start.gps_week * 604800.0 + sc.start.gps_tow_s - sc.gnss.leap_seconds
     out = base + np.asarray(t, dtype=np.float64) + sc.timing.system_clock_offset_s
@@ -48,22 +53,18 @@ def realtime(sim: Simulation, t: np.ndarray) -> np.ndarray:
     return out
 
 
-def _jitter(rng: np.random.Generator, n: int, mean_s: float) -> np.ndarray | float:
-    """Non-negative stamp jitter; no draws when it is switched off."""
-    return rng.exponential(mean_s, n) if mean_s > 0 else 0.0
-
-
-def _load_stalls(sim: Simulation) -> tuple[np.ndarray, np.ndarray]:
-    """(start, end) run times of the host's stalls; none (and no draws) when switched off."""
-    tm = sim.scenario.timing
+def _load_stalls(sc, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """(start, end) run times of the host's stalls; none (and no draws) when switched off. A few numbers
+    per stall, drawn for the whole run up front (the stalls of a day at one a minute: 23 kB)."""
+    tm = sc.timing
     if tm.load_stall_rate_hz <= 0:
         return np.zeros(0), np.zeros(0)
-    rng = np.random.default_rng([sim.seed, 4])
-    n = rng.poisson(tm.load_stall_rate_hz * sim.scenario.duration_s)
-    start = np.sort(rng.uniform(0.0, sim.scenario.duration_s, n))
+    rng = np.random.default_rng([seed, 4])
+    n = rng.poisson(tm.load_stall_rate_hz * sc.duration_s)
+    start = np.sort(rng.uniform(0.0, sc.duration_s, n))
     shape = 2.5  # Pareto: mean = x_m shape / (shape - 1)
     length = tm.load_stall_mean_s * (shape - 1) / shape * (1.0 + rng.pareto(shape, n))
-    return start, start + length
+    return start, np.maximum.accumulate(start + length)
 
 
 def _stall_delay(x: np.ndarray, stalls: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
@@ -72,17 +73,24 @@ def _stall_delay(x: np.ndarray, stalls: tuple[np.ndarray, np.ndarray]) -> np.nda
     if not len(start):
         return np.zeros(len(x))
     k = np.searchsorted(start, x, side="right") - 1
-    # Stalls may overlap: the latest end among those started before x.
-    reach = np.maximum.accumulate(end)[np.maximum(k, 0)]
+    # Stalls may overlap: `end` is the latest end among those started up to each one.
+    reach = end[np.maximum(k, 0)]
     return np.where((k >= 0) & (x < reach), reach - x, 0.0)
 
 
-def _in_order(t: np.ndarray, step_s: float) -> np.ndarray:
+class _InOrder:
     """Stamps as the logger gives them: a port is read in order and a sensor's stamps never run
     backwards (each at least one byte time after the one before), so a frame delayed by the host
-    holds back the frames queued behind it."""
-    k = np.arange(len(t)) * step_s
-    return np.maximum.accumulate(t - k) + k
+    holds back the frames queued behind it. Carries the run's frame count and hold-back."""
+
+    def __init__(self, step_s: float):
+        self.step_s, self.count, self.held = step_s, 0, -np.inf
+
+    def __call__(self, t: np.ndarray) -> np.ndarray:
+        k = np.arange(self.count, self.count + len(t)) * self.step_s
+        held = np.maximum.accumulate(np.concatenate([[self.held], t - k]))
+        self.count, self.held = self.count + len(t), held[-1]
+        return held[1:] + k
 
 
 def _records(frames: list[bytes], stamps: np.ndarray, header_len: int) -> bytes:
@@ -122,125 +130,162 @@ def imu_records(frames: np.ndarray, stamps: np.ndarray) -> bytes:
     return rec.tobytes()
 
 
+class SessionWriter:
+    """A session directory written block by block (``Simulation`` blocks in order): the GPS and IMU
+    record files, the reference beside them and the truth file grow as the blocks come; ``close``
+    writes the clock pairs and the sidecar. The stamps' draws (jitter, dropped IMU frames) are
+    addressed by frame, and the line queue, hold-back and ephemeris schedule carry over, so the
+    files are the same bytes however the run is cut."""
+
+    def __init__(self, sc, seed: int, directory: str | Path):
+        self.directory = Path(directory)
+        self.directory.mkdir(parents=True, exist_ok=False)
+        self.scenario = sc
+        self.seed, tm = seed, sc.timing
+        self.imu_rate_hz = sc.imu.rate_hz
+        self.stalls = _load_stalls(sc, seed)
+        self.jitter = {name: Stream((seed, 3, j), "exponential") for j, name in ((1, "gps"), (3, "imu"))}
+        self.drop = Stream((seed, 3, 2), "uniform")
+        self.messages = GpsMessages(sc.gnss.leap_seconds)
+        self.byte_s = 10.0 / tm.gps_baud
+        self.gps_free = -np.inf  # when the line is next free
+        self.gps_order, self.imu_order = _InOrder(self.byte_s), _InOrder(10.0 / tm.imu_baud)
+        self.gps_file = open(self.directory / "gps-000.bin", "wb")
+        self.imu_file = open(self.directory / "imu-000.bin", "wb")
+        self.n_imu = self.n_dropped = 0
+        self.ref_file = None
+        if sc.reference.enabled:
+            m = sc.reference
+            self.ref_file = open(self.directory / reference_file.FILE_NAME, "w", encoding="ascii")
+            self.ref_file.write("\n".join(reference_file.header_lines(
+                f"simulated: scenario {sc.name}, seed {seed}, {m.rate_hz} Hz, baseline {m.baseline_m} m, "
+                f"RTK {m.rtk_3d_rms_m} m 3D RMS")) + "\n")
+        self.truth = TruthWriter(self.directory / "truth.npz")
+
+    def add(self, b: Simulation) -> None:
+        sc, tm = self.scenario, self.scenario.timing
+        # GPS: frames queue on the line in emission order.
+        msgs = self.messages(b.gnss, b.last)
+        if msgs:
+            first = np.empty(len(msgs))
+            free = self.gps_free
+            for k, m in enumerate(msgs):
+                first[k] = max(m.t, free)
+                free = first[k] + len(m.frame) * self.byte_s
+            self.gps_free = free
+            k0 = self.gps_order.count
+            jitter = self.jitter["gps"].rows(k0, k0 + len(msgs)) * tm.jitter_mean_s if tm.jitter_mean_s > 0 else 0.0
+            delay = tm.gps_latency_s + jitter
+            read = self.gps_order(first + delay + _stall_delay(first + delay, self.stalls))
+            stamps = realtime(b, first) + (read - first)
+            self.gps_file.write(_records([m.frame for m in msgs], stamps, ss2.HEADER_LEN))
+        # IMU: one frame per sample, some dropped if configured; the counter counts every sample.
+        n = len(b.imu_t)
+        i0, i1 = b.imu_i0, b.imu_i0 + n
+        keep = (self.drop.rows(i0, i1) >= tm.imu_drop_probability if tm.imu_drop_probability > 0
+                else np.ones(n, dtype=bool))
+        frames = imu_frames(b.imu_dtheta, b.imu_dv, np.arange(i0 + 1, i1 + 1), self.imu_rate_hz)
+        jitter = self.jitter["imu"].rows(i0, i1) * tm.jitter_mean_s if tm.jitter_mean_s > 0 else 0.0
+        arrival = b.imu_t + tm.imu_latency_s + jitter
+        arrival = arrival + _stall_delay(arrival, self.stalls)
+        kept = np.flatnonzero(keep)
+        read = self.imu_order(arrival[kept])  # dropped frames are never read
+        stamps = realtime(b, b.imu_t[kept]) + (read - b.imu_t[kept])
+        self.imu_file.write(imu_records(frames[kept], stamps))
+        self.n_imu += len(kept)
+        self.n_dropped += n - len(kept)
+        if self.ref_file is not None and b.reference is not None and len(b.reference.t):
+            ref = b.reference
+            lines = reference_file.row_lines(sc.start.gps_week, sc.start.gps_tow_s + ref.t, ref.r_ecef,
+                                             ref.sigma_ned_m, ref.heading_rad, ref.pitch_rad, ref.sigma_heading_rad,
+                                             ref.sigma_pitch_rad)
+            self.ref_file.write("".join(line + "\n" for line in lines))
+        self.truth.add(b)
+
+    def close(self) -> Path:
+        sc, tm, directory = self.scenario, self.scenario.timing, self.directory
+        self.gps_file.close()
+        self.imu_file.close()
+        if self.ref_file is not None:
+            self.ref_file.close()
+        self.truth.close()
+        start = float(realtime(self, 0.0))
+        stop = float(realtime(self, sc.duration_s))
+        # Clock pairs: the simulated host's monotonic clock starts at 1000 s.
+        with open(directory / "clock.csv", "w", encoding="ascii") as f:
+            f.write("realtime,monotonic\n")
+            for t in np.arange(0.0, sc.duration_s, 10.0):
+                f.write(f"{float(realtime(self, t))!r},{float(1000.0 + t)!r}\n")
+        sidecar = {
+            "format": "gpsins-session",
+            "format_version": 1,
+            "software": {"name": "gpsins sim", "scenario": sc.name, "seed": self.seed},
+            "host": "simulated",
+            "state": "stopped",
+            "start": {"realtime": start, "monotonic": 1000.0},
+            "stop": {"realtime": stop, "monotonic": 1000.0 + sc.duration_s},
+            "stamp": "simulated: realtime of the frame's first byte + latency + exponential jitter + host stalls "
+                     "if any, in read order (never backwards per sensor)",
+            "sensors": {
+                "gps": {"device": "superstar2", "header_len": ss2.HEADER_LEN, "baud": tm.gps_baud,
+                        "files": ["gps-000.bin"], "raw_files": []},
+                "imu": {"device": "bp3010", "header_len": 1, "baud": tm.imu_baud, "rate_hz": self.imu_rate_hz,
+                        "files": ["imu-000.bin"], "raw_files": []},
+            },
+            "parts": [{"index": 0, "start": {"realtime": start, "monotonic": 1000.0}}],
+            "counts": {"gps": {"frames_written": self.gps_order.count},
+                       "imu": {"frames_written": self.n_imu, "frames_dropped_by_simulation": self.n_dropped}},
+            "clock_steps": int(tm.clock_step_at_s is not None),
+            "simulation": {
+                "scenario": sc.name, "seed": self.seed, "timing": dict(tm.__dict__),
+                "gps_start": {"week": sc.start.gps_week, "tow_s": sc.start.gps_tow_s},
+                "leap_seconds": sc.gnss.leap_seconds, "truth": "truth.npz",
+            },
+        }
+        if self.imu_rate_hz not in bp3010.RATES_HZ:
+            sidecar["simulation"]["imu_frame"] = (
+                f"BP3010 frame layout at {self.imu_rate_hz} Hz, not a BP3010 rate: LSBs scaled by "
+                f"{bp3010.NOMINAL_RATE_HZ} / rate_hz, counter +1 per sample")
+        if self.ref_file is not None:
+            sidecar["simulation"]["reference"] = reference_file.FILE_NAME
+        (directory / "session.json").write_text(json.dumps(sidecar, indent=2) + "\n", encoding="utf-8")
+        return directory
+
+
 def write_session(sim: Simulation, directory: str | Path) -> Path:
-    directory = Path(directory)
-    directory.mkdir(parents=True, exist_ok=False)
-    sc, tm = sim.scenario, sim.scenario.timing
-    rng = np.random.default_rng([sim.seed, 3])
-    src = SimSource(sim)
-    # GPS: frames queue on the line in emission order.
-    msgs = list(src.gps_messages())
-    byte_s = 10.0 / tm.gps_baud
-    first = np.empty(len(msgs))
-    free = -np.inf
-    for k, m in enumerate(msgs):
-        first[k] = max(m.t, free)
-        free = first[k] + len(m.frame) * byte_s
-    stalls = _load_stalls(sim)
-    gps_delay = tm.gps_latency_s + _jitter(rng, len(msgs), tm.jitter_mean_s)
-    gps_read = _in_order(first + gps_delay + _stall_delay(first + gps_delay, stalls), byte_s)
-    gps_stamps = realtime(sim, first) + (gps_read - first)
-    (directory / "gps-000.bin").write_bytes(_records([m.frame for m in msgs], gps_stamps, ss2.HEADER_LEN))
-    # IMU: one frame per sample, some dropped if configured; the counter counts every sample.
-    n_imu = len(sim.imu_t)
-    keep = rng.random(n_imu) >= tm.imu_drop_probability
-    frames = imu_frames(sim.imu_dtheta, sim.imu_dv, np.arange(1, n_imu + 1), sim.imu_rate_hz)
-    arrival = sim.imu_t + tm.imu_latency_s + _jitter(rng, n_imu, tm.jitter_mean_s)
-    arrival = arrival + _stall_delay(arrival, stalls)
-    kept = np.flatnonzero(keep)
-    read = _in_order(arrival[kept], 10.0 / tm.imu_baud)  # dropped frames are never read
-    imu_stamps = realtime(sim, sim.imu_t[kept]) + (read - sim.imu_t[kept])
-    (directory / "imu-000.bin").write_bytes(imu_records(frames[kept], imu_stamps))
-    start = float(realtime(sim, 0.0))
-    stop = float(realtime(sim, sc.duration_s))
-    # Clock pairs: the simulated host's monotonic clock starts at 1000 s.
-    pairs = np.arange(0.0, sc.duration_s, 10.0)
-    with open(directory / "clock.csv", "w", encoding="ascii") as f:
-        f.write("realtime,monotonic\n")
-        for t in pairs:
-            f.write(f"{float(realtime(sim, t))!r},{float(1000.0 + t)!r}\n")
-    sidecar = {
-        "format": "gpsins-session",
-        "format_version": 1,
-        "software": {"name": "gpsins sim", "scenario": sc.name, "seed": sim.seed},
-        "host": "simulated",
-        "state": "stopped",
-        "start": {"realtime": start, "monotonic": 1000.0},
-        "stop": {"realtime": stop, "monotonic": 1000.0 + sc.duration_s},
-        "stamp": "simulated: realtime of the frame's first byte + latency + exponential jitter + host stalls "
-                 "if any, in read order (never backwards per sensor)",
-        "sensors": {
-            "gps": {"device": "superstar2", "header_len": ss2.HEADER_LEN, "baud": tm.gps_baud,
-                    "files": ["gps-000.bin"], "raw_files": []},
-            "imu": {"device": "bp3010", "header_len": 1, "baud": tm.imu_baud, "rate_hz": sim.imu_rate_hz,
-                    "files": ["imu-000.bin"], "raw_files": []},
-        },
-        "parts": [{"index": 0, "start": {"realtime": start, "monotonic": 1000.0}}],
-        "counts": {"gps": {"frames_written": len(msgs)}, "imu": {"frames_written": int(len(kept)),
-                                                                "frames_dropped_by_simulation": int((~keep).sum())}},
-        "clock_steps": int(tm.clock_step_at_s is not None),
-        "simulation": {
-            "scenario": sc.name, "seed": sim.seed, "timing": dict(tm.__dict__),
-            "gps_start": {"week": sc.start.gps_week, "tow_s": sc.start.gps_tow_s},
-            "leap_seconds": sc.gnss.leap_seconds, "truth": "truth.npz",
-        },
-    }
-    if sim.imu_rate_hz not in bp3010.RATES_HZ:
-        sidecar["simulation"]["imu_frame"] = (
-            f"BP3010 frame layout at {sim.imu_rate_hz} Hz, not a BP3010 rate: LSBs scaled by "
-            f"{bp3010.NOMINAL_RATE_HZ} / rate_hz, counter +1 per sample")
-    if sc.reference.enabled:
-        write_reference(sim, directory / reference_file.FILE_NAME)
-        sidecar["simulation"]["reference"] = reference_file.FILE_NAME
-    (directory / "session.json").write_text(json.dumps(sidecar, indent=2) + "\n", encoding="utf-8")
-    write_truth(sim, directory / "truth.npz")
-    return directory
+    """A whole simulation (or a run's only block) as a session directory."""
+    w = SessionWriter(sim.scenario, sim.seed, directory)
+    w.add(sim)
+    return w.close()
+
+
+def simulate_session(sc, seed: int, directory: str | Path, block_s: float | None = DEFAULT_BLOCK_S,
+                     dataset: str | Path | None = None) -> Path:
+    """Simulate and write a session block by block: memory bounded by the block, not the drive.
+    ``dataset``: also write the run as a data set there (``dataset_writer``, default options)."""
+    from .dataset_writer import DatasetWriter
+
+    sim = Simulator(sc, seed)
+    w = SessionWriter(sc, seed, directory)
+    ds = DatasetWriter(sc, seed, dataset, sim.truth.t_end) if dataset is not None else None
+    try:
+        for b in sim.blocks(block_s):
+            w.add(b)
+            if ds is not None:
+                ds.add(b)
+    except BaseException:
+        w.truth.abort()
+        raise
+    if ds is not None:
+        ds.close()
+    return w.close()
 
 
 def write_reference(sim: Simulation, path: str | Path) -> reference.ReferenceData:
-    """The dual-antenna RTK reference's file (gpsins.reference's layout), GPS-timed."""
-    sc = sim.scenario
-    ref = reference.simulate(sim, sc.reference, np.random.default_rng([sim.seed, sc.reference.seed_offset]))
-    m = sc.reference
+    """The dual-antenna RTK reference's file (gpsins.reference's layout) of a whole simulation, GPS-timed."""
+    sc, m, ref = sim.scenario, sim.scenario.reference, sim.reference
     reference_file.write(path, sc.start.gps_week, sc.start.gps_tow_s + ref.t, ref.r_ecef, ref.sigma_ned_m,
                          ref.heading_rad, ref.pitch_rad, ref.sigma_heading_rad, ref.sigma_pitch_rad,
                          comment=f"simulated: scenario {sc.name}, seed {sim.seed}, {m.rate_hz} Hz, "
                                  f"baseline {m.baseline_m} m, RTK {m.rtk_3d_rms_m} m 3D RMS")
     return ref
-
-
-def write_truth(sim: Simulation, path: str | Path) -> None:
-    """Truth at the IMU's sampling instants plus the receiver's true error terms (NumPy .npz)."""
-    tr, g, e = sim.truth, sim.gnss, sim.imu_errors
-    i = sim.truth_at_imu
-    sc = sim.scenario
-    dt = 1.0 / sim.imu_rate_hz
-    arrays = dict(
-        gps_week=np.int64(sc.start.gps_week), t0_tow_s=np.float64(sc.start.gps_tow_s),
-        t=tr.t[i], tow_s=sc.start.gps_tow_s + tr.t[i], r_ecef=tr.r_ecef[i], v_ecef=tr.v_ecef[i], v_ned=tr.v_ned[i],
-        lat=tr.lat[i], lon=tr.lon[i], h=tr.h[i], q_eb=tr.q_eb[i], ypr=tr.ypr[i], f_body=tr.f_body[i],
-        w_ib_body=tr.w_ib_body[i], imu_t=sim.imu_t, ideal_dtheta=sim.ideal_dtheta, ideal_dv=sim.ideal_dv,
-        gyro_bias=e.gyro_bias_rad_per_s + e.gyro_bias_drift, accel_bias=e.accel_bias_mps2 + e.accel_bias_drift,
-        gyro_matrix=e.gyro_matrix, accel_matrix=e.accel_matrix, imu_dt=np.float64(dt),
-        gnss_t=g.t, gnss_tow_rx=g.tow_rx, clock_bias_s=g.clock.bias_s, clock_drift=g.clock.drift_s_per_s,
-        tracked=g.tracked, iono_m=g.iono_m, trop_m=g.trop_m, multipath_m=g.multipath_m,
-        fix_t=np.array([f.t for f in g.fixes]), fix_mode=np.array([f.mode for f in g.fixes]),
-        fix_r_ecef=np.array([f.r_ecef for f in g.fixes]), fix_sats=np.array([f.sats for f in g.fixes]),
-        fix_hdop=np.array([f.hdop for f in g.fixes]), fix_vdop=np.array([f.vdop for f in g.fixes]),
-        segment_labels=np.array([s[0] for s in sc.segment_times()]),
-        segment_t=np.array([[s[1], s[2]] for s in sc.segment_times()]),
-    )
-    model = {"imu": {k: v for k, v in sc.imu.__dict__.items()}, "gnss": dict(sc.gnss.__dict__),
-             "timing": dict(sc.timing.__dict__), "imu_errors": e.as_dict(),
-             "bp3010_lsb": {"dtheta_rad": bp3010.dtheta_lsb_rad(sim.imu_rate_hz),
-                            "dv_mps": bp3010.dv_lsb_mps(sim.imu_rate_hz)}}
-    arrays["model_json"] = np.array(json.dumps(model, default=list))
-    with open(path, "wb") as f:
-        np.savez(f, **arrays)
-
-
-def load_truth(path: str | Path) -> dict:
-    with np.load(path) as z:
-        out = {k: z[k] for k in z.files}
-    out["model"] = json.loads(str(out.pop("model_json")))
-    return out

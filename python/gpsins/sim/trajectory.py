@@ -66,16 +66,20 @@ class Profiles:
     roll_dot: np.ndarray
 
 
-def profiles(sc: Scenario, t: np.ndarray) -> Profiles:
-    """Speed, yaw (heading), pitch (grade) and roll with their time derivatives at times t."""
-    t = np.asarray(t, dtype=np.float64)
-    if sc.track is not None:
-        k = sc.track.kinematics(t - sc.track.spec.rest_before_s)
-        return Profiles(k["speed"], k["speed_dot"], k["yaw"], k["yaw_dot"], k["pitch"], k["pitch_dot"],
-                        k["roll"], k["roll_dot"])
+@dataclass
+class SegmentTable:
+    """Per segment: start time, duration, (start, target) of speed, yaw, pitch, bank, coordinated flag."""
+
+    t0: np.ndarray
+    dur: np.ndarray
+    ends: np.ndarray  # (n, 2, 4)
+    coordinated: np.ndarray
+
+
+def segment_table(sc: Scenario) -> SegmentTable:
     n_seg = len(sc.segments)
     t0, dur = np.empty(n_seg), np.empty(n_seg)
-    ends = np.empty((n_seg, 2, 4))  # per segment: (start, target) of speed, yaw, pitch, bank
+    ends = np.empty((n_seg, 2, 4))
     coordinated = np.array([bool(seg.coordinated) for seg in sc.segments])
     s0, y0, p0, r0, a = 0.0, np.radians(sc.start.heading_deg), 0.0, 0.0, 0.0
     for k, seg in enumerate(sc.segments):
@@ -85,6 +89,19 @@ def profiles(sc: Scenario, t: np.ndarray) -> Profiles:
         r1 = r0 if seg.bank_deg is None else np.radians(seg.bank_deg)
         t0[k], dur[k], ends[k] = a, seg.duration_s, ((s0, y0, p0, r0), (s1, y1, p1, r1))
         s0, y0, p0, r0, a = s1, y1, p1, r1, a + seg.duration_s
+    return SegmentTable(t0, dur, ends, coordinated)
+
+
+def profiles(sc: Scenario, t: np.ndarray, table: SegmentTable | None = None) -> Profiles:
+    """Speed, yaw (heading), pitch (grade) and roll with their time derivatives at times t
+    (``table``: the scenario's segment_table, made once by callers that come back often)."""
+    t = np.asarray(t, dtype=np.float64)
+    if sc.track is not None:
+        k = sc.track.kinematics(t - sc.track.spec.rest_before_s)
+        return Profiles(k["speed"], k["speed_dot"], k["yaw"], k["yaw_dot"], k["pitch"], k["pitch_dot"],
+                        k["roll"], k["roll_dot"])
+    tb = segment_table(sc) if table is None else table
+    t0, dur, ends, coordinated, n_seg = tb.t0, tb.dur, tb.ends, tb.coordinated, len(tb.t0)
     # Each time's segment: the one it starts in; past the end, the last one (held at its target).
     k = np.minimum(np.searchsorted(t0 + dur, t, side="right"), n_seg - 1)
     tau = np.clip((t - t0[k]) / dur[k], 0.0, 1.0)
@@ -136,6 +153,7 @@ class Truth:
     w_ib_body: np.ndarray  # inertial angular rate, rad/s
     c_eb: np.ndarray  # (n, 3, 3)
     substeps: int  # internal steps per IMU interval
+    step: float | None = None  # the grid's nominal step, s (the same for every block of a run)
 
     def __len__(self) -> int:
         return len(self.t)
@@ -157,10 +175,10 @@ def _hermite(t, x, dx, tq):
     return h00 * x[i] + h10 * h * dx[i] + h01 * x[i + 1] + h11 * h * dx[i + 1]
 
 
-def _integrate_position(sc: Scenario, t: np.ndarray, v: np.ndarray, vm: np.ndarray):
-    """lat, lon, h at grid times t given NED velocity on the grid (v) and at half steps (vm)."""
+def _integrate_position(t: np.ndarray, v: np.ndarray, vm: np.ndarray, lat0: float, lon0: float, h0: float):
+    """lat, lon, h at grid times t from (lat0, lon0, h0) at t[0], given NED velocity on the grid (v)
+    and at half steps (vm)."""
     dt = np.diff(t)
-    lat0, lon0, h0 = np.radians(sc.start.lat_deg), np.radians(sc.start.lon_deg), sc.start.height_m
 
     def cumulative(f, fm):
         return np.concatenate(([0.0], np.cumsum(dt / 6.0 * (f[:-1] + 4.0 * fm + f[1:]))))
@@ -190,32 +208,78 @@ def _integrate_position(sc: Scenario, t: np.ndarray, v: np.ndarray, vm: np.ndarr
 CHUNK = 1 << 16  # grid points per pass of the pointwise stages (bounds their temporaries)
 
 
+ATOM_STEPS = 8192  # grid steps (about) per integration span: the position ODE restarts from its end state
+
+
+class TruthStream:
+    """The truth grid made span by span, in order, in bounded memory.
+
+    The position ODE is integrated over fixed spans of ``atom_samples`` IMU intervals, each
+    from the end state of the one before, so the grid is the same however the run is cut into
+    blocks, as long as every block but the last ends on a span boundary. Everything else is
+    pointwise."""
+
+    def __init__(self, sc: Scenario, t_first_sample: float, imu_rate_hz: float, n_samples: int,
+                 substeps: int | None = None):
+        self.sc = sc
+        self.substeps = substeps_for(imu_rate_hz) if substeps is None else int(substeps)
+        if self.substeps < 2 or self.substeps % 2:
+            raise ValueError(f"substeps must be even and >= 2, got {self.substeps}")
+        self.n_samples = int(n_samples)
+        self.step = 1.0 / (imu_rate_hz * self.substeps)
+        self.t0 = t_first_sample - 1.0 / imu_rate_hz
+        self.atom_samples = max(1, ATOM_STEPS // self.substeps)
+        self.table = segment_table(sc) if sc.track is None else None
+        self._next = 0  # the next block's first sample interval
+        self._llh = (np.radians(sc.start.lat_deg), np.radians(sc.start.lon_deg), float(sc.start.height_m))
+
+    def times(self, j0: int, j1: int) -> np.ndarray:
+        """Grid times of points j0..j1-1 (the same values whatever the block)."""
+        return self.t0 + self.step * np.arange(j0, j1)
+
+    @property
+    def t_end(self) -> float:
+        return float(self.times(self.n_samples * self.substeps, self.n_samples * self.substeps + 1)[0])
+
+    def span(self, i1: int) -> Truth:
+        """Truth from the end of the last span (sample interval ``self._next``) to the end of interval i1:
+        grid points i0 * substeps .. i1 * substeps, both ends included."""
+        i0, sub = self._next, self.substeps
+        if not i0 < i1 <= self.n_samples or (i1 < self.n_samples and i1 % self.atom_samples):
+            raise ValueError(f"a block must end on a span of {self.atom_samples} samples or at the run's end "
+                             f"({self.n_samples}); asked for {i0}..{i1}")
+        t = self.times(i0 * sub, i1 * sub + 1)
+        v, _ = _ned_velocity(profiles(self.sc, t, self.table))
+        vm, _ = _ned_velocity(profiles(self.sc, t[:-1] + 0.5 * self.step, self.table))
+        n = len(t)
+        lat, lon, h, dlat, dlon = (np.empty(n) for _ in range(5))
+        lat[0], lon[0], h[0] = self._llh
+        for a in range(0, n - 1, self.atom_samples * sub):
+            b = min(a + self.atom_samples * sub, n - 1)
+            k = slice(a, b + 1)
+            lat[k], lon[k], h[k], dlat[k], dlon[k] = _integrate_position(t[k], v[k], vm[a:b], lat[a], lon[a], h[a])
+        del vm
+        self._llh, self._next = (lat[-1], lon[-1], h[-1]), i1
+        out = Truth(t, lat, lon, h, np.empty((n, 3)), np.empty((n, 3)), v, np.empty((n, 3)), np.empty((n, 4)),
+                    np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3, 3)), sub, self.step)
+        # Everything else is pointwise: in chunks, so the temporaries stay small.
+        for a in range(0, n, CHUNK):
+            _pointwise(self.sc, out, dlat[a:a + CHUNK], dlon[a:a + CHUNK], slice(a, a + CHUNK), self.table)
+        return out
+
+
 def truth(sc: Scenario, t_first_sample: float, imu_rate_hz: float, n_samples: int,
           substeps: int | None = None) -> Truth:
     """Truth on the internal grid: `substeps` points per IMU interval (default: substeps_for the
     rate), from t_first_sample - 1/rate; the IMU's sampling instants are every substeps-th point."""
-    substeps = substeps_for(imu_rate_hz) if substeps is None else int(substeps)
-    if substeps < 2 or substeps % 2:
-        raise ValueError(f"substeps must be even and >= 2, got {substeps}")
-    step = 1.0 / (imu_rate_hz * substeps)
-    t = t_first_sample - 1.0 / imu_rate_hz + step * np.arange(n_samples * substeps + 1)
-    v, _ = _ned_velocity(profiles(sc, t))
-    vm, _ = _ned_velocity(profiles(sc, t[:-1] + 0.5 * step))
-    lat, lon, h, dlat, dlon = _integrate_position(sc, t, v, vm)
-    del vm
-    n = len(t)
-    out = Truth(t, lat, lon, h, np.empty((n, 3)), np.empty((n, 3)), v, np.empty((n, 3)), np.empty((n, 4)),
-                np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3, 3)), substeps)
-    # Everything else is pointwise: in chunks, so the temporaries stay small on long drives.
-    for a in range(0, n, CHUNK):
-        _pointwise(sc, out, dlat[a:a + CHUNK], dlon[a:a + CHUNK], slice(a, a + CHUNK))
-    return out
+    return TruthStream(sc, t_first_sample, imu_rate_hz, n_samples, substeps).span(n_samples)
 
 
-def _pointwise(sc: Scenario, out: Truth, dlat: np.ndarray, dlon: np.ndarray, k: slice) -> None:
+def _pointwise(sc: Scenario, out: Truth, dlat: np.ndarray, dlon: np.ndarray, k: slice,
+               table: SegmentTable | None) -> None:
     """ECEF state, attitude, specific force and body rate on the grid points k of `out`."""
     t, lat, lon, v = out.t[k], out.lat[k], out.lon[k], out.v_ned[k]
-    p = profiles(sc, t)
+    p = profiles(sc, t, table)
     _, dv = _ned_velocity(p)
     r = earth.geodetic_to_ecef(lat, lon, out.h[k])
     c_en = earth.ecef_to_ned_matrix(lat, lon)
@@ -245,7 +309,7 @@ def ideal_increments(tr: Truth) -> tuple[np.ndarray, np.ndarray]:
     c_ib_ends = earth.rot_z(earth.OMEGA_E * tr.t[ends]) @ tr.c_eb[ends]  # inertial frame = ECEF at t = 0
     c0, c1 = c_ib_ends[:-1], c_ib_ends[1:]
     dtheta = earth.dcm_to_rotvec(np.swapaxes(c0, -1, -2) @ c1)
-    h = tr.t[1] - tr.t[0]
+    h = tr.t[1] - tr.t[0] if tr.step is None else tr.step
     w = np.ones(sub + 1)
     w[1:-1:2], w[2:-1:2] = 4.0, 2.0
     w = w * h / 3.0
