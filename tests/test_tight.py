@@ -132,3 +132,33 @@ def test_streaming_tight_equals_batch():
     assert np.array_equal(f.clock, sols["tight"].clock[-1])
     with pytest.raises(ValueError, match="pseudoranges given to a loosely coupled filter"):
         _core.InsFilter(core, "loose").run(imu[:10], fixes[:0], prs[:5])
+
+
+def test_receiver_clock_jumps_and_a_drift_beyond_its_prior_reseed_the_clock_states():
+    """A free-running receiver clock drifting 1.5 us/s (450 m/s, 4.5 times the drift's prior sigma) and held
+    within 0.5 ms by whole-millisecond steps (about 300 km in every pseudorange at once): the filter re-seeds the
+    bias at each step (where the simulator stepped it, by what it stepped), keeps the drift, and uses the
+    pseudoranges. The drift itself, 4.5 sigma beyond its prior, may cost one re-seed at the start."""
+    drive = {**FEW, "segment": FEW["segment"][:2] + [{"label": "run", "duration_s": 45, "turn_deg": 40}],
+             "obstruction": [], "gnss": {"clock": "ms_jumps", "clock_drift_s_per_s": 1.5e-6, "clock_bias_s": 4.5e-4}}
+    s = sim.simulate(parse(drive), seed=3)
+    g = s.gnss
+    k = np.flatnonzero(np.abs(np.diff(g.clock.bias_s)) > 0.5e-3) + 1
+    assert len(k) == 1  # at about 33 s: the scenario is built to have one
+    sol = both(s)["tight"]
+    c, ev = sol.counters, sol.events
+    print(f"ms-jump clock: re-seeds at {ev['t'][ev['kind'] == 5]} s by {ev['value'][ev['kind'] == 5]} m; "
+          f"{c['pseudoranges_used']} pseudoranges used, {c['pseudoranges_rejected']} rejected")
+    reseed = ev["kind"] == 5
+    step = reseed & (np.abs(ev["value"]) > 1e5)
+    assert c["clock_reseeds"] == reseed.sum() and c["gnss_resets"] == 0
+    lag = ev["t"][step] - g.t[k]  # the first epoch the filter uses after the step (it thins them to 1 Hz)
+    assert len(lag) == len(k) and np.all((lag >= 0.0) & (lag <= 1.0))
+    np.testing.assert_allclose(ev["value"][step], 299792458.0 * (g.clock.bias_s[k] - g.clock.bias_s[k - 1]), atol=50.0)
+    assert np.all(ev["t"][reseed & ~step] < 10.0) and (reseed & ~step).sum() <= 1
+    assert c["pseudoranges_rejected"] < 0.02 * c["pseudoranges_used"]
+    drift_true_mps = 299792458.0 * np.interp(sol.t[-1], g.t, g.clock.drift_s_per_s)
+    assert sol.clock[-1, 1] == pytest.approx(drift_true_mps, abs=0.5)
+    e = evaluate.nav_errors(sol, truth_of(s))
+    hk = sol.heading_known
+    assert np.sqrt(np.mean(np.sum(e.r_ned[hk, :2] ** 2, axis=1))) < 5.0

@@ -103,6 +103,7 @@ py::dict counters_dict(const Counters& c) {
   d["pseudoranges_rejected"] = c.pseudoranges_rejected;
   d["pseudoranges_no_ephemeris"] = c.pseudoranges_no_ephemeris;
   d["pseudoranges_masked"] = c.pseudoranges_masked;
+  d["clock_reseeds"] = c.clock_reseeds;
   d["diverged"] = c.diverged;
   return d;
 }
@@ -571,6 +572,7 @@ void bind_filter(py::module_& m) {
   GPSINS_FIELD(accel_bias_sigma_mps2);
   GPSINS_FIELD(clock_bias_sigma_m);
   GPSINS_FIELD(clock_drift_sigma_mps);
+  GPSINS_FIELD(clock_reseed_window_s);
   GPSINS_FIELD(clock_bias_noise_m_per_sqrt_s);
   GPSINS_FIELD(clock_drift_noise_mps_per_sqrt_s);
   GPSINS_FIELD(level_time_s);

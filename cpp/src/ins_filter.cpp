@@ -553,6 +553,68 @@ void InsFilter<NB, NC>::track_locks(const PseudorangeEpoch& ep) {
   tracked_ = seen;
 }
 
+// The clock states describe the receiver's clock only while the epoch's
+// median residual (pseudorange minus range: the clock seen through all
+// satellites at once) agrees with them. It cannot on the first epoch; it does
+// not after a clock jump (receivers that steer their clock step it by whole
+// milliseconds) or when the oscillator drifts far beyond the drift's prior
+// (1.4 us/s, 12.5 km between 30 s epochs, on a geodetic receiver): every
+// pseudorange would then be gated out. So the bias is re-seeded from the
+// median when it lies beyond the gate on two epochs in a row (one is a tail
+// event) or far beyond it once; the drift too, from the last two medians,
+// unless the step is a whole number of milliseconds.
+template <int NB, int NC>
+void InsFilter<NB, NC>::check_clock(const PrUse* use, int n, double t) {
+  if constexpr (NC == 2) {
+    std::array<double, PseudorangeEpoch::kMaxSats> res{}, var{};
+    const Vec3 r_a = core_.nav.r_ecef_m + core_.nav.q_eb * cfg_.lever_arm_body_m;
+    for (int i = 0; i < n; ++i) {
+      const auto k = static_cast<std::size_t>(i);
+      res[k] = use[k].pr_corr - ((use[k].sat - r_a).norm() + use[k].sagnac);
+      var[k] = use[k].var;
+    }
+    std::nth_element(res.begin(), res.begin() + n / 2, res.begin() + n);
+    std::nth_element(var.begin(), var.begin() + n / 2, var.begin() + n);
+    const double median = res[static_cast<std::size_t>(n / 2)];
+    const double d = median - core_.clock(0);
+    const double var_d = core_.P(Core::kClock, Core::kClock) + var[static_cast<std::size_t>(n / 2)] +
+                         core_.P.template block<3, 3>(es::pos, es::pos).trace() / 3.0;
+    const double bound = gate(1) > 0.0 ? gate(1) : 25.0;  // squared, in sigmas
+    const double z2 = d * d / var_d;
+    const bool beyond = z2 > bound;
+    const bool reseed = !clock_set_ || (beyond && (clock_suspect_ || z2 > 4.0 * bound));
+    clock_suspect_ = clock_set_ && beyond && !reseed;
+    if (reseed) {
+      const double ms_m = 1e-3 * gnss::kSpeedOfLight;
+      const double whole_ms = std::round(d / ms_m);
+      const double rest = d - whole_ms * ms_m;
+      const bool ms_jump = clock_set_ && whole_ms != 0.0 && rest * rest <= bound * var_d;
+      const double dt = t - last_clock_t_;
+      const bool drift_from_medians = clock_set_ && !ms_jump && dt > 0.0 && dt <= cfg_.clock_reseed_window_s;
+      core_.clock(0) = median;
+      core_.P.row(Core::kClock).setZero();
+      core_.P.col(Core::kClock).setZero();
+      core_.P(Core::kClock, Core::kClock) = cfg_.clock_bias_sigma_m * cfg_.clock_bias_sigma_m;
+      if (drift_from_medians) {  // centred on the two epochs' rate, within the drift's prior
+        core_.clock(1) = (median - last_clock_median_m_) / dt;
+        core_.P.row(Core::kClock + 1).setZero();
+        core_.P.col(Core::kClock + 1).setZero();
+        core_.P(Core::kClock + 1, Core::kClock + 1) = cfg_.clock_drift_sigma_mps * cfg_.clock_drift_sigma_mps;
+      }
+      core_.note_restart(Core::kClock, drift_from_medians ? 2 : 1);
+      if (clock_set_) {
+        ++counters_.clock_reseeds;
+        event(kClockReseed, d);
+      }
+      clock_set_ = true;
+    }
+    last_clock_median_m_ = median;
+    last_clock_t_ = t;
+  } else {
+    (void)use, (void)n, (void)t;
+  }
+}
+
 template <int NB, int NC>
 void InsFilter<NB, NC>::process_pseudoranges(const PseudorangeEpoch& ep) {
   if constexpr (NC == 2) {
@@ -569,12 +631,7 @@ void InsFilter<NB, NC>::process_pseudoranges(const PseudorangeEpoch& ep) {
     const Mat3 c = core_.nav.q_eb.toRotationMatrix();
     const Vec3 r_a = core_.nav.r_ecef_m + c * cfg_.lever_arm_body_m;
     const Geodetic llh = ecef_to_geodetic(r_a);
-    struct Use {
-      Vec3 sat;
-      double pr_corr, sagnac, var;
-      int prn;
-    };
-    std::array<Use, PseudorangeEpoch::kMaxSats> use{};
+    std::array<PrUse, PseudorangeEpoch::kMaxSats> use{};
     int n = 0;
     for (int i = 0; i < ep.n; ++i) {
       const auto k = static_cast<std::size_t>(i);
@@ -598,25 +655,10 @@ void InsFilter<NB, NC>::process_pseudoranges(const PseudorangeEpoch& ep) {
       var += correlated_variance(ep.prn[k], ep.t_s, ae.el_rad);
       // Everything but geometry and the receiver clock moved to the measurement side.
       const double corr = ep.pr_m[k] + gnss::kSpeedOfLight * (st.clock_s - eph->tgd_s) - iono - trop;
-      use[static_cast<std::size_t>(n++)] = Use{st.r_ecef_m, corr, gnss::sagnac_m(st.r_ecef_m, r_a), var, ep.prn[k]};
+      use[static_cast<std::size_t>(n++)] = PrUse{st.r_ecef_m, corr, gnss::sagnac_m(st.r_ecef_m, r_a), var, ep.prn[k]};
     }
     if (n == 0) return;
-    if (!clock_set_) {  // the receiver clock from this epoch's residuals (median)
-      std::array<double, PseudorangeEpoch::kMaxSats> res{};
-      for (int i = 0; i < n; ++i) {
-        const auto& u = use[static_cast<std::size_t>(i)];
-        res[static_cast<std::size_t>(i)] = u.pr_corr - ((u.sat - r_a).norm() + u.sagnac);
-      }
-      std::nth_element(res.begin(), res.begin() + n / 2, res.begin() + n);
-      core_.clock(0) = res[static_cast<std::size_t>(n / 2)];
-      // The bias starts afresh, independent of the drift it was propagated with so far: the
-      // covariance says so too, as the smoother's record of this restart assumes.
-      core_.P.row(Core::kClock).setZero();
-      core_.P.col(Core::kClock).setZero();
-      core_.P(Core::kClock, Core::kClock) = cfg_.clock_bias_sigma_m * cfg_.clock_bias_sigma_m;
-      core_.note_restart(Core::kClock, 1);
-      clock_set_ = true;
-    }
+    check_clock(use.data(), n, ep.t_s);
     bool any = false;
     for (int i = 0; i < n; ++i) {
       const auto& u = use[static_cast<std::size_t>(i)];

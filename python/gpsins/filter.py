@@ -40,7 +40,8 @@ import numpy as np
 from . import _core
 
 PRESETS = ("default", "report2005")
-EVENT_KINDS = {1: "imu_gap_restart", 2: "gnss_reset", 3: "imu_sample_rejected", 4: "heading_set"}
+EVENT_KINDS = {1: "imu_gap_restart", 2: "gnss_reset", 3: "imu_sample_rejected", 4: "heading_set",
+               5: "clock_reseed"}
 UPDATE_CHECKS = ("chi_square", "attitude_correction", "both", "none")
 UPDATE_KINDS = {1: "fix_3d", 2: "fix_2d", 3: "fix_velocity", 4: "zero_velocity", 5: "zero_rate", 6: "pseudorange",
                 7: "nonholonomic", 8: "baseline_attitude"}

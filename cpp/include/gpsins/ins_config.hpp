@@ -60,6 +60,7 @@ struct InsConfig {
   // Receiver clock (tight coupling), random walks on bias and drift.
   double clock_bias_sigma_m = 100.0;  // after the bias is set from the first epoch
   double clock_drift_sigma_mps = 100.0;
+  double clock_reseed_window_s = 120.0;  // a re-seed takes the drift from two epochs at most this far apart
   double clock_bias_noise_m_per_sqrt_s = 0.1;
   double clock_drift_noise_mps_per_sqrt_s = 0.01;  // a TCXO; larger for a poorer oscillator
 

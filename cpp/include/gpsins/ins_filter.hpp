@@ -97,6 +97,7 @@ enum EventKind : int {
   kGnssReset = 2,         // value: how long GNSS had been rejected (s)
   kImuSampleRejected = 3, // value: the sample's largest rate or specific force over its range
   kHeadingSet = 4,        // value: the heading (rad)
+  kClockReseed = 5,       // value: the receiver clock's jump from its prediction (m)
 };
 
 struct FilterEvent {
@@ -129,7 +130,8 @@ struct Counters {
   std::int64_t pseudoranges_used = 0;
   std::int64_t pseudoranges_rejected = 0;
   std::int64_t pseudoranges_no_ephemeris = 0;
-  std::int64_t pseudoranges_masked = 0;  // elevation, C/N0 or settling after (re)acquisition
+  std::int64_t pseudoranges_masked = 0;
+  std::int64_t clock_reseeds = 0;  // receiver clock bias (and drift) re-seeded from an epoch's residuals  // elevation, C/N0 or settling after (re)acquisition
   // Set when the filter stopped explaining its measurements (sustained GNSS
   // rejection) or its covariance or state became invalid; stays set.
   bool diverged = false;
@@ -175,6 +177,12 @@ class InsFilter {
   void propagate_to(const Increment& inc);
   void process_fix(const FixInput& fix);
   void process_pseudoranges(const PseudorangeEpoch& epoch);
+  struct PrUse {  // one pseudorange with everything but geometry and clock removed
+    Vec3 sat;
+    double pr_corr, sagnac, var;
+    int prn;
+  };
+  void check_clock(const PrUse* use, int n, double t);
   void track_locks(const PseudorangeEpoch& epoch);
   double correlated_variance(int prn, double t, double el_rad) const;
   void initialise(const FixInput& fix);
@@ -250,6 +258,9 @@ class InsFilter {
   std::array<bool, 33> tracked_{};
   std::array<double, 33> pr_used_t_{};  // time of each satellite's last update (NaN: none since acquisition)
   bool clock_set_ = false;
+  bool clock_suspect_ = false;  // the last epoch's median residual lay beyond the gate
+  double last_clock_median_m_ = 0.0;
+  double last_clock_t_ = -1e300;
   bool have_fix_time_ = false;
   double last_fix_t_ = 0.0;
   bool have_prev_fix_ = false;

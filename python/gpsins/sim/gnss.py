@@ -175,7 +175,7 @@ class Receiver:
         t = self.sc.start.gps_tow_s + self.dt * np.arange(k0, k1) - self.sc.start.gps_tow_s
         t_prev, walk, drift_sum, noise_sum = self._clock
         dt = np.diff(t, prepend=t[0] if k0 == 0 else t_prev)
-        drift0 = model.clock_drift_s_per_s if model.clock == "steered" else 5e-8
+        drift0 = 5e-8 if model.clock == "unsteered" else model.clock_drift_s_per_s
         walk = np.cumsum(np.concatenate([[walk], self.draw["clock frequency"].rows(k0, k1)
                                          * model.clock_freq_noise_per_sqrt_s * np.sqrt(dt)]))[1:]
         freq = drift0 + walk
@@ -184,7 +184,10 @@ class Receiver:
         drift_sum = np.cumsum(np.concatenate([[drift_sum], freq * dt]))[1:]
         noise_sum = np.cumsum(np.concatenate([[noise_sum], self.draw["clock phase"].rows(k0, k1)
                                               * model.clock_phase_noise_s_per_sqrt_s * np.sqrt(dt)]))[1:]
-        return t, ReceiverClock(model.clock_bias_s + drift_sum + noise_sum, freq), (t, walk, drift_sum, noise_sum)
+        bias = model.clock_bias_s + drift_sum + noise_sum
+        if model.clock == "ms_jumps":
+            bias = bias - 1e-3 * np.round(bias / 1e-3)
+        return t, ReceiverClock(bias, freq), (t, walk, drift_sum, noise_sum)
 
     def epochs(self, tr: Truth, last: bool) -> GnssSim:
         """The epochs whose true time falls before the end of truth block `tr` (all that remain if last)."""

@@ -125,6 +125,9 @@ class ImuModel:
         rate_random_walk=True, quantisation=True))
 
 
+CLOCK_MODELS = ("steered", "unsteered", "ms_jumps")
+
+
 @dataclass
 class GnssModel:
     nav_file: str = "brdc1820.10n"  # bundled name, or a path
@@ -140,7 +143,10 @@ class GnssModel:
     iono_variation: float = 0.15
     iono_period_s: float = 900.0
     trop_wet_zenith_m: float = 0.18  # the standard-atmosphere model assumes about 0.1
-    clock: str = "steered"  # or "unsteered"
+    # steered: the receiver trims its oscillator towards zero drift; unsteered: a free-running TCXO
+    # (5e-8 s/s); ms_jumps: free-running at clock_drift_s_per_s, the bias held within 0.5 ms by
+    # whole-millisecond steps (what many receivers do instead of steering)
+    clock: str = "steered"
     clock_bias_s: float = 2e-8
     clock_drift_s_per_s: float = 1e-9
     clock_phase_noise_s_per_sqrt_s: float = 2e-10
@@ -359,9 +365,12 @@ def parse(data: dict, source: str = "<scenario>", here: Path | None = None) -> S
         if not isinstance(spec, dict):
             raise ScenarioError(f"{source}: repeat {i + 1}: must be a table")
         segs, obs = _repeat(segs, obs, spec, f"{source}: repeat {i + 1}")  # in order: a later one sees the copies
+    gnss = _build(GnssModel, data.get("gnss", {}), f"{source}: [gnss]")
+    if gnss.clock not in CLOCK_MODELS:
+        raise ScenarioError(f"{source}: [gnss] clock = {gnss.clock!r}; one of {', '.join(CLOCK_MODELS)}")
     return Scenario(name=data.get("name", _stem(source)), description=data.get("description", ""),
                     segments=segs, obstructions=obs, start=_build(Start, data.get("start", {}), f"{source}: [start]"),
-                    imu=imu, gnss=_build(GnssModel, data.get("gnss", {}), f"{source}: [gnss]"),
+                    imu=imu, gnss=gnss,
                     timing=timing, source=source, track=track,
                     reference=_build(ReferenceModel, data.get("reference", {}), f"{source}: [reference]"))
 
