@@ -5,8 +5,10 @@ magnitudes seed 004 states in chapter 7 for its car run, in its units (ENU metre
   (7.1.2.1); at the stop at the end pitch and yaw errors are about 0.5 deg and 5 deg (7.1.2.2);
 - tight, segments L-O: about 18 m east, 22 m north, 15 m up (7.2.2.1); at the end 0.3 deg and 7 deg (7.2.2.2).
 
-What matches is asserted; what does not is a strict xfail that says by how much, and the preset's
-description says the same.
+The report shows one run; here each figure is the median over five simulated runs (seeds 0-4), so that
+a match or a miss is not one noise draw's luck (seed 0 alone once matched the pitch, at 0.42 deg, which the
+median does not). What matches is asserted; what does not is a strict xfail that says by how much, and the
+preset's description says the same.
 """
 
 import numpy as np
@@ -18,19 +20,26 @@ from gpsins.sim.session import write_session
 REPORT = {"loose": {"enu_m": (20.0, 10.0, 22.0), "pitch_deg": 0.5, "yaw_deg": 5.0},
           "tight": {"enu_m": (18.0, 22.0, 15.0), "pitch_deg": 0.3, "yaw_deg": 7.0}}
 L_TO_O = ("L-M", "M-N", "N-O")
-FACTOR = 3.0  # "about" read off a figure of one run, against one simulated run
+FACTOR = 3.0  # "about" read off a figure of one run, against the median of simulated runs
+SEEDS = range(5)
 
 
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
-    root = tmp_path_factory.mktemp("report2005")
-    write_session(sim.simulate(sim.load("default"), seed=0), root / "session")
-    inp = replay.load_inputs(root / "session", modes=("loose", "tight"), config="report2005")
-    out = {}
-    for mode in ("loose", "tight"):
-        replay.run_mode(inp, root / mode, mode=mode)
-        out[mode] = results.load(root / mode)
+    """Per mode, one results dict per seed."""
+    out = {"loose": [], "tight": []}
+    for seed in SEEDS:
+        root = tmp_path_factory.mktemp(f"report2005_{seed}")
+        write_session(sim.simulate(sim.load("default"), seed=seed), root / "session")
+        inp = replay.load_inputs(root / "session", modes=("loose", "tight"), config="report2005")
+        for mode in out:
+            replay.run_mode(inp, root / mode, mode=mode)
+            out[mode].append(results.load(root / mode))
     return out
+
+
+def _median(f, zs) -> np.ndarray:
+    return np.median([f(z) for z in zs], axis=0)
 
 
 def _l_to_o_peaks(z) -> np.ndarray:
@@ -49,30 +58,32 @@ def _end_errors(z) -> np.ndarray:
     return np.nanmean(np.abs(z["err_ypr_deg"][end, :2]), axis=0)
 
 
+@pytest.mark.xfail(strict=True, reason="median over seeds 0-4 of the pitch error at the stop: 3.7 deg (loose) and "
+                                       "3.9 deg (tight), 1.2-9.6 deg per seed, against the report's 0.5 and 0.3 deg")
 @pytest.mark.parametrize("mode", ["loose", "tight"])
 def test_pitch_at_the_stop_is_the_reports(runs, mode):
-    _, pitch = _end_errors(runs[mode])
+    _, pitch = _median(_end_errors, runs[mode])
     assert pitch <= 2 * REPORT[mode]["pitch_deg"]
 
 
 def test_tight_l_to_o_errors_are_the_reports_magnitude(runs):
-    peaks = _l_to_o_peaks(runs["tight"])
+    peaks = _median(_l_to_o_peaks, runs["tight"])
     want = np.array(REPORT["tight"]["enu_m"])
     assert np.all(peaks >= want / FACTOR) and np.all(peaks <= want * FACTOR), peaks
 
 
-@pytest.mark.xfail(strict=True, reason="seed 0: loose L-O east error peaks at 114 m in M-N, where the simulated "
-                                       "receiver's fixes are 100 m off and the report's tuning has no gate "
-                                       "(report: about 20 m)")
+@pytest.mark.xfail(strict=True, reason="median over seeds 0-4: loose L-O north error peaks at 112 m (81-149 m per "
+                                       "seed) where the simulated receiver's fixes are 100 m off and the report's "
+                                       "tuning has no gate (report: about 10 m)")
 def test_loose_l_to_o_errors_are_the_reports_magnitude(runs):
-    peaks = _l_to_o_peaks(runs["loose"])
+    peaks = _median(_l_to_o_peaks, runs["loose"])
     want = np.array(REPORT["loose"]["enu_m"])
     assert np.all(peaks >= want / FACTOR) and np.all(peaks <= want * FACTOR), peaks
 
 
-@pytest.mark.xfail(strict=True, reason="seed 0: yaw error at the stop about 13.5 deg (loose) and 13.3 deg (tight) "
-                                       "against the report's 5 and 7 deg")
+@pytest.mark.xfail(strict=True, reason="median over seeds 0-4 of the yaw error at the stop: 12.9 deg (loose) and "
+                                       "11.6 deg (tight) against the report's 5 and 7 deg")
 @pytest.mark.parametrize("mode", ["loose", "tight"])
 def test_yaw_at_the_stop_is_the_reports(runs, mode):
-    yaw, _ = _end_errors(runs[mode])
+    yaw, _ = _median(_end_errors, runs[mode])
     assert yaw <= 1.5 * REPORT[mode]["yaw_deg"]
