@@ -114,7 +114,7 @@ def handheld_walk(tmp_path_factory):
     s = sim.simulate(_cut("walk", 100, 8), seed=5)
     d = tmp_path_factory.mktemp("handheld")
     path = dw.write_dataset(s, d, imu_to_body_ypr_deg=(HANDHELD_OFFSET_DEG, 0.0, 0.0), antenna_m=(0.0, 0.0, 0.0),
-                            imu_time_offset_s=0.0)
+                            vehicle_kind="none", imu_time_offset_s=0.0)
     text = re.sub(r"imu_to_body_ypr_deg = .*", "imu_to_body_ypr_deg = [0.0, 0.0, 0.0]", path.read_text())
     # The device's calibration in its own axes (the simulated unit's biases are the preset's, in body axes).
     m = dw.ypr_matrix(HANDHELD_OFFSET_DEG, 0.0, 0.0)
@@ -169,7 +169,7 @@ def car_set(tmp_path_factory):
     s = sim.simulate(_cut("default", 150, 10, rate_hz=100), seed=3)
     d = tmp_path_factory.mktemp("car")
     path = dw.write_dataset(s, d, imu_format="rates")
-    path.write_text(path.read_text().replace('kind = "none"', 'kind = "car"'))
+    assert 'kind = "car"' in path.read_text()  # the simulated vehicle is one
     return s, path
 
 

@@ -176,8 +176,11 @@ def sim_set(tmp_path_factory):
     data.setdefault("imu", {})["rate_hz"] = 100
     sim = simulate(scenario.parse(data, "short"), 3)
     d = tmp_path_factory.mktemp("simset")
+    # Without the land-vehicle constraint: with it, a 50 ms IMU offset left out costs only 5 % of IMU-point
+    # RMS (0.51 vs 0.49 m) and 4 % of 3-sigma coverage, since the constraint holds the velocity the
+    # offset would bend; these tests are about what the mounting, lever and offset alone do.
     path = dw.write_dataset(sim, d, imu_to_body_ypr_deg=MOUNT, antenna_m=LEVER, imu_time_offset_s=OFFSET_S,
-                            imu_format="rates")
+                            imu_format="rates", vehicle_kind="none")
     return sim, path
 
 

@@ -113,9 +113,12 @@ class DatasetWriter:
                  imu_to_body_ypr_deg=(-90.0, 3.0, 180.0), antenna_m=(0.6, -0.3, -1.1), imu_time_offset_s: float = 0.05,
                  imu_format: str = "increments", gnss_rate_hz: float = 5.0, gnss_phase_s: float = 0.137,
                  fix_sigma_range_m=(0.01, 0.04), float_every: int = 13, zero_sigma_every: int = 7,
-                 velocity_sigma_mps: float = 0.03, seed_offset: int = 0):
+                 velocity_sigma_mps: float = 0.03, seed_offset: int = 0, vehicle_kind: str = "car"):
         if imu_format not in ("increments", "rates"):
             raise ValueError(f"imu_format {imu_format!r}: increments or rates")
+        # The simulated vehicle moves along its body x axis without slip (also the walk profile and the
+        # roller coaster's train): a car for the data set's constraints, unless the caller says otherwise.
+        self.vehicle_kind = vehicle_kind
         self.out = Path(directory)
         self.out.mkdir(parents=True, exist_ok=True)
         self.sc, self.seed = sc, seed
@@ -213,7 +216,7 @@ class DatasetWriter:
                  f"imu_to_body_ypr_deg = {_toml_value([float(x) for x in self.mount])}", "",
                  "[gnss]", 'file = "receiver.pos"', 'format = "rtklib-pos"',
                  f"antenna_m = {_toml_value([float(x) for x in self.antenna_m])}", "",
-                 "[vehicle]", 'kind = "none"', "",
+                 "[vehicle]", f'kind = "{self.vehicle_kind}"', "",
                  "[scoring]", 'reference = "truth.pos"', "reference_q = [1]", "",
                  "[filter]", 'preset = "default"',
                  f"gyro_bias_residual_rad_per_s = {noise['gyro_bias_residual_rad_per_s']!r}",
