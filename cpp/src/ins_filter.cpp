@@ -807,12 +807,11 @@ void InsFilter<NB, NC>::process_fix(const FixInput& fix) {
   have_prev_fix_ = true;
 
   if (cfg_.use_fix_velocity && fix.v_ecef_mps.allFinite() && heading_known_) {
-    const Vec3 w_eb = last_inc_.dtheta_rad / last_inc_.dt_s - core_.imu.gyro_bias_rad_per_s -
-                      core_.nav.q_eb.conjugate() * earth_rate_ecef();
     const double s = cfg_.fix_velocity_sigma_mps * (cfg_.fix_velocity_sigma_hdop_scaled ? fix.hdop : 1.0);
     const Vec3 sv = stated_or(fix.sigma_v_ned_mps, Vec3::Constant(s));
     const Mat3 r_v = c_en * square(sv).asDiagonal() * c_en.transpose();
-    const auto mv = gnss_velocity(core_, fix.v_ecef_mps, r_v, cfg_.lever_arm_body_m, w_eb);
+    const Vec3 rate = last_inc_.dt_s > 0.0 ? Vec3(last_inc_.dtheta_rad / last_inc_.dt_s) : Vec3::Zero();
+    const auto mv = gnss_velocity(core_, fix.v_ecef_mps, r_v, cfg_.lever_arm_body_m, rate);
     record(kFixVelocity, apply(mv, 3), 3);
   }
 }
