@@ -15,11 +15,9 @@ fixes at the station are averaged as if independent: position NEES 50 standing,
 laps' NEES 20-70 (seed 0). By default the environment is measured as a campaign
 can, without the truth: the scatter of the fixes about their mean while the
 wagon stands at the station (the report's 5-minute initialisation) gives the
-correlated part per north/east/down axis and its correlation time (the lag where
-the autocorrelation falls to 1/e). The loose filter carries it as its fix-error
-states (white part UERE 2 m, issue 14's split); the tight filter as the
-pseudoranges' correlated variance, its zenith sigma the scatter's range error
-(scatter / DOP) times sin 30 deg, a middle elevation above the 12 deg mask.
+correlated part per north/east/down axis and its correlation time
+(gpsins.fix_scatter): the loose filter carries it as its fix-error states, the
+tight filter as the pseudoranges' correlated variance.
 `white` runs the preset's white model instead.
 """
 
@@ -28,37 +26,9 @@ import time
 
 import numpy as np
 
-from gpsins import _core, evaluate, sim
+from gpsins import _core, evaluate, fix_scatter, sim
 from gpsins import filter as flt
-from gpsins.sim import earth as sim_earth
 from gpsins.sim import ephemeris as sim_eph
-
-
-def station_scatter(fixes: np.ndarray, t0: float, t1: float) -> dict:
-    """The fixes' error figures from a standstill between t0 and t1 (no truth used)."""
-    m = (fixes[:, 0] >= t0) & (fixes[:, 0] < t1) & (fixes[:, 9] > 0)
-    r = fixes[m, 1:4]
-    lat, lon, _ = sim_earth.ecef_to_geodetic(r.mean(0))
-    sl, cl, so, co = np.sin(lat), np.cos(lat), np.sin(lon), np.cos(lon)
-    c_ne = np.array([[-sl * co, -sl * so, cl], [-so, co, 0.0], [-cl * co, -cl * so, -sl]])
-    d = (r - r.mean(0)) @ c_ne.T
-    sigma = d.std(0)
-    # Correlation time: the first lag (s, fixes at 1 Hz) where the autocorrelation is below 1/e.
-    taus = []
-    for k in range(3):
-        x = d[:, k] - d[:, k].mean()
-        ac = np.correlate(x, x, "full")[len(x) - 1:] / (x @ x)
-        taus.append(float(np.argmax(ac < np.exp(-1.0))))
-    uere = float(np.sqrt(np.sum(sigma ** 2) / np.mean(fixes[m, 7] ** 2 + fixes[m, 8] ** 2)))
-    return dict(sigma_ned_m=sigma, tau_s=float(np.mean(taus)), uere_m=uere)
-
-
-def gnss_overrides(est: dict, mode: str) -> dict:
-    if mode == "loose":
-        return dict(fix_uere_m=2.0, fix_error_gm_sigma_m=[float(x) for x in est["sigma_ned_m"]],
-                    fix_error_gm_tau_s=est["tau_s"])
-    return dict(pseudorange_error_gm_sigma_m=est["uere_m"] * np.sin(np.radians(30.0)),
-                pseudorange_error_gm_tau_s=est["tau_s"])
 
 
 def main(seed: int = 0, white: bool = False) -> None:
@@ -76,13 +46,13 @@ def main(seed: int = 0, white: bool = False) -> None:
     fixes = sim.fix_table(s)
     sats = np.array([f.sats for f in s.gnss.fixes])
     segments = sc.segment_times()
-    est = station_scatter(fixes, segments[0][1] + 5.0, segments[0][2])
+    est = fix_scatter.measure(fixes, segments[0][1] + 5.0, segments[0][2])
     print("GNSS model: " + ("white (preset)" if white else
-          f"from the station's fix scatter: sigma NED {np.round(est['sigma_ned_m'], 2)} m, "
-          f"tau {est['tau_s']:.0f} s, range error {est['uere_m']:.2f} m"))
+          f"from the station's fix scatter: sigma NED {np.round(est.sigma_ned_m, 2)} m, "
+          f"tau {est.tau_s:.0f} s, range error {est.range_error_m:.2f} m"))
     for mode, extra in (("loose", {}), ("tight", tight)):
         t1 = time.time()
-        over = {} if white else gnss_overrides(est, mode)
+        over = {} if white else fix_scatter.filter_overrides(est, mode)
         cfg = flt.load_config(None, {**sim.imu_noise_truth(sc.imu), "mode": mode, **over})
         sol = flt.run(sim.imu_table(s), fixes, cfg, covariance=True, **extra)
         err = evaluate.nav_errors(sol, truth)
