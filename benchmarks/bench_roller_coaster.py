@@ -58,6 +58,12 @@ def main(seed: int = 0, white: bool = False) -> None:
         err = evaluate.nav_errors(sol, truth)
         print(f"\n{mode}: {time.time() - t1:.1f} s, diverged {sol.counters['diverged']}, "
               f"GNSS resets {sol.counters['gnss_resets']}")
+        # Converged before the sky closes? The heading comes from the course once moving.
+        t_go = segments[1][1]
+        t_head = sol.t[np.argmax(sol.heading_known)]
+        closed = fixes[(fixes[:, 0] > t_go) & (sats < 4), 0]
+        print(f"moving at {t_go:.0f} s, heading known at {t_head:.1f} s, fewer than 4 satellites from "
+              f"{closed[0] if len(closed) else float('nan'):.0f} s")
         print(f"{'segment':16s} {'sats':>9s} {'horiz m':>8s} {'vert m':>7s} {'yaw deg':>8s} {'NEES':>7s}"
               f" {'att':>5s} {'vel':>5s} {'pos':>5s}")
         laps = []
