@@ -765,7 +765,11 @@ void InsFilter<NB, NC>::process_fix(const FixInput& fix) {
     gnss_speed_mps_ = std::hypot(v_ned.x(), v_ned.y());
     gnss_speed_t_ = fix.t_s;
   }
-  const bool reset_due = rejecting_ && cfg_.gnss_reset_timeout_s > 0.0 &&
+  // Only a 3D fix may take over the position: a 2D fix's height is the receiver's
+  // assumption, and its horizontal position is off with it (on the roller coaster's
+  // 3-satellite stretches 70-100 m at HDOP 4-9, rightly rejected; resetting onto one
+  // made the good fixes after it look like outliers).
+  const bool reset_due = rejecting_ && fix.mode == 2 && cfg_.gnss_reset_timeout_s > 0.0 &&
                          fix.t_s - rejected_since_ >= cfg_.gnss_reset_timeout_s;
   if constexpr (NC == 2) {  // tight: the receiver's fixes only start the filter, give the heading, reset it
     if (reset_due) reset_to_fix(fix);
