@@ -807,7 +807,11 @@ void InsFilter<NB, NC>::process_fix(const FixInput& fix) {
     gnss_speed_mps_ = std::hypot(v_ned.x(), v_ned.y());
     gnss_speed_t_ = fix.t_s;
   }
-  const bool reset_due = rejecting_ && cfg_.gnss_reset_timeout_s > 0.0 &&
+  // Only a 3D fix may take over the position: a 2D fix's height is the receiver's
+  // assumption, and its horizontal position is off with it (on the roller coaster's
+  // 3-satellite stretches 70-100 m at HDOP 4-9, rightly rejected; resetting onto one
+  // made the good fixes after it look like outliers).
+  const bool reset_due = rejecting_ && fix.mode == 2 && cfg_.gnss_reset_timeout_s > 0.0 &&
                          fix.t_s - rejected_since_ >= cfg_.gnss_reset_timeout_s;
   if constexpr (NC == 2) {  // tight: the receiver's fixes only start the filter, give the heading, reset it
     if (reset_due) reset_to_fix(fix);
@@ -849,12 +853,11 @@ void InsFilter<NB, NC>::process_fix(const FixInput& fix) {
   have_prev_fix_ = true;
 
   if (cfg_.use_fix_velocity && fix.v_ecef_mps.allFinite() && heading_known_) {
-    const Vec3 w_eb = last_inc_.dtheta_rad / last_inc_.dt_s - core_.imu.gyro_bias_rad_per_s -
-                      core_.nav.q_eb.conjugate() * earth_rate_ecef();
     const double s = cfg_.fix_velocity_sigma_mps * (cfg_.fix_velocity_sigma_hdop_scaled ? fix.hdop : 1.0);
     const Vec3 sv = stated_or(fix.sigma_v_ned_mps, Vec3::Constant(s));
     const Mat3 r_v = c_en * square(sv).asDiagonal() * c_en.transpose();
-    const auto mv = gnss_velocity(core_, fix.v_ecef_mps, r_v, cfg_.lever_arm_body_m, w_eb);
+    const Vec3 rate = last_inc_.dt_s > 0.0 ? Vec3(last_inc_.dtheta_rad / last_inc_.dt_s) : Vec3::Zero();
+    const auto mv = gnss_velocity(core_, fix.v_ecef_mps, r_v, cfg_.lever_arm_body_m, rate);
     record(kFixVelocity, apply(mv, 3), 3);
   }
 }

@@ -62,7 +62,7 @@ void compare_with_van_loan(double dt) {
   BlockMat<NB> F, phi;
   std::array<Mat3, NB> qc;
   Eigen::Matrix<double, 3 * NB, 3 * NB> qd, phi_ref, qd_ref;
-  f.error_dynamics(w, fb, c, F);
+  f.error_dynamics(w, fb, c, dt, F);
   f.noise_blocks(c, qc);
   f.discretise(F, qc, dt, phi, qd);
   van_loan(F, qc, dt, phi_ref, qd_ref);

@@ -149,13 +149,13 @@ class Eskf {
     const double dt = c.dt_s;
     if (!(dt > 0.0)) return;
     const Vec3 w = c.dtheta_rad / dt, f = c.dv_mps / dt;
-    const Mat3 c_mid = nav.q_eb.toRotationMatrix() * dcm_from_rotvec(0.5 * c.dtheta_rad);
+    const Mat3 c0 = nav.q_eb.toRotationMatrix();
     mechanise(nav, c);
     // Clock: bias integrates drift.
     if constexpr (NC == 2) clock(0) += clock(1) * dt;
     // Fix error: its estimate decays as the process's mean does.
     if constexpr (NC == 3) fix_error *= gauss_markov_step(noise.fix_error_inv_tau, dt).phi;
-    propagate_covariance(w, f, c_mid, dt);
+    propagate_covariance(w, f, c0, dt);
   }
 
   // The fix error's stationary covariance in ECEF at the current position.
@@ -165,8 +165,19 @@ class Eskf {
     return c_en * noise.fix_error_var_ned.asDiagonal() * c_en.transpose();
   }
 
-  // Continuous-time error dynamics F over the interval (block form).
-  void error_dynamics(const Vec3& w, const Vec3& f, const Mat3& c, BlockMat<NB>& F) const {
+  // Continuous-time error dynamics F over an IMU interval of length dt (block form),
+  // from the corrected rate w and specific force f = delta-v / dt, both as the
+  // increments give them: delta-v expressed in the body frame at the start of the
+  // interval, whose attitude is c0 (the mechanisation turns it with c0).
+  //   Attitude: the error is in the body frame of its time; over the interval it
+  //   turns by -[w]x, and the gyro's bias and scale-factor errors enter through
+  //   the corrected rate (m - b) / (1 + s): -(dbg + w .* dsg) / (1 + s).
+  //   Velocity: an attitude error at the start turns delta-v, -c0 [delta-v]x, the
+  //   exact one-step term. With constant F the series adds F_va F_aa dt^2 / 2, the
+  //   error's own turn; F_va = -c0 [f]x R_h, R_h = exp(w dt / 2), takes it back out
+  //   to second order (it is c_mid [f_mid]x with both at mid-interval). The
+  //   accelerometer's errors enter delta-v in its frame: -c0 (dba + f .* dsa) / (1 + s).
+  void error_dynamics(const Vec3& w, const Vec3& f, const Mat3& c0, double dt, BlockMat<NB>& F) const {
     using namespace es;
     F.clear();
     const Vec3 r = nav.r_ecef_m;
@@ -177,18 +188,20 @@ class Eskf {
     Mat3 grad = wgs84::gm_m3_per_s2 / (rn * rn * rn) * (3.0 * u * u.transpose() - Mat3::Identity());
     grad(0, 0) += we * we;
     grad(1, 1) += we * we;
+    const Vec3 inv_g = (Vec3::Ones() + imu.gyro_scale_factor).cwiseInverse();
+    const Vec3 inv_a = (Vec3::Ones() + imu.accel_scale_factor).cwiseInverse();
     F.set(0, 0, -skew(w));
-    F.set(0, 3, -Mat3::Identity());
-    F.set(1, 0, -c * skew(f));
+    F.set(0, 3, Mat3((-inv_g).asDiagonal()));
+    F.set(1, 0, -c0 * skew(f) * dcm_from_rotvec(0.5 * dt * w));
     F.set(1, 1, -2.0 * skew(earth_rate_ecef()));
     F.set(1, 2, grad);
-    F.set(1, 4, -c);
+    F.set(1, 4, -c0 * inv_a.asDiagonal());
     F.set(2, 1, Mat3::Identity());
     if (noise.gyro_bias_inv_tau.any()) F.set(3, 3, Mat3((-noise.gyro_bias_inv_tau).asDiagonal()));
     if (noise.accel_bias_inv_tau.any()) F.set(4, 4, Mat3((-noise.accel_bias_inv_tau).asDiagonal()));
     if constexpr (NB == 7) {
-      F.set(0, 5, Mat3((-w).asDiagonal()));
-      F.set(1, 6, -c * Mat3(f.asDiagonal()));
+      F.set(0, 5, Mat3((-w.cwiseProduct(inv_g)).asDiagonal()));
+      F.set(1, 6, -c0 * Mat3(f.cwiseProduct(inv_a).asDiagonal()));
     }
   }
 
@@ -252,7 +265,7 @@ class Eskf {
     BlockMat<NB> F, phi;
     std::array<Mat3, NB> qc;
     MatNav qd;
-    error_dynamics(w, f, c, F);
+    error_dynamics(w, f, c, dt, F);
     noise_blocks(c, qc);
     discretise(F, qc, dt, phi, qd);
 

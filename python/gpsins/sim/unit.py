@@ -88,3 +88,30 @@ def filter_overrides(ds: Datasheet, scale_factor_states: bool = True) -> dict:
         out.update(scale_factor_states=True, gyro_scale_factor_sigma=[ds.gyro_scale_factor_sigma] * 3,
                    accel_scale_factor_sigma=[ds.accel_scale_factor_sigma] * 3)
     return out
+
+
+@dataclass
+class ReceiverErrors:
+    """What the user assumes of the GNSS receiver's errors in open sky: a white part and a part
+    correlated over tens of seconds (multipath, ionosphere and troposphere residuals), which the
+    preset's white models leave out. Loose: issue 14's split of the fix error (white UERE 2 m,
+    Gauss-Markov 1.5/1.5/2.5 m north/east/down over 60 s). Tight: 1 m white per pseudorange and a
+    code multipath of 0.6 m at zenith growing as 1 / sin(elevation), correlated over 20 s (the
+    simulated receiver's figures, of the order published for low-cost receivers in open sky)."""
+
+    fix_uere_m: float = 2.0
+    fix_error_gm_sigma_m: tuple = (1.5, 1.5, 2.5)
+    fix_error_gm_tau_s: float = 60.0
+    pseudorange_sigma_m: float = 1.0
+    pseudorange_error_gm_sigma_m: float = 0.6
+    pseudorange_error_gm_tau_s: float = 20.0
+
+
+def receiver_overrides(rx: ReceiverErrors, mode: str) -> dict:
+    """Filter configuration keys for the receiver's correlated errors in `mode` (loose or tight)."""
+    if mode == "tight":
+        return {"pseudorange_sigma_m": rx.pseudorange_sigma_m,
+                "pseudorange_error_gm_sigma_m": rx.pseudorange_error_gm_sigma_m,
+                "pseudorange_error_gm_tau_s": rx.pseudorange_error_gm_tau_s}
+    return {"fix_uere_m": rx.fix_uere_m, "fix_error_gm_sigma_m": list(rx.fix_error_gm_sigma_m),
+            "fix_error_gm_tau_s": rx.fix_error_gm_tau_s}
