@@ -84,6 +84,10 @@ struct InsConfig {
   // is then its white part only. All sigmas 0: no states, every fix white.
   Vec3 fix_error_gm_sigma_m = Vec3::Zero();
   double fix_error_gm_tau_s = 60.0;
+  // The correlated error carried per unit of DOP (a receiver's multipath grows with
+  // its geometry's DOP as its noise does): the states' sigmas are then UERE-like and
+  // each fix sees them times its HDOP / sqrt(2) (north, east) and VDOP (down).
+  bool fix_error_gm_dop_scaled = false;
   bool use_fix_velocity = false;
   double fix_velocity_sigma_mps = 0.1;  // per axis (unless the fix states its own); times HDOP when scaled
   bool fix_velocity_sigma_hdop_scaled = false;

@@ -1,0 +1,142 @@
+"""The simulated receiver's correlated fix errors, measured against truth, and the
+Gauss-Markov figures the filter's preset takes from them.
+
+    python benchmarks/bench_gnss_errors.py [SCENARIO] [SEEDS] [--sources]   # default: long 3
+
+For each seed the receiver's 3D fixes are compared with the true antenna position
+(north, east, down) and divided by their DOP on that axis (HDOP / sqrt 2 north and east,
+VDOP down, as the filter scales a fix's sigmas): the error per unit of DOP, in metres
+like a UERE. First the table of that ratio by geometry (it hardly changes from HDOP 1 to
+HDOP 80: both the white and the correlated parts grow with the DOP, so the filter carries
+the correlated part per unit of DOP too; 2D fixes, with their held height's error, are
+worse). Then, per axis, the autocovariance of the ratio over the lags 0..300 s, averaged
+over the seeds and fitted with white + first-order Gauss-Markov:
+
+    C(0) = w^2 + s^2,   C(lag) = s^2 exp(-lag / tau)  (lag > 0)
+
+w is the white UERE, s the correlated one (fix_error_gm_sigma_m with
+fix_error_gm_dop_scaled), tau its correlation time. The same is done with the
+multipath, the atmosphere residuals, or the code noise switched off in turn, to say which
+source gives which part. Nothing here reads the filter: the simulator is the truth.
+"""
+
+import dataclasses
+import sys
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from gpsins import sim
+from gpsins.sim import earth
+
+MAX_LAG_S = 300
+
+
+def fix_errors(s) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(t, error NED (n, 3), DOP per axis (n, 3)) of the 3D fixes."""
+    fx = [f for f in s.gnss.fixes if f.mode == 2]
+    t = np.array([f.t for f in fx])
+    r = np.array([f.r_ecef for f in fx])
+    r_true = s.truth.position_at(t)
+    out = np.empty_like(r)
+    for i, (f, d) in enumerate(zip(fx, r - r_true)):
+        out[i] = earth.ecef_to_ned_matrix(f.llh[0], f.llh[1]).T @ d
+    dop = np.array([[f.hdop / np.sqrt(2), f.hdop / np.sqrt(2), f.vdop] for f in fx])
+    return t, out, dop
+
+
+def autocovariance(t: np.ndarray, e: np.ndarray, max_lag: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per axis, sums of e(t) e(t + lag) and their counts at whole-second lags (fixes at 1 Hz,
+    gaps where the receiver had no 3D fix). The mean is not removed: a bias is error too."""
+    k = np.round(t - t[0]).astype(int)
+    grid = np.full((k[-1] + 1, 3), np.nan)
+    grid[k] = e
+    have = np.isfinite(grid[:, 0])
+    g = np.where(have[:, None], grid, 0.0)
+    max_lag = min(max_lag, len(g) - 1)
+    sums = np.zeros((MAX_LAG_S + 1, 3))
+    counts = np.zeros(MAX_LAG_S + 1)
+    for lag in range(max_lag + 1):
+        a, b = g[:len(g) - lag], g[lag:]
+        sums[lag] = (a * b).sum(axis=0)
+        counts[lag] = (have[:len(g) - lag] & have[lag:]).sum()
+    return sums, counts
+
+
+def fit(c: np.ndarray) -> tuple[float, float, float]:
+    """(white sigma, Gauss-Markov sigma, tau) of one axis' autocovariance c[lag], lag in s."""
+    lags = np.arange(1, len(c))
+
+    def resid(p):
+        s2, tau = np.exp(p)
+        return s2 * np.exp(-lags / tau) - c[1:]
+
+    r = least_squares(resid, np.log([max(c[1], 1e-6), 30.0]))
+    s2, tau = np.exp(r.x)
+    return float(np.sqrt(max(c[0] - s2, 0.0))), float(np.sqrt(s2)), float(tau)
+
+
+def by_geometry(sims) -> None:
+    """RMS of the error per unit of DOP by HDOP class, and of the 2D fixes."""
+    rows = []
+    for s in sims:
+        for f in s.gnss.fixes:
+            if f.mode in (2, 3):
+                d = earth.ecef_to_ned_matrix(f.llh[0], f.llh[1]).T @ (f.r_ecef - s.truth.position_at(np.array([f.t]))[0])
+                rows.append((f.mode, f.hdop, f.vdop, *d))
+    r = np.array(rows)
+    for name, sel in (("3D, HDOP <= 2", (r[:, 0] == 2) & (r[:, 1] <= 2)),
+                      ("3D, HDOP 2..10", (r[:, 0] == 2) & (r[:, 1] > 2) & (r[:, 1] <= 10)),
+                      ("3D, HDOP > 10", (r[:, 0] == 2) & (r[:, 1] > 10)), ("2D", r[:, 0] == 3)):
+        x = r[sel]
+        if len(x):
+            h = np.sqrt(np.mean((x[:, 3] ** 2 + x[:, 4] ** 2) / x[:, 1] ** 2))
+            v = np.sqrt(np.mean(x[:, 5] ** 2 / x[:, 2] ** 2)) if name != "2D" else float("nan")
+            print(f"  {name:15s} {len(x):5d} fixes, median HDOP {np.median(x[:, 1]):5.1f}: horizontal error per unit "
+                  f"of DOP {h:.2f} m, down {v:.2f} m")
+
+
+def measure(sc, seeds: int, label: str) -> dict:
+    sums, counts, sims = 0.0, 0.0, []
+    for seed in range(seeds):
+        s = sim.simulate(sc, seed)
+        t, e, dop = fix_errors(s)
+        a, n = autocovariance(t, e / dop, MAX_LAG_S)
+        sums, counts = sums + a, counts + n
+        sims.append(s)
+    c = sums[counts > 0] / counts[counts > 0, None]
+    print(f"{label}:")
+    by_geometry(sims)
+    out = {}
+    for i, axis in enumerate("NED"):
+        w, g, tau = fit(c[:, i])
+        out[axis] = (w, g, tau)
+        lag = {L: c[L, i] / c[0, i] for L in (1, 10, 30, 60, 120, 300) if L < len(c)}
+        print(f"  {axis}: per unit of DOP, RMS {np.sqrt(c[0, i]):.2f} m = white {w:.2f} m + Gauss-Markov {g:.2f} m, "
+              f"tau {tau:.0f} s; correlation " + ", ".join(f"{L} s {v:.2f}" for L, v in lag.items()))
+    return out
+
+
+def main() -> None:
+    args = [a for a in sys.argv[1:] if not a.startswith("--")]
+    name = args[0] if args else "long"
+    seeds = int(args[1]) if len(args) > 1 else 3
+    sc = sim.load(name)
+    g = sc.gnss
+    f = measure(sc, seeds, f"{name}, {seeds} seeds, every error source")
+    uere_h = np.hypot(f["N"][0], f["E"][0]) / np.sqrt(2)
+    gm_h = np.hypot(f["N"][1], f["E"][1]) / np.sqrt(2)
+    print(f"for the filter (horizontal axes pooled; fix_error_gm_dop_scaled): fix_uere_m ~ {uere_h:.2f} "
+          f"(down {f['D'][0]:.2f}), fix_error_gm_sigma_m ~ [{gm_h:.2f}, {gm_h:.2f}, {f['D'][1]:.2f}], "
+          f"fix_error_gm_tau_s ~ {np.mean([v[2] for v in f.values()]):.0f}")
+    if "--sources" not in sys.argv:
+        return
+    for label, change in (("without multipath", dict(multipath_m=0.0)),
+                          ("without atmosphere residuals", dict(iono_scale=1.0, iono_variation=0.0,
+                                                                trop_wet_zenith_m=0.0)),
+                          ("without code noise", dict(code_noise_m=0.0))):
+        measure(dataclasses.replace(sc, gnss=dataclasses.replace(g, **change)), seeds, label)
+
+
+if __name__ == "__main__":
+    main()
