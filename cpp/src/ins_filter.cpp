@@ -778,7 +778,8 @@ void InsFilter<NB, NC>::process_fix(const FixInput& fix) {
   if ((cfg_.fix_sigma_ecef_m.array() > 0.0).all()) {
     r_cov = square(cfg_.fix_sigma_ecef_m).asDiagonal();
   } else {
-    const double sh = cfg_.fix_uere_m * fix.hdop / std::sqrt(2.0), sv = cfg_.fix_uere_m * fix.vdop;
+    const double uere = fix.mode == 3 && cfg_.fix_uere_2d_m > 0.0 ? cfg_.fix_uere_2d_m : cfg_.fix_uere_m;
+    const double sh = uere * fix.hdop / std::sqrt(2.0), sv = uere * fix.vdop;
     const Vec3 s = stated_or(fix.sigma_ned_m, Vec3(sh, sh, sv));
     r_cov = c_en * square(s).asDiagonal() * c_en.transpose();
   }

@@ -76,6 +76,9 @@ struct InsConfig {
   // antenna 2, in body axes, and a chi-square gate like every other update.
   Vec3 antenna_baseline_body = Vec3(1.0, 0.0, 0.0);
   double fix_uere_m = 3.0;
+  // A 2D fix holds the height of an earlier one: that height's error moves it
+  // sideways by more than its HDOP says. Its white UERE (<= 0: fix_uere_m).
+  double fix_uere_2d_m = 0.0;
   Vec3 fix_sigma_ecef_m = Vec3::Zero();
   // Time-correlated fix errors (multipath, ionosphere and troposphere residuals
   // stay correlated for tens of seconds): first-order Gauss-Markov states per
