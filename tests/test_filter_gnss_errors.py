@@ -97,7 +97,7 @@ def test_correlated_pseudorange_variance_makes_the_confidence_independent_of_the
 
     ratio = {}
     # White: the elevation model's variance. Correlated: a small white part (0.3 m) and 1 m correlated.
-    for name, over in (("white", {}), ("correlated", {"pseudorange_sigma_m": 0.3, "pseudorange_error_gm_sigma_m": 1.0})):
+    for name, over in (("white", {"pseudorange_error_gm_sigma_m": 0.0}), ("correlated", {"pseudorange_sigma_m": 0.3, "pseudorange_error_gm_sigma_m": 1.0})):
         ratio[name] = horizontal_sigma(pseudorange_decimation=10, **over) / horizontal_sigma(pseudorange_decimation=1,
                                                                                               **over)
     print(f"position sigma 1 Hz / 10 Hz: white {ratio['white']:.2f}, correlated {ratio['correlated']:.2f}")
