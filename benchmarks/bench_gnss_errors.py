@@ -24,56 +24,12 @@ import dataclasses
 import sys
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from gpsins import sim
+from gpsins.gnss_errors import autocovariance_sums, fit_white_gauss_markov as fit, fix_errors_per_dop
 from gpsins.sim import earth
 
 MAX_LAG_S = 300
-
-
-def fix_errors(s) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(t, error NED (n, 3), DOP per axis (n, 3)) of the 3D fixes."""
-    fx = [f for f in s.gnss.fixes if f.mode == 2]
-    t = np.array([f.t for f in fx])
-    r = np.array([f.r_ecef for f in fx])
-    r_true = s.truth.position_at(t)
-    out = np.empty_like(r)
-    for i, (f, d) in enumerate(zip(fx, r - r_true)):
-        out[i] = earth.ecef_to_ned_matrix(f.llh[0], f.llh[1]).T @ d
-    dop = np.array([[f.hdop / np.sqrt(2), f.hdop / np.sqrt(2), f.vdop] for f in fx])
-    return t, out, dop
-
-
-def autocovariance(t: np.ndarray, e: np.ndarray, max_lag: int) -> tuple[np.ndarray, np.ndarray]:
-    """Per axis, sums of e(t) e(t + lag) and their counts at whole-second lags (fixes at 1 Hz,
-    gaps where the receiver had no 3D fix). The mean is not removed: a bias is error too."""
-    k = np.round(t - t[0]).astype(int)
-    grid = np.full((k[-1] + 1, 3), np.nan)
-    grid[k] = e
-    have = np.isfinite(grid[:, 0])
-    g = np.where(have[:, None], grid, 0.0)
-    max_lag = min(max_lag, len(g) - 1)
-    sums = np.zeros((MAX_LAG_S + 1, 3))
-    counts = np.zeros(MAX_LAG_S + 1)
-    for lag in range(max_lag + 1):
-        a, b = g[:len(g) - lag], g[lag:]
-        sums[lag] = (a * b).sum(axis=0)
-        counts[lag] = (have[:len(g) - lag] & have[lag:]).sum()
-    return sums, counts
-
-
-def fit(c: np.ndarray) -> tuple[float, float, float]:
-    """(white sigma, Gauss-Markov sigma, tau) of one axis' autocovariance c[lag], lag in s."""
-    lags = np.arange(1, len(c))
-
-    def resid(p):
-        s2, tau = np.exp(p)
-        return s2 * np.exp(-lags / tau) - c[1:]
-
-    r = least_squares(resid, np.log([max(c[1], 1e-6), 30.0]))
-    s2, tau = np.exp(r.x)
-    return float(np.sqrt(max(c[0] - s2, 0.0))), float(np.sqrt(s2)), float(tau)
 
 
 def by_geometry(sims) -> float:
@@ -102,8 +58,8 @@ def measure(sc, seeds: int, label: str) -> dict:
     sums, counts, sims = 0.0, 0.0, []
     for seed in range(seeds):
         s = sim.simulate(sc, seed)
-        t, e, dop = fix_errors(s)
-        a, n = autocovariance(t, e / dop, MAX_LAG_S)
+        t, e, _ = fix_errors_per_dop(s)
+        a, n = autocovariance_sums(t, e, MAX_LAG_S)
         sums, counts = sums + a, counts + n
         sims.append(s)
     c = sums[counts > 0] / counts[counts > 0, None]

@@ -103,3 +103,33 @@ def test_correlated_pseudorange_variance_makes_the_confidence_independent_of_the
     print(f"position sigma 1 Hz / 10 Hz: white {ratio['white']:.2f}, correlated {ratio['correlated']:.2f}")
     assert ratio["white"] > 1.5
     assert 0.85 < ratio["correlated"] < 1.15
+
+
+def test_preset_fix_error_figures_are_the_simulated_receivers():
+    """The preset's fix-error model measured on the simulator (its truth, not the filter): the error
+    per unit of DOP hardly depends on the DOP (so the correlated part is carried per unit of DOP), and
+    its white + Gauss-Markov fit over three default drives is near the preset's figures (the preset's
+    come from the 43-minute drive: benchmarks/bench_gnss_errors.py)."""
+    from gpsins.gnss_errors import autocovariance_sums, fit_white_gauss_markov, fix_errors_per_dop
+
+    cfg = flt.load_config(None)
+    sums, counts, per_dop, dops = 0.0, 0.0, [], []
+    for seed in range(3):
+        t, e, dop = fix_errors_per_dop(sim.simulate(sim.load("default"), seed))
+        a, n = autocovariance_sums(t, e, 120)
+        sums, counts = sums + a, counts + n
+        per_dop.append(e)
+        dops.append(dop[:, 0] * np.sqrt(2))
+    e, hdop = np.concatenate(per_dop), np.concatenate(dops)
+    low, high = [np.sqrt(np.mean(e[m, :2] ** 2)) for m in (hdop <= 2.0, hdop > 2.0)]
+    assert high == pytest.approx(low, rel=0.3)
+    c = sums / counts[:, None]
+    fits = np.array([fit_white_gauss_markov(c[:, i]) for i in range(3)])  # (white, Gauss-Markov, tau) per axis
+    print("per unit of DOP, N/E/D: white", fits[:, 0].round(2), "Gauss-Markov", fits[:, 1].round(2), "tau",
+          fits[:, 2].round(1), f"; HDOP <= 2: {low:.2f} m, > 2: {high:.2f} m")
+    assert cfg["fix_error_gm_dop_scaled"]
+    np.testing.assert_allclose(cfg["fix_error_gm_sigma_m"], fits[:, 1], rtol=0.3)
+    assert 0.5 < cfg["fix_error_gm_tau_s"] / fits[:, 2].mean() < 2.0
+    # One UERE for both horizontal axes: between their pooled white part and the larger one's.
+    pooled = np.hypot(fits[0, 0], fits[1, 0]) / np.sqrt(2)
+    assert 0.9 * pooled <= cfg["fix_uere_m"] <= 1.1 * max(fits[0, 0], fits[1, 0])
