@@ -4,7 +4,7 @@
     python benchmarks/bench_smoother.py nees [SEEDS]      # smoothed vs forward NEES over default drives
 
 Speed: the default drive (18 k IMU epochs, output and covariance at every epoch),
-loose (15 states) and tight (17 states, 1 Hz pseudoranges): the forward pass without
+loose (18 states with the preset's fix-error states) and tight (17 states, the preset's 10 Hz pseudoranges): the forward pass without
 the smoother, the forward pass recording for it, and the backward pass, in IMU epochs/s
 (wall times measured in C++); the tape's bytes per epoch; a run spilled to a
 temporary file in 1 MiB chunks.

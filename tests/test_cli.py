@@ -79,7 +79,7 @@ def test_allan_missing_and_empty_files(capsys, tmp_path):
 
 @pytest.mark.parametrize("setting, expect", [
     ("no_such_key=1", "--set: unknown key no_such_key"),
-    ("fix_uere=1", "did you mean fix_uere_m"),
+    ("fix_uere=1", "did you mean fix_uere_2d_m, fix_uere_m?"),
     ("fix_uere_m=abc", "--set fix_uere_m: expected a number, got 'abc'"),
     ("fix_uere_m=-5", "--set fix_uere_m: must be positive"),
     ("position_sigma_m=-1", "--set position_sigma_m: must not be negative"),
@@ -107,7 +107,7 @@ def test_set_help_lists_keys_nested_keys_and_presets(capsys, session, tmp_path):
     assert cli.main(["replay", str(session), "--out", str(tmp_path / "o"), "--set", "help"]) == 0
     out = capsys.readouterr().out
     assert "presets: default, report2005" in out
-    assert "  fix_uere_m = 3.0" in out  # the default preset's value
+    assert "  fix_uere_m = 1.3" in out  # the default preset's value
     assert "  imu_noise.gyro_arw_rad_per_sqrt_s = [0.00088, 0.00087, 0.00081]" in out
 
 

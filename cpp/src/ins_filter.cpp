@@ -389,7 +389,7 @@ void InsFilter<NB, NC>::reset_to_fix(const FixInput& fix) {
   event(kGnssReset, fix.t_s - rejected_since_);
   rejecting_ = false;
   auto& P = core_.P;
-  core_.nav.r_ecef_m = fix.r_ecef_m - core_.nav.q_eb * cfg_.lever_arm_body_m - fix_error_estimate();
+  core_.nav.r_ecef_m = fix.r_ecef_m - core_.nav.q_eb * cfg_.lever_arm_body_m - fix_error_estimate(fix);
   double var_v = cfg_.velocity_sigma_mps * cfg_.velocity_sigma_mps;
   if (fix.v_ecef_mps.allFinite()) {
     core_.nav.v_ecef_mps = fix.v_ecef_mps;
@@ -742,7 +742,7 @@ void InsFilter<NB, NC>::set_heading(const FixInput& fix, const Vec3& v_ecef, dou
   const Mat3 c_bn_old = core_.nav.q_eb.toRotationMatrix().transpose() * rot_ned_to_ecef(llh.lat_rad, llh.lon_rad);
   const Mat3 old_ned = c_bn_old.transpose() * P.template block<3, 3>(es::att, es::att) * c_bn_old;
   core_.nav.q_eb = quat_body_to_ecef(e, llh.lat_rad, llh.lon_rad);
-  core_.nav.r_ecef_m = fix.r_ecef_m - core_.nav.q_eb * cfg_.lever_arm_body_m - fix_error_estimate();
+  core_.nav.r_ecef_m = fix.r_ecef_m - core_.nav.q_eb * cfg_.lever_arm_body_m - fix_error_estimate(fix);
   core_.nav.v_ecef_mps = v_ecef;
   event(kHeadingSet, course_rad);
   P.template topRows<9>().setZero();
@@ -824,11 +824,12 @@ void InsFilter<NB, NC>::process_fix(const FixInput& fix) {
   if ((cfg_.fix_sigma_ecef_m.array() > 0.0).all()) {
     r_cov = square(cfg_.fix_sigma_ecef_m).asDiagonal();
   } else {
-    const double sh = cfg_.fix_uere_m * fix.hdop / std::sqrt(2.0), sv = cfg_.fix_uere_m * fix.vdop;
+    const double uere = fix.mode == 3 && cfg_.fix_uere_2d_m > 0.0 ? cfg_.fix_uere_2d_m : cfg_.fix_uere_m;
+    const double sh = uere * fix.hdop / std::sqrt(2.0), sv = uere * fix.vdop;
     const Vec3 s = stated_or(fix.sigma_ned_m, Vec3(sh, sh, sv));
     r_cov = c_en * square(s).asDiagonal() * c_en.transpose();
   }
-  const auto m = position_fix(core_, fix.r_ecef_m, r_cov, cfg_.lever_arm_body_m);
+  const auto m = position_fix(core_, fix.r_ecef_m, r_cov, cfg_.lever_arm_body_m, fix_error_map(fix));
   bool accepted;
   if (fix.mode == 3) {
     const Eigen::Matrix<double, 2, 3> ne = c_en.transpose().template topRows<2>();
@@ -860,6 +861,18 @@ void InsFilter<NB, NC>::process_fix(const FixInput& fix) {
     const auto mv = gnss_velocity(core_, fix.v_ecef_mps, r_v, cfg_.lever_arm_body_m, rate);
     record(kFixVelocity, apply(mv, 3), 3);
   }
+}
+
+// How the fix-error states reach this fix (metres per state unit, ECEF): identity,
+// or its DOP per local axis (fix_error_gm_dop_scaled). A 2D fix's vertical row is
+// projected out by its update, so its VDOP does not matter.
+template <int NB, int NC>
+Mat3 InsFilter<NB, NC>::fix_error_map(const FixInput& fix) const {
+  if (!cfg_.fix_error_gm_dop_scaled) return Mat3::Identity();
+  const Geodetic llh = ecef_to_geodetic(fix.r_ecef_m);
+  const Mat3 c_en = rot_ned_to_ecef(llh.lat_rad, llh.lon_rad);
+  const double h = fix.hdop / std::sqrt(2.0);
+  return c_en * Vec3(h, h, fix.mode == 3 ? 1.0 : fix.vdop).asDiagonal() * c_en.transpose();
 }
 
 template <int NB, int NC>

@@ -72,7 +72,7 @@ RESULT_ARRAYS = {
     "seg_labels": "truth segment labels", "seg_t": "truth segments' start and end times",
     "sigma_v_ned_mps": "velocity sigma north, east, down",
     "clock": "tight mode: receiver clock bias (m) and drift (m/s); their sigmas are the last two of `sigma`",
-    "fix_error": "loose mode with fix_error_gm_sigma_m: the fixes' correlated error (ECEF, m); sigmas last of `sigma`",
+    "fix_error": "loose mode with fix_error_gm_sigma_m: the fixes' correlated error state (ECEF; m, or m per unit of DOP with fix_error_gm_dop_scaled); sigmas last of `sigma`",
     "r_point_ecef": "position of the scored point (antenna unless --point imu; a session's truth: IMU), m",
     "lever_arm_body_m": "antenna relative to the IMU, body axes (the configuration's lever arm)",
     "outages": "outage schedule [start, end), same time base as t",

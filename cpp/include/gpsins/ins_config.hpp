@@ -77,6 +77,9 @@ struct InsConfig {
   // antenna 2, in body axes, and a chi-square gate like every other update.
   Vec3 antenna_baseline_body = Vec3(1.0, 0.0, 0.0);
   double fix_uere_m = 3.0;
+  // A 2D fix holds the height of an earlier one: that height's error moves it
+  // sideways by more than its HDOP says. Its white UERE (<= 0: fix_uere_m).
+  double fix_uere_2d_m = 0.0;
   Vec3 fix_sigma_ecef_m = Vec3::Zero();
   // Time-correlated fix errors (multipath, ionosphere and troposphere residuals
   // stay correlated for tens of seconds): first-order Gauss-Markov states per
@@ -85,6 +88,10 @@ struct InsConfig {
   // is then its white part only. All sigmas 0: no states, every fix white.
   Vec3 fix_error_gm_sigma_m = Vec3::Zero();
   double fix_error_gm_tau_s = 60.0;
+  // The correlated error carried per unit of DOP (a receiver's multipath grows with
+  // its geometry's DOP as its noise does): the states' sigmas are then UERE-like and
+  // each fix sees them times its HDOP / sqrt(2) (north, east) and VDOP (down).
+  bool fix_error_gm_dop_scaled = false;
   bool use_fix_velocity = false;
   double fix_velocity_sigma_mps = 0.1;  // per axis (unless the fix states its own); times HDOP when scaled
   bool fix_velocity_sigma_hdop_scaled = false;

@@ -194,9 +194,10 @@ class InsFilter {
   void restart_after_gap(double gap_s, double t_end);
   void note_gnss(bool accepted, double t);
   void reset_to_fix(const FixInput& fix);
-  // The fix's correlated error as estimated (zero without those states).
-  Vec3 fix_error_estimate() const {
-    if constexpr (NC == 3) return core_.fix_error;
+  Mat3 fix_error_map(const FixInput& fix) const;
+  // This fix's correlated error as estimated (zero without those states).
+  Vec3 fix_error_estimate(const FixInput& fix) const {
+    if constexpr (NC == 3) return fix_error_map(fix) * core_.fix_error;
     return Vec3::Zero();
   }
   void event(int kind, double value);
