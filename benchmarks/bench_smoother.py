@@ -6,7 +6,7 @@
 Speed: the default drive (18 k IMU epochs, output and covariance at every epoch),
 loose (15 states) and tight (17 states, 1 Hz pseudoranges): the forward pass without
 the smoother, the forward pass recording for it, and the backward pass, in IMU epochs/s
-(process CPU times measured in C++: the machine may be
+(thread CPU times measured in C++: the machine may be
 shared, and wall time then counts the waits for a core); the tape's bytes per epoch; a run spilled to a
 temporary file in 1 MiB chunks.
 
