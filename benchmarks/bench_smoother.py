@@ -8,7 +8,9 @@ loose (15 states) and tight (17 states, 1 Hz pseudoranges): the forward pass wit
 the smoother, the forward pass recording for it, and the backward pass, in IMU epochs/s
 (thread CPU times measured in C++: the machine may be
 shared, and wall time then counts the waits for a core); the tape's bytes per epoch; a run spilled to a
-temporary file in 1 MiB chunks.
+temporary file in 1 MiB chunks; the walk data set replayed with --smooth (18 states,
+chunked forward run, smoothed blocks streamed to the results files; the time the results
+writer takes is left out of the backward figure).
 
 NEES: the 9 navigation states' NEES (from the first known heading on), forward and
 smoothed, averaged over SEEDS runs epoch by epoch, against the two-sided 95 % band
@@ -58,6 +60,20 @@ def speed(repeats: int) -> None:
     print(f"loose, spilled in 1 MiB chunks: {info['chunks_spilled']} chunks, {info['spilled_bytes'] / 2**20:.1f} MiB "
           f"to the temporary file; forward {len(imu) / info['forward_cpu_s']:,.0f} epochs/s, "
           f"backward {len(imu) / info['backward_cpu_s']:,.0f} epochs/s (CPU)")
+    import tempfile
+    from pathlib import Path
+
+    from gpsins import replay
+    toml = Path(__file__).resolve().parent.parent / "tests" / "data" / "walk_0827" / "walk_0827_ubx.toml"
+    fwd = bwd = 0.0
+    for _ in range(repeats):
+        with tempfile.TemporaryDirectory() as d:
+            info = replay.replay(toml, Path(d) / "r", smooth=True).summary["smoothed"]["info"]
+        fwd += info["forward_cpu_s"] / repeats
+        bwd += info["backward_cpu_s"] / repeats
+    n = info["outputs"]
+    print(f"walk replay --smooth, {n} epochs: forward {n / fwd:,.0f} epochs/s, backward {n / bwd:,.0f} epochs/s "
+          f"(backward/forward time {bwd / fwd:.2f}, CPU); tape {info['tape_bytes'] / n:,.0f} bytes per output epoch")
 
 
 def nees(seeds: int) -> None:
