@@ -187,6 +187,23 @@ def test_smoothed_sigma_inside_forward_before_the_heading_is_known(default_drive
     assert np.all(fwd.extra["smoothed"].sigma <= fwd.sigma * (1 + 1e-6) + 1e-12)
 
 
+def test_first_heading_keeps_the_tilt_and_its_accelerometer_bias_correlation(default_drive):
+    """The first heading (from the course) restarts velocity, position and yaw; the tilt
+    learnt while levelling carries over with its correlation to the accelerometer biases, as
+    the transition the smoother is told says (a restart there would cut the smoothed tilt off
+    from the standstill before it)."""
+    _, fwd = default_drive
+    k = int(np.argmax(fwd.heading_known))
+
+    def tilt_bias_corr(p):
+        sd = np.sqrt(np.diag(p))
+        return np.abs(p[0:3, 12:15] / np.outer(sd[0:3], sd[12:15])).max()
+
+    before, after = tilt_bias_corr(fwd.covariance[k - 1]), tilt_bias_corr(fwd.covariance[k])
+    assert before > 0.2  # levelling did couple them
+    assert after > 0.5 * before
+
+
 def test_tape_size_per_epoch_as_documented(default_drive):
     _, fwd = default_drive
     info = fwd.extra["smooth_info"]
