@@ -28,6 +28,11 @@
 // The forward pass is recorded on a tape of records kept in memory up to a
 // chunk size, then written in chunks to an unnamed temporary file and read
 // back chunk by chunk, newest first.
+//
+// Cost of the backward pass per output epoch: Phi^T Lambda Phi over Phi's
+// non-zeros only (about half of a step's Phi), P - P Lambda P as one dense
+// product and half of a second; an update works on the columns its H uses.
+// On the default drive it takes about half the forward pass's CPU time (loose).
 #pragma once
 
 #include <cstdint>
