@@ -258,7 +258,8 @@ def test_15_s_outage_smoothed_drift_at_most_a_fifth_of_forward(start_s):
 def test_large_injected_corrections_are_smoothed_in_the_same_error_definition():
     """Start with the heading 20 degrees off (told as known, 25 degrees sigma): the forward pass
     injects large attitude corrections. The smoothed attitude at the start is then right to the
-    accuracy the rest of the run allows, inside its own 3 sigma."""
+    accuracy the rest of the run allows (the smoothed yaw of the same run started at the true
+    heading), inside its own 3 sigma."""
     s = sim.simulate(sim.load("default"), seed=2)
     tr = truth_of(s)
     true_yaw = float(np.degrees(_core.euler_from_body_to_ecef(tr.q_eb[:1], _core.ecef_to_geodetic(tr.r_ecef[:1]))[0, 0]))
@@ -267,9 +268,13 @@ def test_large_injected_corrections_are_smoothed_in_the_same_error_definition():
     m = fwd.t < fwd.t[0] + 20.0
     ef = evaluate.nav_errors(_subset(fwd, m), tr)
     es = evaluate.nav_errors(_subset(sm, m), tr)
-    yaw_f, yaw_s = np.abs(ef.ypr_deg[:, 0]), np.abs(es.ypr_deg[:, 0])
+    yaw_f = np.abs(ef.ypr_deg[:, 0])
     assert yaw_f[0] > 15.0  # the forward pass starts far off
-    assert yaw_s.max() < 1.0
+    # The standstill's yaw is only as good as the gyros carry it back from the drive (seed 2: about
+    # 2 degrees off, 1.5 degrees sigma, either start): 95 % of the 20 degrees is taken out.
+    known = run(s, initial_yaw_deg=true_yaw, attitude_sigma_deg=[1.0, 1.0, 25.0]).extra["smoothed"]
+    es0 = evaluate.nav_errors(_subset(known, m), tr)
+    assert np.abs(es.ypr_deg[:, 0] - es0.ypr_deg[:, 0]).max() < 1.0
     # within 3 sigma of the smoothed covariance (attitude errors, rad)
     assert np.mean(np.abs(es.e9[:, :3]) <= 3 * sm.sigma[m, :3]) > 0.95
     h_f = np.hypot(ef.r_ned[:, 0], ef.r_ned[:, 1])
