@@ -171,8 +171,9 @@ def test_smoothed_beats_forward_overall_and_stays_inside_its_3_sigma(default_dri
     assert sum(r[1] <= r[0] for r in rows.values()) >= 0.75 * len(rows)
 
 
-@pytest.mark.xfail(strict=True, reason="issue 18's every-segment criterion is not met yet: seed 0, segment S-T "
-                   "horizontal 1.48 m smoothed vs 1.24 m forward; vertical worse in C-D, Q-R, S-T, T-U, X-Stop")
+@pytest.mark.xfail(strict=True, reason="issue 18's every-segment criterion is not met yet: seed 0, horizontal worse "
+                   "only in H-I (1.73 m smoothed vs 1.61 m forward) but vertical worse in 14 of 24 segments, where "
+                   "both follow the simulated receiver's correlated height errors of 2-5 m (fix-error states do not help)")
 def test_smoothed_beats_forward_in_every_segment(default_drive):
     s, fwd = default_drive
     bad = {k: r for k, r in _segment_rms(s, fwd).items() if r[1] > r[0] or r[3] > r[2]}
@@ -184,6 +185,23 @@ def test_smoothed_beats_forward_in_every_segment(default_drive):
 def test_smoothed_sigma_inside_forward_before_the_heading_is_known(default_drive):
     _, fwd = default_drive
     assert np.all(fwd.extra["smoothed"].sigma <= fwd.sigma * (1 + 1e-6) + 1e-12)
+
+
+def test_first_heading_keeps_the_tilt_and_its_accelerometer_bias_correlation(default_drive):
+    """The first heading (from the course) restarts velocity, position and yaw; the tilt
+    learnt while levelling carries over with its correlation to the accelerometer biases, as
+    the transition the smoother is told says (a restart there would cut the smoothed tilt off
+    from the standstill before it)."""
+    _, fwd = default_drive
+    k = int(np.argmax(fwd.heading_known))
+
+    def tilt_bias_corr(p):
+        sd = np.sqrt(np.diag(p))
+        return np.abs(p[0:3, 12:15] / np.outer(sd[0:3], sd[12:15])).max()
+
+    before, after = tilt_bias_corr(fwd.covariance[k - 1]), tilt_bias_corr(fwd.covariance[k])
+    assert before > 0.2  # levelling did couple them
+    assert after > 0.5 * before
 
 
 def test_tape_size_per_epoch_as_documented(default_drive):
@@ -218,7 +236,8 @@ def test_spilled_tape_gives_the_same_smoothed_run():
 
 
 @pytest.mark.parametrize("start_s", [60.0, 150.0, pytest.param(40.0, marks=pytest.mark.xfail(
-    strict=True, reason="6 s after the first heading: smoothed drift 4.2 m vs forward 12.1 m (1/2.9)"))])
+    strict=True, reason="6 s after the first heading: smoothed drift 1.96 m vs forward 4.60 m (1/2.3); the smoothed "
+    "yaw is 1.2 deg off there (3 sigma 5 deg), weakly observable before the first turns"))])
 def test_15_s_outage_smoothed_drift_at_most_a_fifth_of_forward(start_s):
     s = sim.simulate(sim.load("default"), seed=0)
     tr = truth_of(s)
@@ -239,7 +258,8 @@ def test_15_s_outage_smoothed_drift_at_most_a_fifth_of_forward(start_s):
 def test_large_injected_corrections_are_smoothed_in_the_same_error_definition():
     """Start with the heading 20 degrees off (told as known, 25 degrees sigma): the forward pass
     injects large attitude corrections. The smoothed attitude at the start is then right to the
-    accuracy the rest of the run allows, inside its own 3 sigma."""
+    accuracy the rest of the run allows (the smoothed yaw of the same run started at the true
+    heading), inside its own 3 sigma."""
     s = sim.simulate(sim.load("default"), seed=2)
     tr = truth_of(s)
     true_yaw = float(np.degrees(_core.euler_from_body_to_ecef(tr.q_eb[:1], _core.ecef_to_geodetic(tr.r_ecef[:1]))[0, 0]))
@@ -248,11 +268,16 @@ def test_large_injected_corrections_are_smoothed_in_the_same_error_definition():
     m = fwd.t < fwd.t[0] + 20.0
     ef = evaluate.nav_errors(_subset(fwd, m), tr)
     es = evaluate.nav_errors(_subset(sm, m), tr)
-    yaw_f, yaw_s = np.abs(ef.ypr_deg[:, 0]), np.abs(es.ypr_deg[:, 0])
+    yaw_f = np.abs(ef.ypr_deg[:, 0])
     assert yaw_f[0] > 15.0  # the forward pass starts far off
-    # Standing, the yaw is seen only once the car moves: the smoothed start is as good as that
-    # (seed 2: 2.4 deg, sigma 1.3 deg; white fixes 1.9 deg, sigma 1.45 deg), a tenth of the start's.
+    yaw_s = np.abs(es.ypr_deg[:, 0])
+    # Standing, the yaw is seen only once the car moves: the smoothed start is as good as the gyros carry
+    # it back from the drive (seed 2: about 2 deg, sigma 1.3-1.5 deg), and as good as a run started at the
+    # true heading: 95 % of the 20 degrees is taken out.
     assert yaw_s.max() < 3.0 and np.all(np.radians(yaw_s) <= 3 * sm.sigma[m, 2])
+    known = run(s, initial_yaw_deg=true_yaw, attitude_sigma_deg=[1.0, 1.0, 25.0]).extra["smoothed"]
+    es0 = evaluate.nav_errors(_subset(known, m), tr)
+    assert np.abs(es.ypr_deg[:, 0] - es0.ypr_deg[:, 0]).max() < 1.0
     # within 3 sigma of the smoothed covariance (attitude errors, rad)
     assert np.mean(np.abs(es.e9[:, :3]) <= 3 * sm.sigma[m, :3]) > 0.95
     h_f = np.hypot(ef.r_ned[:, 0], ef.r_ned[:, 1])

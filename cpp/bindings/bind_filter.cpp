@@ -7,6 +7,10 @@
 #include <pybind11/stl.h>
 
 #include <chrono>
+#include <ctime>
+#if defined(__unix__) || defined(__APPLE__)
+#include <time.h>
+#endif
 #include <limits>
 #include <memory>
 #include <string>
@@ -18,6 +22,18 @@
 #include "gpsins/rts.hpp"
 
 namespace py = pybind11;
+
+// CPU time of the calling thread (s): on a shared machine the figure to compare,
+// where wall time counts the waits for a core and process time other threads' work.
+static double thread_cpu_s() {
+#if defined(CLOCK_THREAD_CPUTIME_ID)
+  timespec ts{};
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+  return static_cast<double>(ts.tv_sec) + 1e-9 * static_cast<double>(ts.tv_nsec);
+#else
+  return static_cast<double>(std::clock()) / CLOCKS_PER_SEC;
+#endif
+}
 using namespace gpsins;
 
 namespace {
@@ -199,6 +215,8 @@ py::dict smooth_recorded(EskfRecorder<NB, NC>& rec, bool with_cov, py::object si
   long lo = std::max(0L, n - rows);  // rows [lo, hi) are being filled
   auto block = new_block(n - lo);
   const auto t0 = std::chrono::steady_clock::now();
+  const double c0 = thread_cpu_s();
+  double sink_s = 0.0, sink_cpu_s = 0.0;  // the caller's work on the blocks, not the smoother's
   {
     py::gil_scoped_release release;
     rec.smooth([&](long k, const double* row, const Eigen::Matrix<double, N, N>& p) {
@@ -214,14 +232,19 @@ py::dict smooth_recorded(EskfRecorder<NB, NC>& rec, bool with_cov, py::object si
         b["state"] = block.first;
         if (with_cov) b["covariance"] = block.second;
         b["first"] = lo;
+        const auto s0 = std::chrono::steady_clock::now();
+        const double sc0 = thread_cpu_s();
         sink(b);
+        sink_cpu_s += thread_cpu_s() - sc0;
+        sink_s += std::chrono::duration<double>(std::chrono::steady_clock::now() - s0).count();
         const long next_lo = std::max(0L, lo - rows);
         if (lo > 0) block = new_block(lo - next_lo);
         lo = next_lo;
       }
     });
   }
-  const double backward_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  const double backward_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count() - sink_s;
+  const double backward_cpu_s = thread_cpu_s() - c0 - sink_cpu_s;
   py::dict out;
   if (!streaming) {
     out["smooth_state"] = block.first;
@@ -233,6 +256,8 @@ py::dict smooth_recorded(EskfRecorder<NB, NC>& rec, bool with_cov, py::object si
   info["chunks_spilled"] = rec.tape().chunks_spilled();
   info["outputs"] = n;
   info["backward_s"] = backward_s;
+  info["backward_cpu_s"] = backward_cpu_s;
+  info["sink_s"] = sink_s;  // wall time in sink, left out of backward_s
   out["smooth_info"] = info;
   return out;
 }
@@ -243,6 +268,7 @@ py::dict smooth_recorded(EskfRecorder<NB, NC>& rec, bool with_cov, py::object si
 struct BatchCarry {
   std::shared_ptr<void> recorder;
   double forward_s = 0.0;
+  double forward_cpu_s = 0.0;  // thread CPU time (thread_cpu_s)
 };
 
 // The recorder run_batch made for this filter type.
@@ -295,6 +321,7 @@ py::dict run_batch(InsFilter<NB, NC>& f, const Array& imu, const Array& fixes, c
   Recorder* rec = record ? static_cast<Recorder*>(carry.recorder.get()) : nullptr;
   if (rec) f.set_observer(rec);
   const auto t_forward = std::chrono::steady_clock::now();
+  const double c_forward = thread_cpu_s();
   {
     py::gil_scoped_release release;
     for (py::ssize_t k = 0; k < n && bad == InputStatus::Ok; ++k) {
@@ -351,6 +378,7 @@ py::dict run_batch(InsFilter<NB, NC>& f, const Array& imu, const Array& fixes, c
   }
   f.set_observer(nullptr);
   carry.forward_s += std::chrono::duration<double>(std::chrono::steady_clock::now() - t_forward).count();
+  carry.forward_cpu_s += thread_cpu_s() - c_forward;
   f.set_update_log(nullptr);
   f.set_event_log(nullptr);
   if (bad != InputStatus::Ok) input_error(bad_what, bad_row, bad_t, bad);
@@ -476,6 +504,7 @@ class PyFilter {
     }, f_);
     py::dict info = out["smooth_info"];
     info["forward_s"] = carry_.forward_s;
+    info["forward_cpu_s"] = carry_.forward_cpu_s;
     carry_.recorder.reset();
     return out;
   }

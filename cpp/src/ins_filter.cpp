@@ -355,7 +355,13 @@ void InsFilter<NB, NC>::restart_after_gap(double gap_s, double t_end) {
     core_.nav.r_ecef_m += core_.nav.v_ecef_mps * dt;
     core_.nav.t_s += dt;
     if constexpr (NC == 2) core_.clock(0) += core_.clock(1) * dt;
-    P.template block<3, 3>(es::pos, es::pos) += dt * dt * P.template block<3, 3>(es::vel, es::vel);
+    // The error moves as the state does (position by velocity, clock bias by drift):
+    // P <- A P A^T, and the smoother is told A.
+    typename Core::MatN a = Core::MatN::Identity();
+    a.template block<3, 3>(es::pos, es::vel) = Mat3::Identity() * dt;
+    if constexpr (NC == 2) a(Core::kClock, Core::kClock + 1) = dt;
+    P = (a * P * a.transpose()).eval();
+    core_.note_transition(a);
     t_last_ += dt;
   };
   while (pending_count_ > 0 && pending_[0].t_s < t_end) {
@@ -730,29 +736,34 @@ void InsFilter<NB, NC>::decouple_yaw() {
   core_.note_attitude_map(keep);
 }
 
-// First heading from the course over ground: the navigation states restart at
+// First heading from the course over ground: velocity and position restart at
 // the fix (what the filter did before, without a heading, is not trustworthy
-// once moving); the IMU error estimates learnt so far are kept.
+// once moving); the tilt and the IMU error estimates learnt so far are kept.
 template <int NB, int NC>
 void InsFilter<NB, NC>::set_heading(const FixInput& fix, const Vec3& v_ecef, double course_rad) {
   const Geodetic llh = ecef_to_geodetic(fix.r_ecef_m);
   Euler e = euler_from_body_to_ecef(core_.nav.q_eb, llh.lat_rad, llh.lon_rad);
   e.yaw_rad = course_rad;
-  auto& P = core_.P;
-  const Mat3 c_bn_old = core_.nav.q_eb.toRotationMatrix().transpose() * rot_ned_to_ecef(llh.lat_rad, llh.lon_rad);
-  const Mat3 old_ned = c_bn_old.transpose() * P.template block<3, 3>(es::att, es::att) * c_bn_old;
+  // The tilt is kept (roll and pitch are, so the body's up is too): the
+  // attitude error's part across the up axis carries over with its
+  // correlations (the accelerometer biases' in particular), the part about it
+  // starts afresh. Velocity and position restart at the fix.
+  const Vec3 up_b = core_.nav.q_eb.conjugate() * core_.nav.r_ecef_m.normalized();
+  const Mat3 keep = Mat3::Identity() - up_b * up_b.transpose();
   core_.nav.q_eb = quat_body_to_ecef(e, llh.lat_rad, llh.lon_rad);
   core_.nav.r_ecef_m = fix.r_ecef_m - core_.nav.q_eb * cfg_.lever_arm_body_m - fix_error_estimate(fix);
   core_.nav.v_ecef_mps = v_ecef;
   event(kHeadingSet, course_rad);
-  P.template topRows<9>().setZero();
-  P.template leftCols<9>().setZero();
-  const Mat3 c_bn = core_.nav.q_eb.toRotationMatrix().transpose() * rot_ned_to_ecef(llh.lat_rad, llh.lon_rad);
-  const Vec3 var(old_ned(0, 0), old_ned(1, 1), cfg_.heading_sigma_rad * cfg_.heading_sigma_rad);
-  P.template block<3, 3>(es::att, es::att) = c_bn * var.asDiagonal() * c_bn.transpose();
+  auto& P = core_.P;
+  P.template middleRows<3>(es::att) = (keep * P.template middleRows<3>(es::att)).eval();
+  P.template middleCols<3>(es::att) = (P.template middleCols<3>(es::att) * keep).eval();
+  P.template block<3, 3>(es::att, es::att) += up_b * up_b.transpose() * (cfg_.heading_sigma_rad * cfg_.heading_sigma_rad);
+  P.template middleRows<6>(es::vel).setZero();
+  P.template middleCols<6>(es::vel).setZero();
   P.template block<3, 3>(es::vel, es::vel) = Mat3::Identity() * cfg_.velocity_sigma_mps * cfg_.velocity_sigma_mps;
   P.template block<3, 3>(es::pos, es::pos) = Mat3::Identity() * cfg_.position_sigma_m * cfg_.position_sigma_m;
-  core_.note_restart(0, 9);
+  core_.note_attitude_map(keep);
+  core_.note_restart(es::vel, 6);
   heading_known_ = true;
 }
 

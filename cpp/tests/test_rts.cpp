@@ -139,3 +139,130 @@ TEST_CASE("smoother tape: bytes per record as documented") {
   CHECK(R72::kNominal + BackwardPass<23>::kPacked + 1 == 303);
   CHECK(R53::kNominal + BackwardPass<18>::kPacked + 1 == 193);
 }
+
+namespace {
+
+// The backward recursion written out densely (rts.hpp's header), for checking the
+// pass that skips Phi's zeros and H's zero columns.
+template <int N>
+struct DenseBackward {
+  using VecN = Eigen::Matrix<double, N, 1>;
+  using MatN = Eigen::Matrix<double, N, N>;
+  VecN lam = VecN::Zero();
+  MatN Lam = MatN::Zero();
+  void transition(const MatN& phi) {
+    lam = phi.transpose() * lam;
+    Lam = phi.transpose() * Lam * phi;
+  }
+  void update(const Eigen::MatrixXd& H, const Eigen::MatrixXd& K, const Eigen::MatrixXd& s_inv,
+              const Eigen::VectorXd& y, const Mat3& g) {
+    MatN gt = MatN::Identity();
+    gt.template topLeftCorner<3, 3>() = g;
+    lam = gt.transpose() * lam;
+    Lam = gt.transpose() * Lam * gt;
+    const MatN L = MatN::Identity() - K * H;
+    Lam = L.transpose() * Lam * L + H.transpose() * s_inv * H;
+    lam = L.transpose() * lam - H.transpose() * s_inv * y;
+  }
+};
+
+}  // namespace
+
+TEST_CASE("smoother backward pass: sparse transitions and updates equal the dense recursion (15 states)") {
+  constexpr int N = 15;
+  using MatN = Eigen::Matrix<double, N, N>;
+  using VecN = Eigen::Matrix<double, N, 1>;
+  std::mt19937 rng(11);
+  std::normal_distribution<double> n01;
+  SmootherTape tape(4096);
+  DenseBackward<N> dense;
+  std::vector<std::pair<int, std::vector<double>>> records;  // replayed newest first by the dense pass
+  MatN p = MatN::Zero();
+  for (int i = 0; i < N; ++i) p(i, i) = 1.0 + i;
+  long outputs = 0;
+  for (int k = 0; k < 60; ++k) {
+    // A step's Phi with the navigation filter's zero blocks: bias rows diagonal, no
+    // velocity or position in the attitude row, no accelerometer bias in it either.
+    MatN phi = MatN::Identity();
+    for (int i = 0; i < 9; ++i)
+      for (int j = 0; j < 15; ++j)
+        if (!(i < 3 && (j >= 3 && j < 9)) && !(i < 3 && j >= 12)) phi(i, j) += 0.05 * n01(rng);
+    for (int i = 9; i < 15; ++i) phi(i, i) = 0.999;
+    Eigen::Map<MatN>(tape.append(SmootherTape::kPropagate, N * N)) = phi;
+    records.push_back({1, std::vector<double>(phi.data(), phi.data() + N * N)});
+    if (k % 4 == 0) {  // a fix: position and, through a lever arm, attitude columns
+      const int m = k % 8 == 0 ? 3 : 1;
+      Eigen::MatrixXd H = Eigen::MatrixXd::Zero(m, N), K(N, m), s_inv(m, m);
+      for (int r = 0; r < m; ++r) {
+        H(r, 6 + r) = 1.0;
+        for (int j = 0; j < 3; ++j) H(r, j) = 0.3 * n01(rng);
+      }
+      for (int r = 0; r < N; ++r)
+        for (int c = 0; c < m; ++c) K(r, c) = 0.2 * n01(rng);
+      s_inv = Eigen::MatrixXd::Identity(m, m) * 0.5;
+      Eigen::VectorXd y(m);
+      for (int r = 0; r < m; ++r) y(r) = n01(rng);
+      const Vec3 dth(0.1 * n01(rng), 0.1 * n01(rng), 0.3 * n01(rng));  // large injected attitude
+      Mat3 g = Mat3::Identity();
+      g(0, 1) = 0.5 * dth.z(); g(1, 0) = -0.5 * dth.z();
+      g(0, 2) = -0.5 * dth.y(); g(2, 0) = 0.5 * dth.y();
+      g(1, 2) = 0.5 * dth.x(); g(2, 1) = -0.5 * dth.x();  // I - [dth/2]x
+      double* d = tape.append(SmootherTape::kUpdate, 1 + 2 * m * N + m * m + m + 9);
+      std::vector<double> copy;
+      *d++ = m;
+      Eigen::Map<Eigen::MatrixXd>(d, m, N) = H; d += m * N;
+      Eigen::Map<Eigen::MatrixXd>(d, N, m) = K; d += N * m;
+      Eigen::Map<Eigen::MatrixXd>(d, m, m) = s_inv; d += m * m;
+      Eigen::Map<Eigen::VectorXd>(d, m) = y; d += m;
+      Eigen::Map<Mat3>{d} = g;
+      records.push_back({2, {}});
+      auto& r = records.back().second;
+      r.push_back(m);
+      r.insert(r.end(), H.data(), H.data() + m * N);
+      r.insert(r.end(), K.data(), K.data() + N * m);
+      r.insert(r.end(), s_inv.data(), s_inv.data() + m * m);
+      r.insert(r.end(), y.data(), y.data() + m);
+      r.insert(r.end(), g.data(), g.data() + 9);
+    }
+    double* o = tape.append(SmootherTape::kOutput, 1 + BackwardPass<N>::kPacked);
+    o[0] = k;
+    BackwardPass<N>::pack(p, o + 1);
+    records.push_back({4, {}});
+    ++outputs;
+  }
+  std::vector<VecN> dx_sparse(static_cast<std::size_t>(outputs)), dx_dense = dx_sparse;
+  std::vector<MatN> ps_sparse(static_cast<std::size_t>(outputs)), ps_dense = ps_sparse;
+  BackwardPass<N>::run(tape, outputs, [&](long k, const double*, int, const VecN& dx, const MatN& ps) {
+    dx_sparse[static_cast<std::size_t>(k)] = dx;
+    ps_sparse[static_cast<std::size_t>(k)] = ps;
+  });
+  long k = outputs;
+  double scale = 0.0;
+  for (auto it = records.rbegin(); it != records.rend(); ++it) {
+    const double* d = it->second.data();
+    if (it->first == 1) {
+      dense.transition(Eigen::Map<const MatN>(d));
+    } else if (it->first == 2) {
+      const int m = static_cast<int>(d[0]);
+      const double* q = d + 1;
+      const Eigen::MatrixXd H = Eigen::Map<const Eigen::MatrixXd>(q, m, N);
+      const Eigen::MatrixXd K = Eigen::Map<const Eigen::MatrixXd>(q + m * N, N, m);
+      const Eigen::MatrixXd s_inv = Eigen::Map<const Eigen::MatrixXd>(q + 2 * m * N, m, m);
+      const Eigen::VectorXd y = Eigen::Map<const Eigen::VectorXd>(q + 2 * m * N + m * m, m);
+      dense.update(H, K, s_inv, y, Eigen::Map<const Mat3>(q + 2 * m * N + m * m + m));
+    } else {
+      const auto i = static_cast<std::size_t>(--k);
+      dx_dense[i] = -p * dense.lam;
+      ps_dense[i] = p - p * dense.Lam * p;
+      scale = std::max(scale, ps_dense[i].cwiseAbs().maxCoeff() + dx_dense[i].cwiseAbs().maxCoeff());
+    }
+  }
+  double ddx = 0.0, dps = 0.0;
+  for (std::size_t i = 0; i < dx_dense.size(); ++i) {
+    ddx = std::max(ddx, (dx_sparse[i] - dx_dense[i]).cwiseAbs().maxCoeff());
+    dps = std::max(dps, (ps_sparse[i] - ps_dense[i]).cwiseAbs().maxCoeff());
+  }
+  CHECK(scale > 1.0);
+  CHECK(ddx < 1e-9 * scale);
+  CHECK(dps < 1e-9 * scale);
+}

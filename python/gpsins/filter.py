@@ -618,10 +618,13 @@ class ChunkedRun:
             j, q, g = j2, q2, g2
             yield Solution.from_batch(out, self.mode, self._setup.scale_factors)
 
-    def smooth(self, sink, block_rows: int = 65536, covariance: bool = True) -> dict:
+    def smooth(self, sink, block_rows: int | None = None, covariance: bool = True) -> dict:
         """After ``chunks()`` ran through with ``record=True``: the backward pass, handing
         ``sink(index of the block's first epoch, Solution)`` each block as it completes (newest
-        block first, each in time order). Returns the tape's size and the wall times."""
+        block first, each in time order; ``block_rows`` epochs, by default as many as a forward
+        chunk, so the blocks' memory is reused as the forward's is). Returns the tape's size and
+        the times."""
+        block_rows = self.chunk_rows if block_rows is None else block_rows
         n_states, sf = self._setup.core_filter.n_states, self._setup.scale_factors
 
         def take(b: dict) -> None:

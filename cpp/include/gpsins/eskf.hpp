@@ -327,6 +327,10 @@ class Eskf {
     a.diagonal().segment(first, count).setZero();
     observer->on_transition(a);
   }
+  // Any other linear map the filter applies to the error: P <- A P A^T (plus noise).
+  void note_transition(const MatN& a) {
+    if (observer) observer->on_transition(a);
+  }
   // The attitude error replaced by keep * (attitude error) plus independent noise.
   void note_attitude_map(const Mat3& keep) {
     if (!observer) return;
