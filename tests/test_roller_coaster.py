@@ -186,10 +186,11 @@ def test_loose_and_tight_filters_ride_three_laps_without_diverging():
 
 def test_gnss_errors_measured_at_the_station_make_both_filters_consistent():
     """Under the steel structure the fixes' errors are multipath, metres and correlated over
-    seconds: taken as white, the 300 fixes at the station are averaged as if independent and
-    both filters are several times too confident on the laps. Modelled from the fixes' scatter
-    at the station (gpsins.fix_scatter, no truth used), the laps' NEES of the 9 navigation
-    states comes near its expectation of 9 (seed 0: white 37 loose / 49 tight, measured 8.6 / 7.4)."""
+    seconds: taken as white, or with the preset's open-sky sizes, the 300 fixes at the station are
+    averaged as if nearly independent and both filters are too confident on the laps. Modelled from
+    the fixes' scatter at the station (gpsins.fix_scatter, no truth used), the laps' NEES of the 9
+    navigation states comes near its expectation of 9 (seed 0: white 37 loose / 49 tight; preset
+    32 / 13; measured 10.8 / 7.4)."""
     from gpsins import _core, evaluate, fix_scatter
     from gpsins import filter as flt
     from gpsins.sim import ephemeris as sim_eph
@@ -208,13 +209,15 @@ def test_gnss_errors_measured_at_the_station_make_both_filters_consistent():
     est = fix_scatter.measure(fixes, segments[0][1] + 5.0, segments[0][2])
     for mode, extra in (("loose", {}), ("tight", tight)):
         nees = {}
-        for name, over in (("white", {}), ("measured", fix_scatter.filter_overrides(est, mode))):
+        for name, over in (("preset", {}), ("measured", fix_scatter.filter_overrides(est, mode))):
             cfg = flt.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), "mode": mode, **over})
             sol = flt.run(sim.imu_table(s), fixes, cfg, covariance=True, **extra)
             assert not sol.counters["diverged"], (mode, name)
             err = evaluate.nav_errors(sol, truth)
             m = np.any([(sol.t >= a) & (sol.t < b) for label, a, b in segments if label.startswith("Lap")], axis=0)
             nees[name] = float(evaluate.nees(err.e9[m], sol.covariance[m][:, :9, :9]).mean())
-        print(f"{mode}: laps' NEES white {nees['white']:.1f}, measured {nees['measured']:.1f}")
-        assert nees["white"] > 20.0, (mode, nees)
+        print(f"{mode}: laps' NEES preset {nees['preset']:.1f}, measured {nees['measured']:.1f}")
+        # The preset's GNSS errors are sized for the open sky (loose white fixes; tight with the ordinary
+        # receiver's 0.6 m multipath): under the steel structure it is clearly over-confident.
+        assert nees["preset"] > 1.5 * nees["measured"] and nees["preset"] > 12.0, (mode, nees)
         assert 3.0 < nees["measured"] < 13.5, (mode, nees)
