@@ -168,6 +168,9 @@ def test_the_page_numbers_equal_an_independent_recomputation(runs):
             hr, hm, vr, vm = _rms_max(h[m], v[m])
             assert np.allclose(_cell(row[mode_col]), [hr, hm], atol=0.006), (head[mode_col], row)
             assert np.allclose(_cell(row[mode_col + 1]), [vr, vm], atol=0.006), (head[mode_col + 1], row)
+            # The segment's mean NEES (a lap's consistency), from the run's per-epoch NEES.
+            nees_col = head.index(f"{head[mode_col].split(' ')[0]} NEES")
+            assert float(row[nees_col]) == pytest.approx(np.nanmean(z["nees9"][m]), abs=0.006, rel=0.001)
             checked += 1
         assert checked >= 3
     # The receiver's own fixes (valid ones, inside the truth's span).

@@ -154,6 +154,10 @@ def segment_table(r: Result) -> list[dict]:
         row = {"segment": str(label), "sats_min": int(sats[fm].min()) if fm.any() else 0,
                "sats_max": int(sats[fm].max()) if fm.any() else 0, "t0": float(t0), "t1": float(t1)}
         row.update(_stats(e[m]))
+        if "nees9" in r.a:  # the segment's mean 9-state NEES (a lap's consistency)
+            n9 = r.a["nees9"][m]
+            n9 = n9[np.isfinite(n9)]
+            row["nees9_mean"] = float(n9.mean()) if len(n9) else None
         rows.append(row)
     return rows
 
@@ -768,6 +772,7 @@ def page_tables(results: list[Result]) -> list[tuple[str, list[str], list[list[s
         head = ["segment", "sats"] + [f"{n} {c} rms / max (m)" for n, _ in segs for c in ("H", "V")]
         if rec:
             head += ["receiver H rms / max (m)", "receiver V rms / max (m)"]
+        head += [f"{n} NEES" for n, _ in segs]
         rows = []
         for i, row in enumerate(segs[0][1]):
             cells = [row["segment"], f"{row['sats_min']}-{row['sats_max']}"]
@@ -775,6 +780,7 @@ def page_tables(results: list[Result]) -> list[tuple[str, list[str], list[list[s
                 rr = tab[i]
                 cells += [f"{_fmt(rr.get('h_rms'))} / {_fmt(rr.get('h_max'))}",
                           f"{_fmt(rr.get('v_rms'))} / {_fmt(rr.get('v_max'))}"]
+            cells += [_fmt(tab[i].get("nees9_mean")) for _, tab in segs]
             rows.append(cells)
         tables.append(("Errors per segment (Table 6.1)", head, rows))
     t0 = results[0].a["t"][0]
@@ -939,12 +945,15 @@ def comparison_tables(results: list[Result]) -> list:
         for n in names:
             per.add_column(f"{n} H", justify="right")
             per.add_column(f"{n} V", justify="right")
+        for n in names[:len(segs)]:
+            per.add_column(f"{n} NEES", justify="right")
         for i, row in enumerate(segs[0]):
             cells = [row["segment"], f"{row['sats_min']}-{row['sats_max']}"]
             for tab in segs + ([rec_rows] if rec_rows else []):
                 rr = tab[i] if i < len(tab) else {}
                 cells += [f"{_fmt(rr.get('h_rms'))} ({_fmt(rr.get('h_max'))})",
                           f"{_fmt(rr.get('v_rms'))} ({_fmt(rr.get('v_max'))})"]
+            cells += [_fmt((tab[i] if i < len(tab) else {}).get("nees9_mean")) for tab in segs]
             per.add_row(*cells)
         tables.append(per)
     return tables
