@@ -102,6 +102,7 @@ def load_session_truth(directory: Path, t_offset: float) -> tuple[evaluate.Truth
 
             z = open_truth(p)
             tow = z["tow_s"] + (int(z["gps_week"]) * 604800.0) - t_offset
+            evaluate.release_pages(z["tow_s"])
             extra = {"seg_labels": z["segment_labels"], "seg_t": z["segment_t"] + float(z["t0_tow_s"]) +
                      int(z["gps_week"]) * 604800.0 - t_offset}
             return evaluate.Truth(tow, z["r_ecef"], z["v_ecef"], z["q_eb"]), extra
@@ -404,7 +405,7 @@ def run_mode(inp: Inputs, out: str | Path, *, mode: str = "loose", overrides: di
     fix_out = outages_mod.inside(inp.fixes[:, 0], schedule)
     fixes = inp.fixes[~fix_out]
     prs = inp.pseudoranges if filter_mode == "tight" else None
-    if prs is not None:
+    if prs is not None and len(schedule):  # a copy only when something is left out (a day's table is 200 MB)
         prs = prs[~outages_mod.inside(prs[:, 0], schedule)]
     tight = {}
     if filter_mode == "tight":
@@ -455,7 +456,8 @@ def run_mode(inp: Inputs, out: str | Path, *, mode: str = "loose", overrides: di
         # The truth as the reference, at no more than TRUTH_SCORING_HZ: enough for drift and outage maxima.
         tt = found[0].t
         step = max(1, int(round(1.0 / (TRUTH_SCORING_HZ * float(np.median(np.diff(tt))))))) if len(tt) > 1 else 1
-        ref, scored_point = (tt[::step], found[0].r_ecef[::step], "truth.npz"), "imu"
+        ref, scored_point = (tt[::step], np.array(found[0].r_ecef[::step]), "truth.npz"), "imu"
+        found[0].release()
     has_ref = ref is not None and len(ref[0]) > 0
     score_sched = schedule
     sys_epochs = (ref_system.gps_seconds() - inp.week * measurements.SECONDS_PER_WEEK) if ref_system else np.zeros(0)

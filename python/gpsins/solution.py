@@ -88,6 +88,7 @@ class TruthScore:
         c_en = evaluate.c_en(llh_ref[:, 0], llh_ref[:, 1])
         dv_ned = np.einsum("nji,nj->ni", c_en, sub.v_ecef - ref.v_ecef)
         nees = evaluate.nees(err.e9, sol.covariance[m][:, :9, :9])
+        tr.release()  # a memory-mapped truth: only this chunk's rows were read; keep none of them
         hk = sub.heading_known
         if hk.any():
             h = np.hypot(err.r_ned[hk, 0], err.r_ned[hk, 1])
@@ -129,12 +130,25 @@ class Brackets:
         self._parts.append({"t": t[keep], **{k: v[keep] for k, v in arrays.items()}})
 
     def rows(self) -> dict:
-        """The kept rows in time order, each epoch once."""
+        """The kept rows in time order, each epoch once (kept as the only part: a day's brackets are 200 MB)."""
         if not self._parts:
             return {}
-        cat = {k: np.concatenate([p[k] for p in self._parts]) for k in self._parts[0]}
-        _, first = np.unique(cat["t"], return_index=True)
-        return {k: v[first] for k, v in cat.items()}
+        if len(self._parts) > 1:
+            parts, self._parts = self._parts, []
+            total = sum(len(p["t"]) for p in parts)
+            cat = {k: np.empty((total,) + v.shape[1:], v.dtype) for k, v in parts[0].items()}
+            at = 0
+            for i in range(len(parts)):  # filled part by part, each dropped once copied
+                p, parts[i] = parts[i], None
+                for k, v in p.items():
+                    cat[k][at:at + len(v)] = v
+                at += len(p["t"])
+            t = cat["t"]
+            if len(t) > 1 and not np.all(t[1:] > t[:-1]):  # out of order or repeated (smoothed blocks)
+                _, first = np.unique(t, return_index=True)
+                cat = {k: v[first] for k, v in cat.items()}
+            self._parts = [cat]
+        return self._parts[0]
 
 
 class PosWriter:

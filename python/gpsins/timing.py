@@ -87,9 +87,12 @@ def _lower_chain(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     x0, y0 = x.mean(), y.min()
     xs, ys = (x - x0) / np.ptp(x), y - y0
     order = np.lexsort((ys, xs))
+    sx = xs[order]
     first = np.ones(len(order), bool)
-    first[1:] = xs[order[1:]] != xs[order[:-1]]  # the lowest point of each abscissa
+    first[1:] = sx[1:] != sx[:-1]  # the lowest point of each abscissa
+    del sx
     pts = order[first]
+    del order, first
     for _ in range(64):
         if len(pts) < 3:
             break
@@ -118,24 +121,27 @@ def lower_envelope(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
     y = np.asarray(y, dtype=float)
     if len(x) < 2 or np.ptp(x) == 0:
         raise AlignmentError("lower envelope needs at least two distinct abscissae")
-    a, b = joint_lower_envelope(x, y, np.zeros(len(x), dtype=np.int64))
+    a, b = joint_lower_envelope(x, y, None)
     return float(a[0]), b
 
 
-def joint_lower_envelope(x: np.ndarray, y: np.ndarray, group: np.ndarray) -> tuple[np.ndarray, float]:
-    """One slope b and an intercept a_g per group: y_i >= a_g + b x_i minimising the summed
-    residual. For a given b each a_g is the minimum of y - b x over its group, so the objective
+def joint_lower_envelope(x: np.ndarray, y: np.ndarray, group: np.ndarray | None) -> tuple[np.ndarray, float]:
+    """One slope b and an intercept a_g per group (``group`` None: one group): y_i >= a_g + b x_i minimising
+    the summed residual. For a given b each a_g is the minimum of y - b x over its group, so the objective
     is convex and piecewise linear in b, with its optimum at the slope of an edge of some
     group's lower hull: those slopes are the only candidates."""
     x = np.asarray(x, dtype=float)
     y = np.asarray(y, dtype=float)
     x0, y0 = x.mean(), y.min()
     xs, ys = x - x0, y - y0
-    groups = np.unique(group)
+    groups = np.unique(group) if group is not None else [None]
     hulls, sums, slopes = [], [], []
     for g in groups:
-        m = group == g
-        gx, gy = xs[m], ys[m]
+        if g is None:
+            gx, gy = xs, ys  # one group: no copies (a day of IMU samples is 5.5 million)
+        else:
+            m = group == g
+            gx, gy = xs[m], ys[m]
         h = _lower_chain(gx, gy) if len(gx) >= 2 and np.ptp(gx) > 0 else np.array([np.argmin(gy)])
         hulls.append((gx[h], gy[h]))
         sums.append((len(gx), gy.sum(), gx.sum()))
@@ -161,9 +167,10 @@ def _window_min(x: np.ndarray, w: int) -> np.ndarray:
     padded[:n] = x
     b = padded.reshape(blocks, w)
     prefix = np.minimum.accumulate(b, axis=1).ravel()
-    suffix = np.minimum.accumulate(b[:, ::-1], axis=1)[:, ::-1].ravel()
-    i = np.arange(n - w + 1)
-    return np.minimum(suffix[i], prefix[i + w - 1])
+    suffix = np.minimum.accumulate(b[:, ::-1], axis=1)
+    del b, padded
+    suffix = suffix[:, ::-1].ravel()
+    return np.minimum(suffix[:n - w + 1], prefix[w - 1:n])  # slices, not index arrays: no n-long temporaries
 
 
 def _running_min(y: np.ndarray, w: int) -> tuple[np.ndarray, np.ndarray]:
@@ -484,7 +491,7 @@ def _fit_imu_clock(n: np.ndarray, mapped: np.ndarray, usable: np.ndarray, period
     fits: list[tuple[float, float] | None] = []
     spans = []
     for a, b in bounds:
-        k = np.arange(a, b)[usable[a:b]]
+        k = np.flatnonzero(usable[a:b]) + a
         span = (n[k[-1]] - n[k[0]]) * period if len(k) else 0.0
         fits.append(lower_envelope(n[k].astype(float), mapped[k]) if span >= MIN_RATE_SPAN_S else None)
         spans.append(span)
@@ -497,8 +504,8 @@ def _fit_imu_clock(n: np.ndarray, mapped: np.ndarray, usable: np.ndarray, period
         # One pooled line cannot hold several stretches with their own phases: keep P only.
     t = np.empty(len(n))
     for (a, b), f in zip(bounds, fits):
-        k = np.arange(a, b)[usable[a:b]]
         if f is None:
+            k = np.flatnonzero(usable[a:b]) + a
             ref = k if len(k) else np.arange(a, b)
             t0 = float(np.min(mapped[ref] - p * n[ref]))
             t[a:b] = t0 + p * n[a:b]
@@ -548,8 +555,7 @@ def align(gps_tow: np.ndarray, gps_stamps: np.ndarray, week: int, imu_stamps: np
     for k in range(1, n_seg):
         lo = _coarse_cut(clock, k, s, lo)
         cuts.append(lo)
-    seg = np.searchsorted(np.array(cuts, dtype=np.int64), np.arange(len(s)), side="right") if cuts else \
-        np.zeros(len(s), dtype=np.int64)
+    seg = np.searchsorted(np.array(cuts, dtype=np.int64), np.arange(len(s)), side="right") if cuts else 0
     mapped = clock.to_gps(s, seg)
     # The frame period as the stamps show it: a configured rate that is wrong would count
     # the wrong number of counter periods across a gap.
