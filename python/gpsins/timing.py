@@ -74,6 +74,9 @@ MIN_RATE_SPAN_S = 20.0  # an IMU stretch shorter than this takes the IMU period 
 OVERLAP_SLACK_S = 600.0  # IMU stamps this far outside the GPS stamps cannot share their clock map
 
 
+HULL_BLOCK = 1 << 16  # points per block of a long series' lower hull
+
+
 class AlignmentError(ValueError):
     pass
 
@@ -81,11 +84,23 @@ class AlignmentError(ValueError):
 def _lower_chain(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Indices of the vertices of the points' lower convex hull, by increasing x (x not all equal).
 
+    A vertex of the whole hull is a vertex of the hull of any subset holding it: on a long
+    series (a day of IMU samples) the hulls of blocks leave the only candidates, so that
+    memory holds a block at a time. The coordinates are normalised the same way in both."""
+    x0, y0, scale = x.mean(), y.min(), np.ptp(x)
+    if len(x) <= HULL_BLOCK:
+        return _chain((x - x0) / scale, y - y0)
+    cand = np.concatenate([a + _chain((x[a:a + HULL_BLOCK] - x0) / scale, y[a:a + HULL_BLOCK] - y0)
+                           for a in range(0, len(x), HULL_BLOCK)])
+    return cand[_chain((x[cand] - x0) / scale, y[cand] - y0)]
+
+
+def _chain(xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
+    """``_lower_chain`` on normalised coordinates.
+
     A point above the chord of two others is no vertex: whole passes drop every point above the
     chord of its current neighbours at once (NumPy), which leaves few points on stamps, and a
     monotone chain finishes on those."""
-    x0, y0 = x.mean(), y.min()
-    xs, ys = (x - x0) / np.ptp(x), y - y0
     order = np.lexsort((ys, xs))
     sx = xs[order]
     first = np.ones(len(order), bool)
@@ -491,10 +506,13 @@ def _fit_imu_clock(n: np.ndarray, mapped: np.ndarray, usable: np.ndarray, period
     fits: list[tuple[float, float] | None] = []
     spans = []
     for a, b in bounds:
-        k = np.flatnonzero(usable[a:b]) + a
-        span = (n[k[-1]] - n[k[0]]) * period if len(k) else 0.0
-        fits.append(lower_envelope(n[k].astype(float), mapped[k]) if span >= MIN_RATE_SPAN_S else None)
+        u = n[a:b][usable[a:b]]
+        span = (u[-1] - u[0]) * period if len(u) else 0.0
+        x = u.astype(float) if span >= MIN_RATE_SPAN_S else None
+        del u
+        fits.append(lower_envelope(x, mapped[a:b][usable[a:b]]) if x is not None else None)
         spans.append(span)
+        del x
     long = [i for i, f in enumerate(fits) if f is not None]
     if long:
         p = float(sum(fits[i][1] * spans[i] for i in long) / sum(spans[i] for i in long))
@@ -577,7 +595,8 @@ def align(gps_tow: np.ndarray, gps_stamps: np.ndarray, week: int, imu_stamps: np
         seg = np.searchsorted(np.array(cuts, dtype=np.int64), np.arange(len(s)), side="right")
         mapped = clock.to_gps(s, seg)
         n = unwrap_counter(imu_counter, mapped, period, usable, int(UNWRAP_WINDOW_S / period))
-    # Stage 4: the IMU clock.
+    # Stage 4: the IMU clock (the stamps and counter steps no longer needed: a day of them is 90 MB).
+    del s, nc
     t, p, pieces = _fit_imu_clock(n, mapped, usable, period, int(PIECE_GAP_S / period))
     if np.any(np.diff(t) <= 0):
         i = int(np.flatnonzero(np.diff(t) <= 0)[0]) + 1
