@@ -151,7 +151,10 @@ class Brackets:
         n, at = len(cols["t"]), 0
         while at < n:
             if not self._blocks or self._fill == len(self._blocks[-1]["t"]):
-                self._blocks.append({k: np.empty((self.BLOCK_ROWS,) + v.shape[1:], v.dtype) for k, v in cols.items()})
+                # The first block holds two rows per epoch and a few chunk ends: usually all there is (only
+                # the pages written become resident), so that rows() needs no copy.
+                rows = self.BLOCK_ROWS if self._blocks else 2 * len(self.epochs) + self.BLOCK_ROWS
+                self._blocks.append({k: np.empty((rows,) + v.shape[1:], v.dtype) for k, v in cols.items()})
                 self._fill = 0
             block = self._blocks[-1]
             m = min(n - at, len(block["t"]) - self._fill)
@@ -164,7 +167,14 @@ class Brackets:
         """The kept rows in time order, each epoch once (then kept as one block)."""
         if not self._blocks:
             return {}
-        if len(self._blocks) > 1 or self._fill < len(self._blocks[-1]["t"]):
+        if len(self._blocks) == 1:
+            self._blocks[0] = {k: v[:self._fill] for k, v in self._blocks[0].items()}  # views: no copy
+            t = self._blocks[0]["t"]
+            if len(t) > 1 and not np.all(t[1:] > t[:-1]):  # out of order or repeated (smoothed blocks)
+                _, first = np.unique(t, return_index=True)
+                self._blocks[0] = {k: v[first] for k, v in self._blocks[0].items()}
+            self._fill = len(self._blocks[0]["t"])
+        if len(self._blocks) > 1:
             blocks, self._blocks = self._blocks, []
             sizes = [len(b["t"]) for b in blocks[:-1]] + [self._fill]
             cat = {k: np.empty((sum(sizes),) + v.shape[1:], v.dtype) for k, v in blocks[0].items()}
