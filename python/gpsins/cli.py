@@ -83,6 +83,9 @@ def _cmd_replay(args: argparse.Namespace) -> int:
     if args.reference and not Path(args.reference).is_file():
         raise CommandError(f"{args.reference}: no such reference file (--reference takes an RTKLIB .pos)")
 
+    from . import memory
+
+    memory.map_large_arrays()  # a day-long replay: freed whole-run arrays go back to the system
     modes = ["loose", "tight"] if args.mode == "both" else [args.mode]
     inp = replay.load_inputs(args.session, modes=modes, config=args.config, overrides=overrides,
                              timing_method=args.timing, gps_latency_s=args.gps_latency, imu_latency_s=args.imu_latency,
@@ -104,6 +107,7 @@ def _cmd_replay(args: argparse.Namespace) -> int:
 
         if report.shows_outage_table(res.summary):
             report.print_outage_table(res.summary)
+        memory.trim()
     return 0
 
 

@@ -8,6 +8,7 @@ vector with q_true = q_est (x) exp(delta-theta).
 
 from __future__ import annotations
 
+import mmap
 from dataclasses import dataclass
 
 import numpy as np
@@ -52,6 +53,20 @@ class Truth:
         q = (1 - w) * q0 + w * q1
         lerp = lambda a: (1 - w) * a[i] + w * a[i + 1]  # noqa: E731
         return Truth(t, lerp(self.r_ecef), lerp(self.v_ecef), q / np.linalg.norm(q, axis=-1, keepdims=True))
+
+    def release(self) -> None:
+        """Give back the pages read so far of memory-mapped arrays (a day-long truth file): they
+        count in the process's resident memory until the mapping goes, and are read again if needed."""
+        release_pages(self.t, self.r_ecef, self.v_ecef, self.q_eb)
+
+
+def release_pages(*arrays) -> None:
+    """Drop the resident pages of the memory maps under these arrays (no-op for arrays in memory)."""
+    for a in arrays:
+        while a is not None and not isinstance(a, mmap.mmap):
+            a = getattr(a, "base", None)
+        if a is not None and hasattr(a, "madvise") and not a.closed:
+            a.madvise(mmap.MADV_DONTNEED)
 
 
 @dataclass

@@ -97,6 +97,9 @@ def row_lines(gps_week: int, tow_s: np.ndarray, r_ecef_m: np.ndarray, sigma_ned_
     return lines
 
 
+ROWS_PER_BLOCK = 1 << 16
+
+
 def read(path: str | Path) -> Reference:
     """Read a reference file. A row that does not parse is skipped and listed in damaged_lines;
     a file without the header is an error naming the file."""
@@ -106,7 +109,7 @@ def read(path: str | Path) -> Reference:
     except OSError as e:
         raise ReferenceError(f"{path}: cannot read ({e.strerror})") from None
     header_seen = False
-    rows, damaged = [], []
+    rows, blocks, damaged = [], [], []
     for num, line in enumerate(text.splitlines(), start=1):
         if not line.strip() or line.startswith("#"):
             continue
@@ -129,9 +132,15 @@ def read(path: str | Path) -> Reference:
             damaged.append((num, "gps_tow_s is empty"))
             continue
         rows.append((week, *vals))
+        if len(rows) == ROWS_PER_BLOCK:  # a day at 10 Hz as Python floats would take 400 MB
+            blocks.append(np.array(rows, dtype=np.float64))
+            rows = []
     if not header_seen:
         raise ReferenceError(f"{path}: no header line ({','.join(COLUMNS)})")
-    a = np.array(rows, dtype=np.float64).reshape(-1, len(COLUMNS))
+    del text
+    blocks.append(np.array(rows, dtype=np.float64).reshape(-1, len(COLUMNS)))
+    a = np.concatenate(blocks) if len(blocks) > 1 else blocks[0]
+    del blocks
     deg = np.pi / 180.0
     return Reference(a[:, 0].astype(np.int64), a[:, 1], a[:, 2:5], a[:, 5:8], a[:, 8] * deg, a[:, 9] * deg,
                      a[:, 10] * deg, a[:, 11] * deg, damaged)

@@ -102,6 +102,7 @@ def load_session_truth(directory: Path, t_offset: float) -> tuple[evaluate.Truth
 
             z = open_truth(p)
             tow = z["tow_s"] + (int(z["gps_week"]) * 604800.0) - t_offset
+            evaluate.release_pages(z["tow_s"])
             extra = {"seg_labels": z["segment_labels"], "seg_t": z["segment_t"] + float(z["t0_tow_s"]) +
                      int(z["gps_week"]) * 604800.0 - t_offset}
             return evaluate.Truth(tow, z["r_ecef"], z["v_ecef"], z["q_eb"]), extra
@@ -144,12 +145,18 @@ def _session_inputs(session: Path, mode: str, config, timing_method: str, gps_la
         dec = measurements_ubx.decode_session(session, flt.load_config(config, overrides or {})["fix_uere_m"])
     else:
         dec = measurements.decode_session(session)
+    # Increments as counts of the sensor's units while the session is replayed (exact; 200 MB less a day).
+    from gpsins_logger import bp3010
+    rate = dec.imu.rate_hz
+    increments = flt.ImuColumns.compact(dec.imu.stamps, dec.imu.dtheta_rad, dec.imu.dv_mps,
+                                        (bp3010.dtheta_lsb_rad(rate), bp3010.dv_lsb_mps(rate)))
+    dec.imu.dtheta_rad = dec.imu.dv_mps = None
     decode_s = time.perf_counter() - t0
     t1 = time.perf_counter()
     al = timing.align(dec.gps.tow, dec.gps.stamps, dec.gps.week, dec.imu.stamps, dec.imu.counter, dec.imu.rate_hz,
                       method=timing_method, gps_latency_s=gps_latency_s, imu_latency_s=imu_latency_s)
     align_s = time.perf_counter() - t1
-    imu = flt.ImuColumns(al.imu_t, dec.imu.dtheta_rad, dec.imu.dv_mps)
+    imu = flt.ImuColumns(al.imu_t, increments.dtheta_rad, increments.dv_mps, increments.lsb)
     fixes = dec.gps.fixes
     span = (float(fixes[0, 0]), float(fixes[-1, 0])) if len(fixes) else (float(imu[0, 0]), float(imu[-1, 0]))
     inp = Inputs(session, "session", int(dec.gps.week), imu, fixes, dec.gps.fix_sats, span, base_config=config)
@@ -163,7 +170,10 @@ def _session_inputs(session: Path, mode: str, config, timing_method: str, gps_la
         ephs = dec.gps.decoded_ephemerides(dec.skipped)
         if nav is not None:
             ephs += rinex.read_nav(nav).ephemerides
-        inp.pseudoranges, inp.ephemerides, inp.klobuchar = dec.gps.pseudorange_table(), ephs, klob
+        # By columns in exact smaller types: a day's float table is 200 MB.
+        inp.pseudoranges = flt.PseudorangeColumns.compact(dec.gps.pseudorange_table())
+        dec.gps.pseudoranges = None
+        inp.ephemerides, inp.klobuchar = ephs, klob
     inp.truth = load_session_truth(session, dec.gps.week * measurements.SECONDS_PER_WEEK) if truth else None
     max_gap = float(flt.load_config(config, overrides).get("max_gap_s", 0.5))
     inp.info = {"session": str(session), "alignment": al.summary(), "decode_s": decode_s, "align_s": align_s,
@@ -404,7 +414,7 @@ def run_mode(inp: Inputs, out: str | Path, *, mode: str = "loose", overrides: di
     fix_out = outages_mod.inside(inp.fixes[:, 0], schedule)
     fixes = inp.fixes[~fix_out]
     prs = inp.pseudoranges if filter_mode == "tight" else None
-    if prs is not None:
+    if prs is not None and len(schedule):  # a copy only when something is left out (a day's table is 200 MB)
         prs = prs[~outages_mod.inside(prs[:, 0], schedule)]
     tight = {}
     if filter_mode == "tight":
@@ -455,7 +465,8 @@ def run_mode(inp: Inputs, out: str | Path, *, mode: str = "loose", overrides: di
         # The truth as the reference, at no more than TRUTH_SCORING_HZ: enough for drift and outage maxima.
         tt = found[0].t
         step = max(1, int(round(1.0 / (TRUTH_SCORING_HZ * float(np.median(np.diff(tt))))))) if len(tt) > 1 else 1
-        ref, scored_point = (tt[::step], found[0].r_ecef[::step], "truth.npz"), "imu"
+        ref, scored_point = (tt[::step], np.array(found[0].r_ecef[::step]), "truth.npz"), "imu"
+        found[0].release()
     has_ref = ref is not None and len(ref[0]) > 0
     score_sched = schedule
     sys_epochs = (ref_system.gps_seconds() - inp.week * measurements.SECONDS_PER_WEEK) if ref_system else np.zeros(0)

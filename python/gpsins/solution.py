@@ -88,6 +88,7 @@ class TruthScore:
         c_en = evaluate.c_en(llh_ref[:, 0], llh_ref[:, 1])
         dv_ned = np.einsum("nji,nj->ni", c_en, sub.v_ecef - ref.v_ecef)
         nees = evaluate.nees(err.e9, sol.covariance[m][:, :9, :9])
+        tr.release()  # a memory-mapped truth: only this chunk's rows were read; keep none of them
         hk = sub.heading_known
         if hk.any():
             h = np.hypot(err.r_ned[hk, 0], err.r_ned[hk, 1])
@@ -114,11 +115,19 @@ class TruthScore:
 class Brackets:
     """The solution rows that bracket given epochs (a reference's), from chunks in any order:
     linear interpolation at those epochs then gives what it gives on the whole solution. Each
-    chunk's first and last rows are kept too, so brackets across chunk boundaries are found."""
+    chunk's first and last rows are kept too, so brackets across chunk boundaries are found.
+
+    Rows go into column blocks of ``BLOCK_ROWS`` (a day at 10 Hz keeps millions: many small
+    arrays would be held between the chunks' temporaries and the heap could not give memory
+    back); a column given as the very same array as another is kept once."""
+
+    BLOCK_ROWS = 1 << 18
 
     def __init__(self, epochs: np.ndarray):
         self.epochs = np.unique(np.asarray(epochs, float))
-        self._parts: list[dict] = []
+        self._blocks: list[dict] = []
+        self._fill = 0  # rows used in the last block
+        self._alias: dict[str, str] = {}
 
     def add(self, t: np.ndarray, **arrays) -> None:
         if not len(t) or not len(self.epochs):
@@ -126,15 +135,63 @@ class Brackets:
         inside = self.epochs[(self.epochs >= t[0]) & (self.epochs <= t[-1])]
         i = np.clip(np.searchsorted(t, inside, side="right") - 1, 0, len(t) - 1)
         keep = np.unique(np.concatenate([[0, len(t) - 1], i, np.minimum(i + 1, len(t) - 1)]))
-        self._parts.append({"t": t[keep], **{k: v[keep] for k, v in arrays.items()}})
+        cols, alias = {"t": t[keep]}, {}
+        for k, v in arrays.items():
+            same = next((j for j in cols if j != "t" and arrays[j] is v), None)
+            if same is None:
+                cols[k] = v[keep]
+            else:
+                alias[k] = same
+        if self._blocks and alias != self._alias:
+            raise ValueError("Brackets: the same columns must be the same arrays in every chunk")
+        self._alias = alias
+        self._append(cols)
+
+    def _append(self, cols: dict) -> None:
+        n, at = len(cols["t"]), 0
+        while at < n:
+            if not self._blocks or self._fill == len(self._blocks[-1]["t"]):
+                # The first block holds two rows per epoch and a few chunk ends: usually all there is (only
+                # the pages written become resident), so that rows() needs no copy.
+                rows = self.BLOCK_ROWS if self._blocks else 2 * len(self.epochs) + self.BLOCK_ROWS
+                self._blocks.append({k: np.empty((rows,) + v.shape[1:], v.dtype) for k, v in cols.items()})
+                self._fill = 0
+            block = self._blocks[-1]
+            m = min(n - at, len(block["t"]) - self._fill)
+            for k, v in cols.items():
+                block[k][self._fill:self._fill + m] = v[at:at + m]
+            self._fill += m
+            at += m
 
     def rows(self) -> dict:
-        """The kept rows in time order, each epoch once."""
-        if not self._parts:
+        """The kept rows in time order, each epoch once (then kept as one block)."""
+        if not self._blocks:
             return {}
-        cat = {k: np.concatenate([p[k] for p in self._parts]) for k in self._parts[0]}
-        _, first = np.unique(cat["t"], return_index=True)
-        return {k: v[first] for k, v in cat.items()}
+        if len(self._blocks) == 1:
+            self._blocks[0] = {k: v[:self._fill] for k, v in self._blocks[0].items()}  # views: no copy
+            t = self._blocks[0]["t"]
+            if len(t) > 1 and not np.all(t[1:] > t[:-1]):  # out of order or repeated (smoothed blocks)
+                _, first = np.unique(t, return_index=True)
+                self._blocks[0] = {k: v[first] for k, v in self._blocks[0].items()}
+            self._fill = len(self._blocks[0]["t"])
+        if len(self._blocks) > 1:
+            blocks, self._blocks = self._blocks, []
+            sizes = [len(b["t"]) for b in blocks[:-1]] + [self._fill]
+            cat = {k: np.empty((sum(sizes),) + v.shape[1:], v.dtype) for k, v in blocks[0].items()}
+            at = 0
+            for i, size in enumerate(sizes):  # each block dropped once copied
+                b, blocks[i] = blocks[i], None
+                for k, v in b.items():
+                    cat[k][at:at + size] = v[:size]
+                at += size
+            t = cat["t"]
+            if len(t) > 1 and not np.all(t[1:] > t[:-1]):  # out of order or repeated (smoothed blocks)
+                _, first = np.unique(t, return_index=True)
+                cat = {k: v[first] for k, v in cat.items()}
+            self._blocks, self._fill = [cat], len(cat["t"])
+        out = dict(self._blocks[0])
+        out.update({k: out[j] for k, j in self._alias.items()})
+        return out
 
 
 class PosWriter:

@@ -74,6 +74,9 @@ MIN_RATE_SPAN_S = 20.0  # an IMU stretch shorter than this takes the IMU period 
 OVERLAP_SLACK_S = 600.0  # IMU stamps this far outside the GPS stamps cannot share their clock map
 
 
+HULL_BLOCK = 1 << 16  # points per block of a long series' lower hull
+
+
 class AlignmentError(ValueError):
     pass
 
@@ -81,15 +84,30 @@ class AlignmentError(ValueError):
 def _lower_chain(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Indices of the vertices of the points' lower convex hull, by increasing x (x not all equal).
 
+    A vertex of the whole hull is a vertex of the hull of any subset holding it: on a long
+    series (a day of IMU samples) the hulls of blocks leave the only candidates, so that
+    memory holds a block at a time. The coordinates are normalised the same way in both."""
+    x0, y0, scale = x.mean(), y.min(), np.ptp(x)
+    if len(x) <= HULL_BLOCK:
+        return _chain((x - x0) / scale, y - y0)
+    cand = np.concatenate([a + _chain((x[a:a + HULL_BLOCK] - x0) / scale, y[a:a + HULL_BLOCK] - y0)
+                           for a in range(0, len(x), HULL_BLOCK)])
+    return cand[_chain((x[cand] - x0) / scale, y[cand] - y0)]
+
+
+def _chain(xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
+    """``_lower_chain`` on normalised coordinates.
+
     A point above the chord of two others is no vertex: whole passes drop every point above the
     chord of its current neighbours at once (NumPy), which leaves few points on stamps, and a
     monotone chain finishes on those."""
-    x0, y0 = x.mean(), y.min()
-    xs, ys = (x - x0) / np.ptp(x), y - y0
     order = np.lexsort((ys, xs))
+    sx = xs[order]
     first = np.ones(len(order), bool)
-    first[1:] = xs[order[1:]] != xs[order[:-1]]  # the lowest point of each abscissa
+    first[1:] = sx[1:] != sx[:-1]  # the lowest point of each abscissa
+    del sx
     pts = order[first]
+    del order, first
     for _ in range(64):
         if len(pts) < 3:
             break
@@ -118,24 +136,27 @@ def lower_envelope(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
     y = np.asarray(y, dtype=float)
     if len(x) < 2 or np.ptp(x) == 0:
         raise AlignmentError("lower envelope needs at least two distinct abscissae")
-    a, b = joint_lower_envelope(x, y, np.zeros(len(x), dtype=np.int64))
+    a, b = joint_lower_envelope(x, y, None)
     return float(a[0]), b
 
 
-def joint_lower_envelope(x: np.ndarray, y: np.ndarray, group: np.ndarray) -> tuple[np.ndarray, float]:
-    """One slope b and an intercept a_g per group: y_i >= a_g + b x_i minimising the summed
-    residual. For a given b each a_g is the minimum of y - b x over its group, so the objective
+def joint_lower_envelope(x: np.ndarray, y: np.ndarray, group: np.ndarray | None) -> tuple[np.ndarray, float]:
+    """One slope b and an intercept a_g per group (``group`` None: one group): y_i >= a_g + b x_i minimising
+    the summed residual. For a given b each a_g is the minimum of y - b x over its group, so the objective
     is convex and piecewise linear in b, with its optimum at the slope of an edge of some
     group's lower hull: those slopes are the only candidates."""
     x = np.asarray(x, dtype=float)
     y = np.asarray(y, dtype=float)
     x0, y0 = x.mean(), y.min()
     xs, ys = x - x0, y - y0
-    groups = np.unique(group)
+    groups = np.unique(group) if group is not None else [None]
     hulls, sums, slopes = [], [], []
     for g in groups:
-        m = group == g
-        gx, gy = xs[m], ys[m]
+        if g is None:
+            gx, gy = xs, ys  # one group: no copies (a day of IMU samples is 5.5 million)
+        else:
+            m = group == g
+            gx, gy = xs[m], ys[m]
         h = _lower_chain(gx, gy) if len(gx) >= 2 and np.ptp(gx) > 0 else np.array([np.argmin(gy)])
         hulls.append((gx[h], gy[h]))
         sums.append((len(gx), gy.sum(), gx.sum()))
@@ -161,9 +182,10 @@ def _window_min(x: np.ndarray, w: int) -> np.ndarray:
     padded[:n] = x
     b = padded.reshape(blocks, w)
     prefix = np.minimum.accumulate(b, axis=1).ravel()
-    suffix = np.minimum.accumulate(b[:, ::-1], axis=1)[:, ::-1].ravel()
-    i = np.arange(n - w + 1)
-    return np.minimum(suffix[i], prefix[i + w - 1])
+    suffix = np.minimum.accumulate(b[:, ::-1], axis=1)
+    del b, padded
+    suffix = suffix[:, ::-1].ravel()
+    return np.minimum(suffix[:n - w + 1], prefix[w - 1:n])  # slices, not index arrays: no n-long temporaries
 
 
 def _running_min(y: np.ndarray, w: int) -> tuple[np.ndarray, np.ndarray]:
@@ -484,10 +506,13 @@ def _fit_imu_clock(n: np.ndarray, mapped: np.ndarray, usable: np.ndarray, period
     fits: list[tuple[float, float] | None] = []
     spans = []
     for a, b in bounds:
-        k = np.arange(a, b)[usable[a:b]]
-        span = (n[k[-1]] - n[k[0]]) * period if len(k) else 0.0
-        fits.append(lower_envelope(n[k].astype(float), mapped[k]) if span >= MIN_RATE_SPAN_S else None)
+        u = n[a:b][usable[a:b]]
+        span = (u[-1] - u[0]) * period if len(u) else 0.0
+        x = u.astype(float) if span >= MIN_RATE_SPAN_S else None
+        del u
+        fits.append(lower_envelope(x, mapped[a:b][usable[a:b]]) if x is not None else None)
         spans.append(span)
+        del x
     long = [i for i, f in enumerate(fits) if f is not None]
     if long:
         p = float(sum(fits[i][1] * spans[i] for i in long) / sum(spans[i] for i in long))
@@ -497,8 +522,8 @@ def _fit_imu_clock(n: np.ndarray, mapped: np.ndarray, usable: np.ndarray, period
         # One pooled line cannot hold several stretches with their own phases: keep P only.
     t = np.empty(len(n))
     for (a, b), f in zip(bounds, fits):
-        k = np.arange(a, b)[usable[a:b]]
         if f is None:
+            k = np.flatnonzero(usable[a:b]) + a
             ref = k if len(k) else np.arange(a, b)
             t0 = float(np.min(mapped[ref] - p * n[ref]))
             t[a:b] = t0 + p * n[a:b]
@@ -548,8 +573,7 @@ def align(gps_tow: np.ndarray, gps_stamps: np.ndarray, week: int, imu_stamps: np
     for k in range(1, n_seg):
         lo = _coarse_cut(clock, k, s, lo)
         cuts.append(lo)
-    seg = np.searchsorted(np.array(cuts, dtype=np.int64), np.arange(len(s)), side="right") if cuts else \
-        np.zeros(len(s), dtype=np.int64)
+    seg = np.searchsorted(np.array(cuts, dtype=np.int64), np.arange(len(s)), side="right") if cuts else 0
     mapped = clock.to_gps(s, seg)
     # The frame period as the stamps show it: a configured rate that is wrong would count
     # the wrong number of counter periods across a gap.
@@ -571,7 +595,8 @@ def align(gps_tow: np.ndarray, gps_stamps: np.ndarray, week: int, imu_stamps: np
         seg = np.searchsorted(np.array(cuts, dtype=np.int64), np.arange(len(s)), side="right")
         mapped = clock.to_gps(s, seg)
         n = unwrap_counter(imu_counter, mapped, period, usable, int(UNWRAP_WINDOW_S / period))
-    # Stage 4: the IMU clock.
+    # Stage 4: the IMU clock (the stamps and counter steps no longer needed: a day of them is 90 MB).
+    del s, nc
     t, p, pieces = _fit_imu_clock(n, mapped, usable, period, int(PIECE_GAP_S / period))
     if np.any(np.diff(t) <= 0):
         i = int(np.flatnonzero(np.diff(t) <= 0)[0]) + 1
