@@ -76,6 +76,14 @@ UBX_RAW = Layout("ublox", ubx.SYNC1, ubx.HEADER_LEN, False)
 LAYOUTS = {"superstar2": SS2_RECORDS, "bp3010": BP_RECORDS, "ublox": UBX_RECORDS}
 
 
+def _cut_header(buf: np.ndarray, layout: Layout, start: int, size: int) -> int | None:
+    """The first sync byte at or after start whose header the end of the data cuts: the streaming
+    finder keeps such bytes as the truncated tail (it cannot tell them from a record's start)."""
+    lo = max(start, size - layout.header_len + 1)
+    hits = np.flatnonzero(np.asarray(buf[lo:size]) == layout.sync) if lo < size else ()
+    return lo + int(hits[0]) if len(hits) else None
+
+
 @dataclass
 class Scan:
     """Accepted records of one file as compact columns: file offsets, lengths,
@@ -278,6 +286,8 @@ def scan(buf: np.ndarray | bytes, layout: Layout, path: str = "<bytes>", limits:
     inc = p[(p + length > size) & (p >= last_end)]
     if len(inc):
         tail_offset = int(inc[0])
+    else:
+        tail_offset = _cut_header(buf, layout, last_end, size)
     tail = size - tail_offset if tail_offset is not None else 0
     covered = int(lengths.sum())
     # Where each covered stretch ends vs where the next begins: the first mismatch is the first discarded byte.
@@ -486,13 +496,18 @@ class _Chain:
         later = np.concatenate((pending, ends[-1:], bp_[hit] + bl_[hit]))  # records' ends before u were checked
         self.pending = np.unique(later[later >= u]) + base
         if final:
-            self._finish(p, length, incomplete, base, size)
+            self._finish(buf, p, length, incomplete, base, size)
         return u
 
-    def _finish(self, p: np.ndarray, length: np.ndarray, incomplete: np.ndarray, base: int, size: int) -> None:
+    def _finish(self, buf: np.ndarray, p: np.ndarray, length: np.ndarray, incomplete: np.ndarray, base: int,
+                size: int) -> None:
         total = base + size
         inc = p[incomplete & (p + base >= self.last_end)]
-        tail_offset = base + int(inc[0]) if len(inc) else None
+        if len(inc):
+            tail_offset = base + int(inc[0])
+        else:
+            cut = _cut_header(buf, self.lay, max(self.last_end - base, 0), size)
+            tail_offset = base + cut if cut is not None else None
         tail = total - tail_offset if tail_offset is not None else 0
         if self.first_discarded is None and self.last_end != total - tail:
             self.first_discarded = self.last_end
