@@ -9,7 +9,7 @@ from gpsins import replay, sim
 from gpsins.sim import Simulator, gnss, trajectory
 from gpsins.sim.scenario import parse, with_imu_rate
 from gpsins.sim.session import simulate_session, write_session
-from gpsins.sim.truthfile import load_truth, open_truth
+from gpsins.truthfile import load_truth, open_truth
 from simcheck import increment_errors, reintegration_errors
 
 START = {"lat_deg": 59.37, "lon_deg": 17.95, "height_m": 30.0, "heading_deg": 10.0}

@@ -98,7 +98,7 @@ def load_session_truth(directory: Path, t_offset: float) -> tuple[evaluate.Truth
     """The simulated truth next to a session (session dir or its parent), on the replay's time base."""
     for p in (directory / "truth.npz", directory.parent / "truth.npz"):
         if p.exists():
-            from .sim.truthfile import open_truth  # memory-mapped: a day-long truth is not read whole
+            from .truthfile import open_truth  # memory-mapped: a day-long truth is not read whole
 
             z = open_truth(p)
             tow = z["tow_s"] + (int(z["gps_week"]) * 604800.0) - t_offset
