@@ -143,9 +143,13 @@ class Score:
 
 def score(t_sol: np.ndarray, r_sol: np.ndarray, t_ref: np.ndarray, r_ref: np.ndarray, outages: np.ndarray) -> Score:
     """Score a solution (times, ECEF positions of the point the reference measures) against a reference."""
-    outages = np.asarray(outages, float).reshape(-1, 2)
     use, e = errors_ned(t_sol, r_sol, np.asarray(t_ref, float), np.asarray(r_ref, float))
-    tr = np.asarray(t_ref, float)[use]
+    return score_errors(np.asarray(t_ref, float)[use], e, outages)
+
+
+def score_errors(tr: np.ndarray, e: np.ndarray, outages: np.ndarray) -> Score:
+    """``score`` from the NED errors ``e`` at the reference epochs ``tr`` (``errors_ned``'s)."""
+    outages = np.asarray(outages, float).reshape(-1, 2)
     h = np.hypot(e[:, 0], e[:, 1])
     v = np.abs(e[:, 2])
     k = outage_index(tr, outages)

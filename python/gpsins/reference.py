@@ -205,6 +205,9 @@ class ReferenceErrors:
                 "reference_horizontal_sigma_m": rms(np.hypot(*self.sigma_ned_m[pos, :2].T)) if len(p) else float("nan")}
 
 
+COMPARE_BLOCK = 1 << 16  # reference epochs per block: a day at 10 Hz is compared without day-long temporaries
+
+
 def compare(ref: Reference, gps_s: np.ndarray, r_ecef_m: np.ndarray, yaw_rad: np.ndarray,
             pitch_rad: np.ndarray) -> ReferenceErrors:
     """Errors of an estimate (continuous GPS seconds, ECEF position, yaw and pitch relative to
@@ -214,14 +217,38 @@ def compare(ref: Reference, gps_s: np.ndarray, r_ecef_m: np.ndarray, yaw_rad: np
     if len(gps_s) < 2 or np.any(np.diff(gps_s) <= 0):
         raise ValueError("estimate times must be at least two and strictly increasing")
     tr = ref.gps_seconds()
-    k = (tr >= gps_s[0]) & (tr <= gps_s[-1])
-    t = tr[k]
-    r = np.stack([np.interp(t, gps_s, r_ecef_m[:, i]) for i in range(3)], axis=-1)
-    yaw = np.interp(t, gps_s, np.unwrap(yaw_rad))
-    pitch = np.interp(t, gps_s, pitch_rad)
-    r_ref = ref.r_ecef_m[k]
-    lat, lon = _lat_lon(np.where(np.isfinite(r_ref), r_ref, r))
-    d_ned = _ecef_to_ned(r - r_ref, lat, lon)
-    dh = np.mod(yaw - ref.heading_rad[k] + np.pi, 2.0 * np.pi) - np.pi
-    return ReferenceErrors(t, d_ned, ref.sigma_ned_m[k], dh, pitch - ref.pitch_rad[k], ref.sigma_heading_rad[k],
-                           ref.sigma_pitch_rad[k])
+    idx = np.flatnonzero((tr >= gps_s[0]) & (tr <= gps_s[-1]))
+    yaw_u = _unwrap(np.asarray(yaw_rad, dtype=np.float64))
+    t = tr[idx]
+    d_ned = np.empty((len(idx), 3))
+    dh = np.empty(len(idx))
+    dp = np.empty(len(idx))
+    for a in range(0, len(idx), COMPARE_BLOCK):
+        b = min(a + COMPARE_BLOCK, len(idx))
+        k, tk = idx[a:b], t[a:b]
+        r = np.stack([np.interp(tk, gps_s, r_ecef_m[:, i]) for i in range(3)], axis=-1)
+        r_ref = ref.r_ecef_m[k]
+        lat, lon = _lat_lon(np.where(np.isfinite(r_ref), r_ref, r))
+        d_ned[a:b] = _ecef_to_ned(r - r_ref, lat, lon)
+        dh[a:b] = np.mod(np.interp(tk, gps_s, yaw_u) - ref.heading_rad[k] + np.pi, 2.0 * np.pi) - np.pi
+        dp[a:b] = np.interp(tk, gps_s, pitch_rad) - ref.pitch_rad[k]
+    return ReferenceErrors(t, d_ned, ref.sigma_ned_m[idx], dh, dp, ref.sigma_heading_rad[idx],
+                           ref.sigma_pitch_rad[idx])
+
+
+def _unwrap(p: np.ndarray) -> np.ndarray:
+    """np.unwrap(p), block by block with the running correction carried (the same sums in the same
+    order, so the same numbers) and no series-long temporaries."""
+    out = p.copy()
+    carry = 0.0
+    for a in range(1, len(p), COMPARE_BLOCK):
+        b = min(a + COMPARE_BLOCK, len(p))
+        dd = p[a:b] - p[a - 1:b - 1]
+        ddmod = np.mod(dd + np.pi, 2.0 * np.pi) - np.pi
+        ddmod[(ddmod == -np.pi) & (dd > 0)] = np.pi
+        corr = ddmod - dd
+        corr[np.abs(dd) < np.pi] = 0.0
+        c = np.cumsum(np.concatenate(([carry], corr)))[1:]
+        out[a:b] += c
+        carry = c[-1]
+    return out

@@ -313,8 +313,8 @@ def reference_scores(t: np.ndarray, r_score: np.ndarray, ref: tuple, schedule: n
                      ) -> tuple[dict, dict, np.ndarray]:
     """Errors against a reference (t, r_ecef, name) and the per-outage drift: arrays, the scoring
     summary, and which reference epochs were used."""
-    sc = outages_mod.score(t, r_score, ref[0], ref[1], schedule)
     use, e = outages_mod.errors_ned(t, r_score, ref[0], ref[1])
+    sc = outages_mod.score_errors(np.asarray(ref[0], float)[use], e, schedule)
     h = np.hypot(e[:, 0], e[:, 1])
     scoring = {"all": {"rms_h_m": float(np.sqrt(np.mean(h ** 2))) if len(h) else float("nan"),
                        "rms_v_m": float(np.sqrt(np.mean(e[:, 2] ** 2))) if len(h) else float("nan"),
