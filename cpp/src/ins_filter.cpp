@@ -357,11 +357,11 @@ void InsFilter<NB, NC>::restart_after_gap(double gap_s, double t_end) {
     if constexpr (NC == 2) core_.clock(0) += core_.clock(1) * dt;
     // The error moves as the state does (position by velocity, clock bias by drift):
     // P <- A P A^T, and the smoother is told A.
-    typename Core::MatN a = Core::MatN::Identity();
-    a.template block<3, 3>(es::pos, es::vel) = Mat3::Identity() * dt;
-    if constexpr (NC == 2) a(Core::kClock, Core::kClock + 1) = dt;
-    P = (a * P * a.transpose()).eval();
-    core_.note_transition(a);
+    typename Core::MatN move = Core::MatN::Identity();
+    move.template block<3, 3>(es::pos, es::vel) = Mat3::Identity() * dt;
+    if constexpr (NC == 2) move(Core::kClock, Core::kClock + 1) = dt;
+    P = (move * P * move.transpose()).eval();
+    core_.note_transition(move);
     t_last_ += dt;
   };
   while (pending_count_ > 0 && pending_[0].t_s < t_end) {
