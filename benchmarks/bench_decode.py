@@ -6,7 +6,7 @@ Simulates the default drive (287 s) once, then writes a session of the given
 length by repeating its record files with every stamp moved on by the drive's
 span (the receiver's own times repeat, which the decoders take as they come:
 the figure is about memory, not navigation). Each case runs in a fresh process
-and prints its time and peak RSS (VmHWM, see peak_rss_mb):
+and prints its time and peak RSS (VmHWM, see bench_reader.peak_rss_mb):
 
 - decode: `measurements.decode_session` (IMU decoded block by block, no frames kept)
 - frames: `logs.read_session` with every frame kept, then `session.imu()`: the
@@ -15,7 +15,6 @@ and prints its time and peak RSS (VmHWM, see peak_rss_mb):
 
 import argparse
 import json
-import resource
 import subprocess
 import sys
 import tempfile
@@ -23,6 +22,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from bench_reader import peak_rss_mb  # the same VmHWM reading (this directory is on sys.path)
 
 
 def repeat_session(src: Path, dst: Path, hours: float) -> dict:
@@ -51,19 +51,6 @@ def repeat_session(src: Path, dst: Path, hours: float) -> dict:
     (dst / "session.json").write_text(json.dumps(side))
     (dst / "clock.csv").write_text("realtime,monotonic\n")
     return {"repeats": times, "hours": times * span / 3600, "bytes": sizes}
-
-
-def peak_rss_mb() -> float:
-    """This process's peak RSS: VmHWM, which starts afresh at exec; ru_maxrss keeps the
-    peak of the process that forked us (Linux), so a big parent would mask the figure."""
-    try:
-        with open("/proc/self/status") as f:
-            for line in f:
-                if line.startswith("VmHWM:"):
-                    return int(line.split()[1]) * 1024 / 1e6
-    except OSError:
-        pass
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024 / 1e6
 
 
 def run_case(case: str, session: Path) -> dict:

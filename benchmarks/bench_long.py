@@ -15,8 +15,7 @@ import sys
 
 import numpy as np
 
-from gpsins import _core, evaluate, filter as flt, sim
-from gpsins.sim import ephemeris as sim_eph
+from gpsins import evaluate, filter as flt, sim
 
 WHITE_FIXES = {"fix_uere_m": 3.0, "fix_uere_2d_m": 0.0, "fix_error_gm_sigma_m": 0.0}
 WHITE_1HZ = {"pseudorange_decimation": 10, "pseudorange_error_gm_sigma_m": 0.0}
@@ -24,13 +23,7 @@ WHITE_1HZ = {"pseudorange_decimation": 10, "pseudorange_error_gm_sigma_m": 0.0}
 
 def run(s, mode: str, over: dict):
     cfg = flt.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), "mode": mode, **over})
-    extra = {}
-    if mode == "tight":
-        ephs = [_core.gnss.decode_subframes(sim_eph.encode_subframes(e), e.prn, s.scenario.start.gps_week)
-                for e in s.gnss.ephemerides.values()]
-        extra = dict(pseudoranges=sim.pseudorange_table(s), ephemerides=ephs,
-                     klobuchar=(s.gnss.ion_alpha, s.gnss.ion_beta),
-                     gps_time_offset_s=s.scenario.start.gps_week * 604800.0 + s.scenario.start.gps_tow_s)
+    extra = sim.tight_inputs(s) if mode == "tight" else {}
     return flt.run(sim.imu_table(s), sim.fix_table(s), cfg, covariance=True, output_every=16, **extra)
 
 

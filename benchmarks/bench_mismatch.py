@@ -24,9 +24,8 @@ import time
 
 import numpy as np
 
-from gpsins import _core, evaluate, sim
+from gpsins import evaluate, sim
 from gpsins import filter as flt
-from gpsins.sim import ephemeris as sim_eph
 from gpsins.sim import unit
 
 
@@ -39,13 +38,7 @@ def main(seeds: int = 20, mode: str = "loose", preset: bool = False) -> None:
         sc = sim.load("default")
         sc.imu = unit.draw_unit(ds, np.random.default_rng([seed, 21]), sc.imu)
         s = sim.simulate(sc, seed=seed)
-        extra = {}
-        if mode == "tight":
-            ephs = [_core.gnss.decode_subframes(sim_eph.encode_subframes(e), e.prn, sc.start.gps_week)
-                    for e in s.gnss.ephemerides.values()]
-            extra = dict(pseudoranges=sim.pseudorange_table(s), ephemerides=ephs,
-                         klobuchar=(s.gnss.ion_alpha, s.gnss.ion_beta),
-                         gps_time_offset_s=sc.start.gps_week * 604800.0 + sc.start.gps_tow_s)
+        extra = sim.tight_inputs(s) if mode == "tight" else {}
         sol = flt.run(sim.imu_table(s), sim.fix_table(s), cfg, covariance=True, **extra)
         tr = s.truth
         err = evaluate.nav_errors(sol, evaluate.Truth(tr.t, tr.r_ecef, tr.v_ecef, tr.q_eb))

@@ -26,9 +26,8 @@ import time
 
 import numpy as np
 
-from gpsins import _core, evaluate, fix_scatter, sim
+from gpsins import evaluate, fix_scatter, sim
 from gpsins import filter as flt
-from gpsins.sim import ephemeris as sim_eph
 
 
 def main(seed: int = 0, white: bool = False) -> None:
@@ -38,11 +37,7 @@ def main(seed: int = 0, white: bool = False) -> None:
     tr = s.truth
     truth = evaluate.Truth(tr.t, tr.r_ecef, tr.v_ecef, tr.q_eb)
     print(f"simulated {sc.duration_s:.0f} s in {time.time() - t0:.1f} s")
-    ephs = [_core.gnss.decode_subframes(sim_eph.encode_subframes(e), e.prn, sc.start.gps_week)
-            for e in s.gnss.ephemerides.values()]
-    gps0 = sc.start.gps_week * 604800.0 + sc.start.gps_tow_s
-    tight = dict(pseudoranges=sim.pseudorange_table(s), ephemerides=ephs,
-                 klobuchar=(s.gnss.ion_alpha, s.gnss.ion_beta), gps_time_offset_s=gps0)
+    tight = sim.tight_inputs(s)
     fixes = sim.fix_table(s)
     sats = np.array([f.sats for f in s.gnss.fixes])
     segments = sc.segment_times()

@@ -7,9 +7,8 @@ drawn unit (sim.unit). Consistency is judged on the simulator's truth."""
 import numpy as np
 import pytest
 
-from gpsins import _core, evaluate, sim
+from gpsins import evaluate, sim
 from gpsins import filter as flt
-from gpsins.sim import ephemeris as sim_eph
 from gpsins.sim import unit
 
 SEEDS = 5
@@ -65,14 +64,19 @@ def test_three_sigma_coverage_under_mismatch(runs):
     assert pooled.min() >= 0.95 and min(worst) >= 0.85, (pooled, worst)
 
 
+def _nees_from_heading(sol, err) -> float:
+    """The run's time-averaged 9-state NEES from the first known heading to the end."""
+    sel = sol.t >= sol.t[np.argmax(sol.heading_known)]
+    return float(evaluate.nees(err.e9[sel], sol.covariance[sel][:, :9, :9]).mean())
+
+
 def test_nees_under_mismatch_inside_its_band(runs):
     """Time-averaged NEES of the 9 navigation states over the seeds, from the first known
     heading to the end, inside the two-sided 95 % band of a 5-run average (Bar-Shalom)."""
     _, out = runs
     per_seed = []
     for _, sol, err in out:
-        sel = sol.t >= sol.t[np.argmax(sol.heading_known)]
-        per_seed.append(float(evaluate.nees(err.e9[sel], sol.covariance[sel][:, :9, :9]).mean()))
+        per_seed.append(_nees_from_heading(sol, err))
     lo, hi = evaluate.nees_band(9, SEEDS)
     avg = float(np.mean(per_seed))
     print(f"NEES under mismatch: per seed {np.round(per_seed, 2)}, average {avg:.2f}, band {lo:.2f}..{hi:.2f}")
@@ -89,17 +93,10 @@ def test_tight_nees_under_mismatch_with_correlated_pseudorange_errors(runs):
                                  **unit.receiver_overrides(unit.ReceiverErrors(), "tight")})
     per_seed = []
     for s, _, _ in out:
-        sc = s.scenario
-        ephs = [_core.gnss.decode_subframes(sim_eph.encode_subframes(e), e.prn, sc.start.gps_week)
-                for e in s.gnss.ephemerides.values()]
-        sol = flt.run(sim.imu_table(s), sim.fix_table(s), cfg, covariance=True,
-                      pseudoranges=sim.pseudorange_table(s), ephemerides=ephs,
-                      klobuchar=(s.gnss.ion_alpha, s.gnss.ion_beta),
-                      gps_time_offset_s=sc.start.gps_week * 604800.0 + sc.start.gps_tow_s)
+        sol = flt.run(sim.imu_table(s), sim.fix_table(s), cfg, covariance=True, **sim.tight_inputs(s))
         assert not sol.counters["diverged"]
         err = evaluate.nav_errors(sol, _truth(s))
-        sel = sol.t >= sol.t[np.argmax(sol.heading_known)]
-        per_seed.append(float(evaluate.nees(err.e9[sel], sol.covariance[sel][:, :9, :9]).mean()))
+        per_seed.append(_nees_from_heading(sol, err))
     lo, hi = evaluate.nees_band(9, SEEDS)
     avg = float(np.mean(per_seed))
     print(f"tight NEES under mismatch: per seed {np.round(per_seed, 2)}, average {avg:.2f}, band {lo:.2f}..{hi:.2f}")

@@ -159,19 +159,15 @@ def test_track_errors_name_the_key():
 def test_loose_and_tight_filters_ride_three_laps_without_diverging():
     """Both couplings through 3 laps (after 60 s at rest) of the roller coaster: no divergence,
     every lap's horizontal error bounded. Figures for the full 11 laps are in the issue's report."""
-    from gpsins import _core, evaluate
+    from gpsins import evaluate
     from gpsins import filter as flt
-    from gpsins.sim import ephemeris as sim_eph
 
     data, source = scn._read("roller-coaster")
     data["track"].update(laps=3, rest_before_s=60.0, rest_after_s=10.0)
     s = sim.simulate(scn.parse(data, source), seed=0)
     tr = s.truth
     truth = evaluate.Truth(tr.t, tr.r_ecef, tr.v_ecef, tr.q_eb)
-    ephs = [_core.gnss.decode_subframes(sim_eph.encode_subframes(e), e.prn, s.scenario.start.gps_week)
-            for e in s.gnss.ephemerides.values()]
-    tight = dict(pseudoranges=sim.pseudorange_table(s), ephemerides=ephs, klobuchar=(s.gnss.ion_alpha, s.gnss.ion_beta),
-                 gps_time_offset_s=s.scenario.start.gps_week * 604800.0 + s.scenario.start.gps_tow_s)
+    tight = sim.tight_inputs(s)
     for mode, extra in (("loose", {}), ("tight", tight)):
         cfg = flt.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), "mode": mode})
         sol = flt.run(sim.imu_table(s), sim.fix_table(s), cfg, **extra)
@@ -191,19 +187,15 @@ def test_gnss_errors_measured_at_the_station_make_both_filters_consistent():
     the fixes' scatter at the station (gpsins.fix_scatter, no truth used), the laps' NEES of the 9
     navigation states comes near its expectation of 9 (seed 0: white 37 loose / 49 tight; preset
     32 / 13; measured 10.8 / 7.4)."""
-    from gpsins import _core, evaluate, fix_scatter
+    from gpsins import evaluate, fix_scatter
     from gpsins import filter as flt
-    from gpsins.sim import ephemeris as sim_eph
 
     data, source = scn._read("roller-coaster")
     data["track"].update(laps=2, rest_before_s=300.0, rest_after_s=10.0)
     s = sim.simulate(scn.parse(data, source), seed=0)
     tr = s.truth
     truth = evaluate.Truth(tr.t, tr.r_ecef, tr.v_ecef, tr.q_eb)
-    ephs = [_core.gnss.decode_subframes(sim_eph.encode_subframes(e), e.prn, s.scenario.start.gps_week)
-            for e in s.gnss.ephemerides.values()]
-    tight = dict(pseudoranges=sim.pseudorange_table(s), ephemerides=ephs, klobuchar=(s.gnss.ion_alpha, s.gnss.ion_beta),
-                 gps_time_offset_s=s.scenario.start.gps_week * 604800.0 + s.scenario.start.gps_tow_s)
+    tight = sim.tight_inputs(s)
     fixes = sim.fix_table(s)
     segments = s.scenario.segment_times()
     est = fix_scatter.measure(fixes, segments[0][1] + 5.0, segments[0][2])

@@ -45,16 +45,22 @@ VecN fd_steps() {
   return h;
 }
 
-// The error x_true - x_nominal in the filter's definitions (inverse of inject_and_reset's injection).
+// The navigation and IMU part (the first 21 states) of the error x_true - x_nominal in the filter's
+// definitions (inverse of inject_and_reset's injection).
+template <class F, class V>
+void nav_imu_error(const F& nominal, const F& truth, V& e) {
+  e.template segment<3>(es::att) = rotvec_from_quat(nominal.nav.q_eb.conjugate() * truth.nav.q_eb);
+  e.template segment<3>(es::vel) = truth.nav.v_ecef_mps - nominal.nav.v_ecef_mps;
+  e.template segment<3>(es::pos) = truth.nav.r_ecef_m - nominal.nav.r_ecef_m;
+  e.template segment<3>(es::bg) = truth.imu.gyro_bias_rad_per_s - nominal.imu.gyro_bias_rad_per_s;
+  e.template segment<3>(es::ba) = truth.imu.accel_bias_mps2 - nominal.imu.accel_bias_mps2;
+  e.template segment<3>(es::sg) = truth.imu.gyro_scale_factor - nominal.imu.gyro_scale_factor;
+  e.template segment<3>(es::sa) = truth.imu.accel_scale_factor - nominal.imu.accel_scale_factor;
+}
+
 VecN error_between(const Filter& nominal, const Filter& truth) {
   VecN e;
-  e.segment<3>(es::att) = rotvec_from_quat(nominal.nav.q_eb.conjugate() * truth.nav.q_eb);
-  e.segment<3>(es::vel) = truth.nav.v_ecef_mps - nominal.nav.v_ecef_mps;
-  e.segment<3>(es::pos) = truth.nav.r_ecef_m - nominal.nav.r_ecef_m;
-  e.segment<3>(es::bg) = truth.imu.gyro_bias_rad_per_s - nominal.imu.gyro_bias_rad_per_s;
-  e.segment<3>(es::ba) = truth.imu.accel_bias_mps2 - nominal.imu.accel_bias_mps2;
-  e.segment<3>(es::sg) = truth.imu.gyro_scale_factor - nominal.imu.gyro_scale_factor;
-  e.segment<3>(es::sa) = truth.imu.accel_scale_factor - nominal.imu.accel_scale_factor;
+  nav_imu_error(nominal, truth, e);
   e.segment<2>(Filter::kClock) = truth.clock - nominal.clock;
   return e;
 }
@@ -354,13 +360,7 @@ FixFilter with_fix_error(const Filter& f, const Vec3& b, double tau_s) {
 
 Vec3N error_between3(const FixFilter& nominal, const FixFilter& truth) {
   Vec3N e;
-  e.segment<3>(es::att) = rotvec_from_quat(nominal.nav.q_eb.conjugate() * truth.nav.q_eb);
-  e.segment<3>(es::vel) = truth.nav.v_ecef_mps - nominal.nav.v_ecef_mps;
-  e.segment<3>(es::pos) = truth.nav.r_ecef_m - nominal.nav.r_ecef_m;
-  e.segment<3>(es::bg) = truth.imu.gyro_bias_rad_per_s - nominal.imu.gyro_bias_rad_per_s;
-  e.segment<3>(es::ba) = truth.imu.accel_bias_mps2 - nominal.imu.accel_bias_mps2;
-  e.segment<3>(es::sg) = truth.imu.gyro_scale_factor - nominal.imu.gyro_scale_factor;
-  e.segment<3>(es::sa) = truth.imu.accel_scale_factor - nominal.imu.accel_scale_factor;
+  nav_imu_error(nominal, truth, e);
   e.segment<3>(FixFilter::kFixError) = truth.fix_error - nominal.fix_error;
   return e;
 }

@@ -262,21 +262,7 @@ def scan(buf: np.ndarray | bytes, layout: Layout, path: str = "<bytes>", limits:
     lo, hi = (limits.lo, limits.hi) if limits is not None else (STAMP_MIN, STAMP_MAX)
     p, length, ok, bad_stamp = _candidates(buf, layout, lo, hi)
     vp, vl = p[ok], length[ok]
-    # Greedy chain from the start: after a record ending at e, the next record is
-    # the first valid candidate at or after e. succ[k] is that candidate's index.
-    succ = np.searchsorted(vp, vp + vl)
-    n = len(vp)
-    irregular = np.flatnonzero(succ != np.arange(1, n + 1))
-    chosen = np.zeros(n, dtype=bool)
-    k = 0
-    while k < n:
-        j = np.searchsorted(irregular, k)
-        if j == len(irregular):
-            chosen[k:] = True
-            break
-        stop = irregular[j]
-        chosen[k:stop + 1] = True
-        k = succ[stop]
+    chosen = _follow(vp, vl, 0)  # the greedy chain from the start
     starts, lengths = vp[chosen], vl[chosen]
     # The tail: the first incomplete header-valid candidate after the last
     # accepted record. An incomplete candidate earlier than that was a false

@@ -143,6 +143,20 @@ def imu_noise_truth(model) -> dict:
             "accel_bias_residual_mps2": float(get("accel_bias_residual_mps2")) if on else 0.0}
 
 
+def tight_inputs(s: Simulation) -> dict:
+    """The tightly coupled filter's GNSS inputs of a simulation, as filter.run's keywords: the
+    pseudoranges, the ephemerides decoded from the broadcast subframes by the core's decoder (the
+    receiver side, as a replay gets them), the broadcast ionosphere and the GPS time of t = 0."""
+    from gpsins import _core  # only here: the simulator's own models never use the core
+
+    from .ephemeris import encode_subframes
+
+    week = s.scenario.start.gps_week
+    ephs = [_core.gnss.decode_subframes(encode_subframes(e), e.prn, week) for e in s.gnss.ephemerides.values()]
+    return dict(pseudoranges=pseudorange_table(s), ephemerides=ephs, klobuchar=(s.gnss.ion_alpha, s.gnss.ion_beta),
+                gps_time_offset_s=week * 604800.0 + s.scenario.start.gps_tow_s)
+
+
 def pseudorange_table(s: Simulation) -> np.ndarray:
     """(k, 5) [t, prn, pseudorange, C/N0, lock count] per tracked satellite, t the receiver's
     time of the epoch on the run's time line (tow_rx - start tow)."""
