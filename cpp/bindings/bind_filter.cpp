@@ -651,6 +651,7 @@ void bind_filter(py::module_& m) {
   GPSINS_FIELD(update_check);
   GPSINS_FIELD(max_attitude_correction_rad);
   GPSINS_FIELD(gnss_reset_timeout_s);
+  GPSINS_FIELD(gnss_reset_max_dop);
   GPSINS_FIELD(max_position_sigma_m);
 #undef GPSINS_FIELD
 

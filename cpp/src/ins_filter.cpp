@@ -409,7 +409,10 @@ void InsFilter<NB, NC>::reset_to_fix(const FixInput& fix) {
   P.template middleRows<6>(es::vel).setZero();
   P.template middleCols<6>(es::vel).setZero();
   P.template block<3, 3>(es::vel, es::vel) = Mat3::Identity() * var_v;
-  P.template block<3, 3>(es::pos, es::pos) = Mat3::Identity() * cfg_.position_sigma_m * cfg_.position_sigma_m;
+  // The fix's own spread where it is wider than the configured initial one.
+  const double s_fix = cfg_.fix_uere_m * std::max(fix.hdop, fix.vdop);
+  P.template block<3, 3>(es::pos, es::pos) =
+      Mat3::Identity() * std::max(cfg_.position_sigma_m * cfg_.position_sigma_m, s_fix * s_fix);
   core_.note_restart(es::vel, 6);
   if constexpr (NC == 2) clock_set_ = false;
 }
@@ -823,7 +826,8 @@ void InsFilter<NB, NC>::process_fix(const FixInput& fix) {
   // 3-satellite stretches 70-100 m at HDOP 4-9, rightly rejected; resetting onto one
   // made the good fixes after it look like outliers).
   const bool reset_due = rejecting_ && fix.mode == 2 && cfg_.gnss_reset_timeout_s > 0.0 &&
-                         fix.t_s - rejected_since_ >= cfg_.gnss_reset_timeout_s;
+                         fix.t_s - rejected_since_ >= cfg_.gnss_reset_timeout_s &&
+                         fix.hdop <= cfg_.gnss_reset_max_dop && fix.vdop <= cfg_.gnss_reset_max_dop;
   if constexpr (NC == 2) {  // tight: the receiver's fixes only start the filter, give the heading, reset it
     if (reset_due) reset_to_fix(fix);
     prev_fix_ = fix;

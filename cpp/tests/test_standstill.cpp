@@ -151,27 +151,48 @@ TEST_CASE("a long IMU gap restarts the filter instead of failing; an out-of-rang
   CHECK(f.core().nav.v_ecef_mps.norm() < 0.1);
 }
 
-TEST_CASE("sustained GNSS rejection resets position and velocity to GNSS and flags divergence") {
+// 40 s standing; from t = 20 s the fixes sit `offset_m` north with the given DOPs
+// (the receiver is right, the INS was carried off, or the receiver is wrong).
+InsFilter<5, 0> stand_with_moved_fixes(double offset_m, double dop) {
   const Stand s;
   InsConfig c = stand_config();
   c.gnss_reset_timeout_s = 5.0;
+  c.gnss_reset_max_dop = 10.0;
   InsFilter<5, 0> f(c);
   const double dt = 1.0 / 64.0;
   double t = 0.0;
   int next_fix = 1;
-  const Vec3 moved = s.r + rot_ned_to_ecef(s.site.lat_rad, s.site.lon_rad) * Vec3(400.0, 0.0, 0.0);
+  const Vec3 moved = s.r + rot_ned_to_ecef(s.site.lat_rad, s.site.lon_rad) * Vec3(offset_m, 0.0, 0.0);
   while (t < 40.0) {
     t += dt;
-    // From t = 20 s the fixes sit 400 m away (the receiver is right, the INS was carried off).
     while (next_fix <= t) {
-      f.push_fix(fix_at(next_fix, next_fix >= 20 ? moved : s.r));
+      FixInput x = fix_at(next_fix, next_fix >= 20 ? moved : s.r);
+      if (next_fix >= 20) x.hdop = x.vdop = dop;
+      f.push_fix(x);
       ++next_fix;
     }
     f.push_imu(t, s.w_body * dt, s.f_body * dt);
   }
+  return f;
+}
+
+TEST_CASE("sustained GNSS rejection resets position and velocity to GNSS and flags divergence") {
+  const Stand s;
+  const auto f = stand_with_moved_fixes(400.0, 1.0);
   CHECK(f.counters().gnss_resets == 1);
   CHECK(f.counters().diverged);
   CHECK(f.counters().fixes_rejected >= 5);
   CHECK(f.counters().fixes_rejected <= 7);
+  const Vec3 moved = s.r + rot_ned_to_ecef(s.site.lat_rad, s.site.lon_rad) * Vec3(400.0, 0.0, 0.0);
   CHECK((f.core().nav.r_ecef_m - moved).norm() < 1.0);
+}
+
+TEST_CASE("no reset onto fixes whose DOP the receiver saturates") {
+  // A 4-satellite geometry at DOP 99.9 (the receiver's largest value), 40 km off:
+  // every such fix is rejected, and none may take over the position.
+  const Stand s;
+  const auto f = stand_with_moved_fixes(40e3, 99.9);
+  CHECK(f.counters().gnss_resets == 0);
+  CHECK(f.counters().fixes_rejected >= 20);
+  CHECK((f.core().nav.r_ecef_m - s.r).norm() < 5.0);
 }

@@ -154,6 +154,10 @@ struct InsConfig {
   // GNSS measurements rejected this long while the receiver reports solutions:
   // position and velocity reset to GNSS with inflated covariance. <= 0: never.
   double gnss_reset_timeout_s = 5.0;
+  // ...but only onto a fix whose DOPs are at most this (a data set's fix: the DOP its
+  // stated sigma stands for). A receiver's saturated DOP (99.9) marks a solution it
+  // cannot vouch for: on a simulated day 4-satellite fixes 58 km off were taken.
+  double gnss_reset_max_dop = 10.0;
   // Divergence guard: position sigma beyond this marks the filter diverged.
   double max_position_sigma_m = 1e4;
 };
