@@ -23,6 +23,7 @@ import numpy as np
 from gpsins_logger import bp3010, superstar2 as ss2
 
 from . import logs
+from .filter import PseudorangeColumns
 
 SECONDS_PER_WEEK = 604800.0
 FIX_PAIR_TOLERANCE_S = 0.05  # an ID 20 and its ID 21 describe the same epoch (times to 1 ms)
@@ -34,7 +35,7 @@ class GpsMeasurements:
     week: int  # week of the first measurement block; times below count from its start
     tow: np.ndarray  # (n,) receiver time of each ID 23, s (continuing past the week end)
     stamps: np.ndarray  # (n,) system stamps
-    pseudoranges: np.ndarray  # (k, 5) [t, prn, pseudorange m, C/N0 dB-Hz, lock count]: GPS satellites of every block
+    pseudoranges: PseudorangeColumns  # [t, prn, pseudorange m, C/N0 dB-Hz, lock count]: GPS satellites of every block
     fixes: np.ndarray  # (m, 10) [t, r xyz, v xyz, hdop, vdop, mode], t in the same time base
     fix_sats: np.ndarray  # (m,) satellites used
     ephemerides: list[tuple[float, ss2.EphemerisWords]]  # (receive time, words)
@@ -43,7 +44,7 @@ class GpsMeasurements:
 
     def pseudorange_table(self) -> np.ndarray:
         """(k, 5) [t, prn, pseudorange m, C/N0 dB-Hz, lock count]: GPS satellites of every block."""
-        return self.pseudoranges
+        return self.pseudoranges[:]
 
     def decoded_ephemerides(self, skipped: Counter | None = None) -> list:
         """The ID 22 subframes decoded (IS-GPS-200) by the core; inconsistent sets are counted and left out."""
@@ -73,12 +74,48 @@ def _bad_imu(status: np.ndarray) -> np.ndarray:
                                                                         | bp3010.STATUS_BIT_FAILURE)) != 0)
 
 
+class _Observations:
+    """The GPS observations of the measurement blocks as they are decoded: gathered as flat doubles
+    (block index, prn, pseudorange, C/N0, lock count), moved every ``CHUNK`` rows into columns of the
+    protocol's own exact types (C/N0 in quarter dB-Hz and the lock count are bytes, so float32 holds
+    them exactly). A day's 8 million observations then take 25 bytes each, and no whole float table
+    is ever built."""
+
+    CHUNK = 1 << 16
+
+    def __init__(self):
+        self._rows = array("d")
+        self._parts: list[list] = []
+
+    def add(self, block: int, prn: int, pseudorange_m: float, cn0_dbhz: float, lock: int) -> None:
+        self._rows.extend((block, prn, pseudorange_m, cn0_dbhz, lock))
+        if len(self._rows) >= 5 * self.CHUNK:
+            self._flush()
+
+    def _flush(self) -> None:
+        a = np.frombuffer(self._rows, dtype=np.float64).reshape(-1, 5)
+        self._parts.append([a[:, 0].astype(np.uint32), a[:, 1].astype(np.uint8), a[:, 2].copy(),
+                            a[:, 3].astype(np.float32), a[:, 4].astype(np.float32)])
+        del a
+        self._rows = array("d")
+
+    def columns(self, block_times: np.ndarray) -> PseudorangeColumns:
+        """The observations by columns, each block's index replaced by its time."""
+        self._flush()
+        parts, self._parts = self._parts, []
+        cols = []
+        for j in range(5):  # one column at a time, each part's piece dropped once copied
+            cols.append(np.concatenate([p[j] for p in parts]))
+            for p in parts:
+                p[j] = None
+        cols[0] = block_times[cols[0]]
+        return PseudorangeColumns(*cols)
+
+
 def decode_gps(files: logs.SensorFiles, skipped: Counter) -> GpsMeasurements:
     week = None
     tows, tstamps = array("d"), array("d")
-    # Per GPS observation: block index, prn, pseudorange, C/N0, lock count; flat doubles, not objects,
-    # so a day's 8 million observations take 40 bytes each.
-    obs = array("d")
+    obs = _Observations()
     nav_user: list[tuple[float, ss2.NavUser]] = []
     nav_ecef: list[tuple[float, ss2.NavEcef]] = []
     ephs, iono, leap = [], None, None
@@ -91,7 +128,7 @@ def decode_gps(files: logs.SensorFiles, skipped: Counter) -> GpsMeasurements:
                 k = len(tows)
                 for o in m.observations:
                     if not o.sbas:
-                        obs.extend((k, o.prn, m.pseudorange_m(o), o.cn0_dbhz, o.lock_count))
+                        obs.add(k, o.prn, m.pseudorange_m(o), o.cn0_dbhz, o.lock_count)
                 tows.append(m.tow_s)
                 tstamps.append(st)
             elif msg_id == ss2.ID_NAV_USER:
@@ -119,8 +156,7 @@ def decode_gps(files: logs.SensorFiles, skipped: Counter) -> GpsMeasurements:
     tow = np.frombuffer(tows, dtype=np.float64)
     # Time of week continues past a week rollover (tow drops by a week).
     tow = tow + SECONDS_PER_WEEK * np.concatenate([[0], np.cumsum(np.diff(tow) < -SECONDS_PER_WEEK / 2)])
-    prs = np.frombuffer(obs, dtype=np.float64).reshape(-1, 5)  # the array's own memory, no copy
-    prs[:, 0] = tow[prs[:, 0].astype(np.int64)]
+    prs = obs.columns(tow)
 
     # Pair each ID 21 with the ID 20 of the same epoch, by GPS time (stamps can jump with the clock).
     fixes, sats = [], []

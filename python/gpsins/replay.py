@@ -170,8 +170,9 @@ def _session_inputs(session: Path, mode: str, config, timing_method: str, gps_la
         ephs = dec.gps.decoded_ephemerides(dec.skipped)
         if nav is not None:
             ephs += rinex.read_nav(nav).ephemerides
-        # By columns in exact smaller types: a day's float table is 200 MB.
-        inp.pseudoranges = flt.PseudorangeColumns.compact(dec.gps.pseudorange_table())
+        # By columns in exact smaller types (a day's float table is 200 MB); a Superstar session's are already.
+        prs = dec.gps.pseudoranges
+        inp.pseudoranges = prs if isinstance(prs, flt.PseudorangeColumns) else flt.PseudorangeColumns.compact(prs)
         dec.gps.pseudoranges = None
         inp.ephemerides, inp.klobuchar = ephs, klob
     inp.truth = load_session_truth(session, dec.gps.week * measurements.SECONDS_PER_WEEK) if truth else None
