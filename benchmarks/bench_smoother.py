@@ -43,16 +43,19 @@ its error-state bookkeeping (resets, the first heading's transition, standstill 
 the fix-error states; the backward pass needs no Q, the forward covariances carry it) is
 not what makes the default drive over-confident. The simulated receiver's fixes are, above
 all in north: already 1.8 x over-confident forward, and smoothing, which weighs fixes from
-both sides, exposes it more (2.6 x). The receiver states one HDOP, which the filter splits
-evenly between north and east, while this latitude's sky makes north the weaker axis: on
-the drive's 3D fixes NDOP / EDOP has median 1.37 and upper quartile 2.2, and the error per
-unit of DOP is north 2.06 / east 1.26 m per HDOP / sqrt 2 but 1.82 / 1.51 m per NDOP, EDOP
-(6 seeds). The preset's larger north Gauss-Markov sigma covers the mean ratio, not the
-geometries where north is far weaker.
+both sides, exposes it more (2.6 x). Not the cause: north being the weaker axis (NDOP / EDOP
+has median 1.37, upper quartile 2.2 on the drive's 3D fixes, while the filter splits one
+HDOP evenly): errors drawn from the filter's model but scaled by each fix's NDOP and EDOP
+leave north consistent (forward 1.02, smoothed 1.06; 16 seeds, unmodelled IMU terms off).
+A lead: the receiver's north error stays correlated longer than the model's 20 s (per unit
+of DOP squared, lag 60 s 0.29 against the model's 0.10, 90 s 0.14 against 0.02; 20 seeds),
+and slow errors hurt the smoother most: a constant error of 0.5 / 0.4 / 0.7 m (north, east,
+down, 1 sigma per drive) added to fixes from the model takes the position block from about 2.9 to
+3.07 forward but 3.72 smoothed (16 seeds).
 Tried and not kept: restarting the fix-error states where the DOPs step (a new satellite
 set; detected without a miss or false alarm on the simulated receiver): forward 10.48
-(attitude 3.12), smoothed 12.67 (position 5.90). The receiver's correlated error carries
-over a change of satellites in part, and a restart has the smoother average it as if not.
+(attitude 3.12), smoothed 12.67 (position 5.90): the receiver's correlated error seems to carry
+over a change of satellites in part, which a restart has the smoother average as if not.
 """
 
 import sys
