@@ -96,17 +96,23 @@ def outage_index(t: np.ndarray, outages: np.ndarray) -> np.ndarray:
     return np.where(hit, k, -1)
 
 
+ERRORS_BLOCK = 1 << 16  # reference epochs per block
+
+
 def errors_ned(t_sol: np.ndarray, r_sol: np.ndarray, t_ref: np.ndarray, r_ref: np.ndarray):
     """Solution minus reference in NED at the reference epochs inside the solution's span.
 
     Returns (mask of the reference epochs used, (m, 3) errors)."""
     t_sol = np.asarray(t_sol, float)
     use = (t_ref >= t_sol[0]) & (t_ref <= t_sol[-1]) if len(t_sol) else np.zeros(len(t_ref), bool)
-    tr = t_ref[use]
-    est = np.column_stack([np.interp(tr, t_sol, r_sol[:, j]) for j in range(3)])
-    llh = _core.ecef_to_geodetic(r_ref[use]) if use.any() else np.zeros((0, 3))
-    c = c_en(llh[:, 0], llh[:, 1])
-    return use, np.einsum("nji,nj->ni", c, est - r_ref[use])
+    idx = np.flatnonzero(use)
+    out = np.empty((len(idx), 3))
+    for a in range(0, len(idx), ERRORS_BLOCK):  # a day's epochs would need 3x3 matrices of 140 MB at once
+        k = idx[a:a + ERRORS_BLOCK]
+        est = np.column_stack([np.interp(t_ref[k], t_sol, r_sol[:, j]) for j in range(3)])
+        llh = _core.ecef_to_geodetic(r_ref[k])
+        out[a:a + len(k)] = np.einsum("nji,nj->ni", c_en(llh[:, 0], llh[:, 1]), est - r_ref[k])
+    return use, out
 
 
 @dataclass
