@@ -230,6 +230,27 @@ def test_scoring_interpolates_a_moving_solution():
     assert s.max_h_m[0] == pytest.approx(0.1, abs=1e-6) and s.n_ref[0] == 8
 
 
+def test_scoring_never_interpolates_across_an_update():
+    # Moving north at 2 m/s, sampled at 100 Hz; the solution is 1 m ahead until an update at t = 5.004 puts it
+    # on the track. Reference epochs at 5.004 (the update's own instant), 5.002 (before it) and 5.0065 (after
+    # it, between the same samples): the output there is the state after the updates up to that instant,
+    # so 0, 1 and 0 m (linear interpolation across the step would give 0.6, 0.8 and 0.35 m).
+    llh = np.array([np.radians(59.0), np.radians(18.0), 20.0])
+    t_sol = np.round(np.arange(0.0, 10.001, 0.01), 9)
+    north = lambda t: np.column_stack([2.0 * t, 0 * t, 0 * t])  # noqa: E731
+    r_sol = _core.ned_to_ecef(north(t_sol) + np.where(t_sol < 5.004, 1.0, 0.0)[:, None] * [1, 0, 0], llh)
+    v_sol = _core.ned_to_ecef(north(t_sol + 1.0), llh) - _core.ned_to_ecef(north(t_sol), llh)  # 2 m/s north
+    t_ref = np.array([5.004, 5.002, 5.0065])
+    r_ref = _core.ned_to_ecef(north(t_ref), llh)
+    _, e = outages.errors_ned(t_sol, r_sol, t_ref, r_ref, v_sol, np.array([1.0, 5.004, 7.0]))
+    np.testing.assert_allclose(e[:, 0], [0.0, 1.0, 0.0], atol=1e-6)
+    _, lin = outages.errors_ned(t_sol, r_sol, t_ref, r_ref)
+    np.testing.assert_allclose(lin[:, 0], [0.6, 0.8, 0.35], atol=1e-6)
+    # An update closer after a reference epoch than the reference's time resolution is at that epoch.
+    _, e = outages.errors_ned(t_sol, r_sol, t_ref[1:2], r_ref[1:2], v_sol, np.array([5.004]), same_instant_s=0.003)
+    assert e[0, 0] == pytest.approx(0.0, abs=1e-6)
+
+
 def test_a_damaged_ubx_stream_is_one_note_and_the_rest_is_kept(tmp_path):
     data = bytearray((WALK / "gnss_1730.ubx").read_bytes())
     at = data.index(b"\xb5\x62\x02\x15", 200_000)  # an RXM-RAWX frame

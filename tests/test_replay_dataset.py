@@ -23,11 +23,22 @@ WALK = Path(__file__).parent / "data" / "walk_0827"
 
 # --- helpers computed independently of the code under test ------------------------------------------------------
 
-def _ned_errors(t_sol, r_sol, t_ref, r_ref):
+def _ned_errors(t_sol, r_sol, t_ref, r_ref, v_sol=None, upd_t=None, same_instant_s=0.001):
     """Solution minus reference in NED at the reference epochs inside the solution (the simulator's own
-    geodetic model, not the core's)."""
+    geodetic model, not the core's). With velocities and update times, the solution at an epoch whose two
+    neighbouring samples straddle an update is the sample on the epoch's side of it, carried with its velocity
+    (an update less than a millisecond after the epoch counts as before it: the .pos tags' resolution)."""
     use = (t_ref >= t_sol[0]) & (t_ref <= t_sol[-1])
     est = np.column_stack([np.interp(t_ref[use], t_sol, r_sol[:, j]) for j in range(3)])
+    if upd_t is not None:
+        for n, te in enumerate(t_ref[use]):
+            k = min(int(np.searchsorted(t_sol, te, side="right")) - 1, len(t_sol) - 2)
+            if t_sol[k] == te:
+                continue
+            ups = upd_t[(upd_t > t_sol[k]) & (upd_t <= t_sol[k + 1])]
+            if len(ups):
+                j = k + 1 if ups.min() <= te + same_instant_s else k
+                est[n] = r_sol[j] + v_sol[j] * (te - t_sol[j])
     out = []
     for x, r in zip(est, r_ref[use]):
         lat, lon, _ = earth.ecef_to_geodetic(r)
@@ -35,13 +46,13 @@ def _ned_errors(t_sol, r_sol, t_ref, r_ref):
     return use, np.array(out).reshape(-1, 3)
 
 
-def _score_by_hand(t_sol, r_sol, t_ref, r_ref, t0, first, length, period, end, t_last):
+def _score_by_hand(t_sol, r_sol, t_ref, r_ref, t0, first, length, period, end, t_last, v_sol=None, upd_t=None):
     starts = []
     k = 0
     while t0 + first + k * period < t_last - end:
         starts.append(t0 + first + k * period)
         k += 1
-    use, e = _ned_errors(t_sol, r_sol, t_ref, r_ref)
+    use, e = _ned_errors(t_sol, r_sol, t_ref, r_ref, v_sol, upd_t)
     tr = t_ref[use]
     h, v = np.hypot(e[:, 0], e[:, 1]), np.abs(e[:, 2])
     inside = np.zeros(len(tr), bool)
@@ -90,7 +101,7 @@ def test_walk_replays_and_its_outage_scoring_is_recomputed_independently(walk_ru
     ref = ref.select(ref.q == 1)
     t_ref = ref.t_abs - int(z["week"]) * 604800.0
     starts, max_h, max_v, outside = _score_by_hand(z["t"], z["r_point_ecef"], t_ref, ref.r_ecef, t0, 25, 15, 45, 45,
-                                                   s["outages"]["gnss_last_t"])
+                                                   s["outages"]["gnss_last_t"], z["v_ecef"], z["upd_t"])
     np.testing.assert_allclose(starts, sched[:, 0])
     sc = s["scoring"]
     np.testing.assert_allclose([o["max_h_m"] for o in sc["per_outage"]], max_h, rtol=1e-6, atol=1e-6)

@@ -85,6 +85,7 @@ MODES = ("loose", "tight", "ins")
 UNKNOWN_CN0_DBHZ = 99.0  # what the tight filter is given for a pseudorange whose C/N0 the file does not state
 POINTS = ("antenna", "imu")
 TRUTH_SCORING_HZ = 10.0  # a simulated truth scored as the reference is taken at about this rate
+POS_TIME_RESOLUTION_S = 0.001  # an RTKLIB .pos reference's epochs are printed to the millisecond
 
 
 @dataclass
@@ -309,11 +310,13 @@ def _reference_system(source: Path):
     return reference_mod.load(source)
 
 
-def reference_scores(t: np.ndarray, r_score: np.ndarray, ref: tuple, schedule: np.ndarray
+def reference_scores(t: np.ndarray, r_score: np.ndarray, ref: tuple, schedule: np.ndarray,
+                     v: np.ndarray | None = None, update_t: np.ndarray | None = None, same_instant_s: float = 0.0
                      ) -> tuple[dict, dict, np.ndarray]:
     """Errors against a reference (t, r_ecef, name) and the per-outage drift: arrays, the scoring
-    summary, and which reference epochs were used."""
-    use, e = outages_mod.errors_ned(t, r_score, ref[0], ref[1])
+    summary, and which reference epochs were used. With the solution's velocities and update times the
+    solution is never interpolated across an update (``outages.solution_at``)."""
+    use, e = outages_mod.errors_ned(t, r_score, ref[0], ref[1], v, update_t, same_instant_s)
     sc = outages_mod.score_errors(np.asarray(ref[0], float)[use], e, schedule)
     h = np.hypot(e[:, 0], e[:, 1])
     scoring = {"all": {"rms_h_m": float(np.sqrt(np.mean(h ** 2))) if len(h) else float("nan"),
@@ -349,7 +352,9 @@ def _score_stream(stream, ref, schedule, prefix: str = "") -> _Scored:
     rows = stream.brackets.rows()
     if ref is None or not len(ref[0]) or len(rows.get("t", ())) < 1:
         return _Scored({}, {})
-    arrays, scoring, use = reference_scores(rows["t"], rows["r_score"], ref, schedule)
+    same_instant = 0.0 if stream.truth is not None and ref[2] == "truth.npz" else POS_TIME_RESOLUTION_S
+    arrays, scoring, use = reference_scores(rows["t"], rows["r_score"], ref, schedule, rows.get("v"),
+                                            stream.update_times(), same_instant)
     arrays.update(ref_t=ref[0][use], ref_r_ecef=ref[1][use], ref_outage=outages_mod.outage_index(ref[0][use], schedule))
     return _Scored({prefix + k: v for k, v in arrays.items()}, scoring)
 
