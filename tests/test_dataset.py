@@ -251,6 +251,39 @@ def test_scoring_never_interpolates_across_an_update():
     assert e[0, 0] == pytest.approx(0.0, abs=1e-6)
 
 
+def _circling_fixes(velocity_at):
+    """4 Hz RTK-fixed fixes of a walk round a 5 m circle at 1.5 m/s (north-east, fixed height), with the
+    stated velocity from ``velocity_at(t, positions, times)``."""
+    from gpsins.readers.common import Fixes
+    llh = np.array([np.radians(40.0), np.radians(-105.0), 1600.0])
+    t = np.arange(0.0, 30.0, 0.25)
+    ned = lambda x: np.column_stack([5 * np.cos(0.3 * x), 5 * np.sin(0.3 * x), 0 * x])  # noqa: E731
+    r = _core.ned_to_ecef(ned(t), llh)
+    n = len(t)
+    return Fixes(t + 1e9, r, np.full((n, 3), 0.01), np.ones(n, int), np.full(n, 20), velocity_at(t, ned),
+                 np.full((n, 3), 0.05))
+
+
+def test_velocity_lag_is_measured_from_the_fixes_positions():
+    # Instantaneous velocities: no lag. Velocities that are the mean over the epoch just ended (what NAV-PVT
+    # gives, per the walk): half an epoch. The true values are set by construction, not by the estimator.
+    now = _circling_fixes(lambda t, ned: np.column_stack([-1.5 * np.sin(0.3 * t), 1.5 * np.cos(0.3 * t), 0 * t]))
+    mean = _circling_fixes(lambda t, ned: (ned(t) - ned(t - 0.25)) / 0.25)
+    a, b = dataset.velocity_lag(now), dataset.velocity_lag(mean)
+    assert a["epochs"] == len(now) - 2 and a["interval_s"] == pytest.approx(0.25)
+    assert abs(a["lag_s"]) < 0.005 and b["lag_s"] == pytest.approx(0.125, abs=0.005)
+    assert b["rms_mps"] < 0.01 < b["rms_mps_at_zero_lag"]
+    # Standalone (Q 5) fixes cannot tell: no figure.
+    mean.q[:] = 5
+    assert dataset.velocity_lag(mean) is None
+
+
+def test_the_walk_velocity_lag_is_half_its_epoch():
+    from gpsins.readers import rtklib_pos
+    m = dataset.velocity_lag(rtklib_pos.read(WALK / "gnss_1730_sf.pos"))
+    assert m["lag_s"] == pytest.approx(0.125, abs=0.01) and m["rms_mps"] < 0.5 * m["rms_mps_at_zero_lag"]
+
+
 def test_a_damaged_ubx_stream_is_one_note_and_the_rest_is_kept(tmp_path):
     data = bytearray((WALK / "gnss_1730.ubx").read_bytes())
     at = data.index(b"\xb5\x62\x02\x15", 200_000)  # an RXM-RAWX frame

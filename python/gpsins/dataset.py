@@ -27,6 +27,9 @@ Extensions (all optional):
   ``[horizontal, vertical]``: the smallest 1-sigma a fix of that quality is given (``SIGMA_FLOOR_M``);
   ``[gnss.sigma_default_m]`` the same keys: the sigma of a fix whose file states none
   (``SIGMA_DEFAULT_M``); ``[gnss] velocity_sigma_floor_mps``.
+- ``[gnss] velocity_lag_s``: how long before its fix's time a fix velocity applies (default 0), or
+  ``"measured"``: from the fixes themselves (``velocity_lag``; a receiver that reports the mean velocity
+  over the epoch just ended gives half an epoch). The filter's ``fix_velocity_lag_s``.
 - ``[scoring] reference = "FILE.pos"``, ``reference_q = [1]`` (the Q values that count),
   ``outages = "FIRST:LENGTH:PERIOD[:END]"``: defaults for ``--reference`` and ``--outages``.
 
@@ -44,7 +47,8 @@ from pathlib import Path
 
 import numpy as np
 
-from . import outages as outages_mod
+from . import _core, outages as outages_mod
+from .evaluate import c_en
 from .readers import imu_csv, kfgins, rinex, rtklib_pos, ubx
 from .readers.common import Fixes, Navigation, Pseudoranges, ReaderError
 from .readers.imu_csv import ImuData
@@ -57,7 +61,7 @@ _KNOWN = {
     "imu": {"file", "format", "columns", "time", "week", "accel_unit", "gyro_unit", "time_offset_s", "imu_to_body",
             "imu_to_body_ypr_deg", "delimiter", "skip_rows"},
     "gnss": {"file", "format", "nav", "antenna_m", "week", "geoid_height_m", "sigma_floor_m", "sigma_default_m",
-             "velocity_sigma_floor_mps"},
+             "velocity_sigma_floor_mps", "velocity_lag_s"},
     "vehicle": {"kind"},
     "scoring": {"reference", "reference_q", "reference_geoid_height_m", "outages"},
 }
@@ -125,6 +129,43 @@ def velocity_sigma(fixes: Fixes, floor_mps: float = VELOCITY_SIGMA_FLOOR_MPS) ->
     return float(max(np.median(s), floor_mps)) if len(s) else 0.1
 
 
+VELOCITY_LAG_MIN_EPOCHS = 40  # RTK-fixed epochs with both neighbours fixed that a measured lag needs
+
+
+def velocity_lag(fixes: Fixes, min_epochs: int = VELOCITY_LAG_MIN_EPOCHS) -> dict | None:
+    """How long before its time a fix's velocity applies, measured from the fixes' own positions: at an
+    RTK-fixed epoch with fixed, evenly spaced neighbours, the mean velocities over the intervals before
+    (b, at the middle of that interval) and after (f) it bracket the velocity the receiver states; least
+    squares over the horizontal components gives where between them it falls, v = b + w (f - b), so the lag
+    is dt/2 - w dt (0: the fix's instant, dt/2: the mean over the epoch just ended). None when the fixes
+    have no velocities or too few fixed epochs (standalone positions are too noisy to tell)."""
+    if fixes.v_ned_mps is None or len(fixes) < 3:
+        return None
+    t, q = np.asarray(fixes.t_abs, float), np.asarray(fixes.q)
+    v = np.asarray(fixes.v_ned_mps, float)
+    r = np.asarray(fixes.r_ecef, float)
+    dt0, dt1 = t[1:-1] - t[:-2], t[2:] - t[1:-1]
+    ok = (q[:-2] == 1) & (q[1:-1] == 1) & (q[2:] == 1) & (dt0 > 0) & (np.abs(dt1 - dt0) <= 0.05 * dt0) & \
+        np.isfinite(v[1:-1]).all(1)
+    if ok.sum() < min_epochs:
+        return None
+    i = np.flatnonzero(ok) + 1
+    llh = _core.ecef_to_geodetic(r[i])
+    c = c_en(llh[:, 0], llh[:, 1])  # NED -> ECEF per epoch
+    to_ne = lambda d: np.einsum("nji,nj->ni", c, d)[:, :2]  # noqa: E731
+    b = to_ne(r[i] - r[i - 1]) / (t[i] - t[i - 1])[:, None]
+    f = to_ne(r[i + 1] - r[i]) / (t[i + 1] - t[i])[:, None]
+    d, y = f - b, v[i, :2] - b
+    if not np.sum(d * d) > 0:
+        return None
+    w = float(np.sum(y * d) / np.sum(d * d))
+    dt = float(np.median(t[i + 1] - t[i]))
+    lag = dt / 2.0 - w * dt
+    rms = lambda x: float(np.sqrt(np.mean(np.sum(x * x, 1) / 2.0)))  # noqa: E731
+    return {"lag_s": lag, "epochs": int(len(i)), "interval_s": dt,
+            "rms_mps": rms(y - w * d), "rms_mps_at_zero_lag": rms(y - 0.5 * d)}
+
+
 @dataclass
 class Dataset:
     name: str
@@ -146,6 +187,7 @@ class Dataset:
     sigma_floor_m: dict = field(default_factory=dict)  # [gnss.sigma_floor_m]: quality name -> (h, v)
     sigma_default_m: dict = field(default_factory=dict)  # [gnss.sigma_default_m]
     velocity_sigma_floor_mps: float = VELOCITY_SIGMA_FLOOR_MPS
+    velocity_lag_s: float | str = 0.0  # [gnss] velocity_lag_s: seconds, or "measured"
 
     def gnss_span(self) -> tuple[float, float]:
         """First and last GNSS epoch (fixes or pseudoranges): the origin of the outage schedule."""
@@ -334,6 +376,10 @@ def load(path: str | Path) -> Dataset:
     ds.velocity_sigma_floor_mps = float(tg.get("velocity_sigma_floor_mps", VELOCITY_SIGMA_FLOOR_MPS))
     if not ds.velocity_sigma_floor_mps > 0:
         raise DatasetError(path, "must be positive", field="[gnss] velocity_sigma_floor_mps")
+    lag = tg.get("velocity_lag_s", 0.0)
+    if lag != "measured" and not (isinstance(lag, (int, float)) and not isinstance(lag, bool) and 0.0 <= lag < 10.0):
+        raise DatasetError(path, 'seconds (0 to 10) or "measured"', field="[gnss] velocity_lag_s")
+    ds.velocity_lag_s = lag if lag == "measured" else float(lag)
 
     if "reference" in ts:
         ds.reference = load_reference(_file(base, ts["reference"], path, "[scoring] reference"),

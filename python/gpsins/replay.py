@@ -217,6 +217,7 @@ def _dataset_inputs(path: Path, config, overrides: dict) -> Inputs:
     if len(dt):
         derived["imu_rate_hz"] = float(1.0 / np.median(dt))
     uere = float(cfg0["fix_uere_m"])
+    measured_lag = None
     if ds.fixes is not None and len(ds.fixes):
         fixes = dataset_mod.fix_table(ds.fixes, t_week, uere, ds.sigma_floor_m, ds.sigma_default_m,
                                       ds.velocity_sigma_floor_mps)
@@ -225,6 +226,13 @@ def _dataset_inputs(path: Path, config, overrides: dict) -> Inputs:
         if vs is not None:
             # Per-fix velocity sigmas travel in the fix table; this median only stands in where a fix has none.
             derived.update(use_fix_velocity=True, fix_velocity_sigma_mps=vs, fix_velocity_sigma_hdop_scaled=False)
+            measured_lag = dataset_mod.velocity_lag(ds.fixes)
+            if ds.velocity_lag_s == "measured":
+                if measured_lag is None:
+                    ds.notes.append("[gnss] velocity_lag_s = \"measured\": too few RTK-fixed epochs to measure it; 0 used")
+                derived["fix_velocity_lag_s"] = max(0.0, measured_lag["lag_s"]) if measured_lag else 0.0
+            elif ds.velocity_lag_s > 0.0:
+                derived["fix_velocity_lag_s"] = ds.velocity_lag_s
     elif ds.pseudoranges is not None:
         fixes, sats = _spp_fixes(ds.pseudoranges, ds.navigation, t_week)
     else:
@@ -255,7 +263,7 @@ def _dataset_inputs(path: Path, config, overrides: dict) -> Inputs:
                 "warnings": list(ds.notes), "imu_to_body": ds.imu_to_body.tolist(),
                 "imu_time_offset_s": ds.imu_time_offset_s, "antenna_m": ds.antenna_m.tolist(),
                 "gnss_format": ds.gnss_format, "vehicle_kind": ds.vehicle_kind, "fix_quality": n_fix_q,
-                "from_data": inp.data_config,
+                "from_data": inp.data_config, "velocity_lag_measured": measured_lag,
                 "ephemerides_prn": ds.navigation.prns() if ds.navigation is not None else []}
     return inp
 
