@@ -25,7 +25,8 @@ table nor ``--set`` names the key itself): ``lever_arm_body_m`` from ``[gnss] an
 ``imu_rate_hz`` from the median IMU interval (the core's gap bridging and standstill
 window use it); ``use_fix_velocity`` when the fixes carry velocities and
 ``fix_velocity_sigma_mps`` from their stated sigmas (``dataset.velocity_sigma``, for fixes that
-state none); ``pseudorange_decimation`` so that the tight
+state none); ``fix_velocity_lag_s`` from ``[gnss] velocity_lag_s`` (``"measured"``: ``dataset.velocity_lag``,
+which run.json reports for any data set whose fixes allow it); ``pseudorange_decimation`` so that the tight
 filter uses about one epoch per second whatever the receiver's rate. Fix position and velocity
 sigmas travel per fix in the fix table's sigma columns (``dataset.fix_table``). The mounting rotation and
 the IMU time offset are applied by ``dataset.load``.
