@@ -257,7 +257,8 @@ def test_a_lagged_fix_velocity_is_measured_and_moved_to_its_fix(sim_set, tmp_pat
     out = {}
     for lag in ('"measured"', "0.0"):
         p = path.parent / f"lag_{lag.strip(chr(34))}.toml"
-        p.write_text(path.read_text().replace('format = "rtklib-pos"\n', f'format = "rtklib-pos"\nvelocity_lag_s = {lag}\n'))
+        p.write_text(path.read_text().replace('format = "rtklib-pos"\n',
+                                              f'format = "rtklib-pos"\nvelocity_lag_s = {lag}\n'))
         res = replay.replay(p, tmp_path / p.stem)
         z = results_mod.load(tmp_path / p.stem)
         t_run = z["t"] + int(z["week"]) * 604800.0 - (sc.start.gps_week * 604800.0 + sc.start.gps_tow_s)

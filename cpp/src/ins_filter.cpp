@@ -451,7 +451,8 @@ template <int NB, int NC>
 Vec3 InsFilter<NB, NC>::velocity_change_since(double t0) const {
   Vec3 sum = Vec3::Zero();
   for (int i = 1; i <= velocity_steps_count_; ++i) {
-    const auto& st = velocity_steps_[static_cast<std::size_t>((velocity_steps_head_ - i + kVelocitySteps) % kVelocitySteps)];
+    const int at = (velocity_steps_head_ - i + kVelocitySteps) % kVelocitySteps;
+    const auto& st = velocity_steps_[static_cast<std::size_t>(at)];
     if (st.t_end <= t0) break;
     const double start = st.t_end - st.dt_s;
     sum += start >= t0 || st.dt_s <= 0.0 ? st.dv : Vec3(st.dv * ((st.t_end - t0) / st.dt_s));

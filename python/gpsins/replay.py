@@ -230,7 +230,8 @@ def _dataset_inputs(path: Path, config, overrides: dict) -> Inputs:
             measured_lag = dataset_mod.velocity_lag(ds.fixes)
             if ds.velocity_lag_s == "measured":
                 if measured_lag is None:
-                    ds.notes.append("[gnss] velocity_lag_s = \"measured\": too few RTK-fixed epochs to measure it; 0 used")
+                    ds.notes.append('[gnss] velocity_lag_s = "measured": too few RTK-fixed epochs to measure it; '
+                                    "0 used")
                 derived["fix_velocity_lag_s"] = max(0.0, measured_lag["lag_s"]) if measured_lag else 0.0
             elif ds.velocity_lag_s > 0.0:
                 derived["fix_velocity_lag_s"] = ds.velocity_lag_s

@@ -188,7 +188,8 @@ class DatasetWriter:
             r_fix = r_true + np.einsum("nij,nj->ni", c_en, e_ned)
             if self.velocity_mean_over_epoch:  # from the antenna's position an interval earlier (or the block start)
                 t_before = np.maximum(t_fix - 1.0 / self.gnss_rate_hz, b.truth.t[0])
-                v_true = (r_true - antenna_truth(b, t_before, self.antenna_m)[0]) / np.maximum(t_fix - t_before, 1e-9)[:, None]
+                r_before = antenna_truth(b, t_before, self.antenna_m)[0]
+                v_true = (r_true - r_before) / np.maximum(t_fix - t_before, 1e-9)[:, None]
             v_ned = (np.einsum("nji,nj->ni", c_en, v_true)
                      + self.draw["velocity"].rows(i0, i1) * self.velocity_sigma_mps)
             sd = np.column_stack([s_h, s_h, s_v]) * ~stated_zero[:, None]
