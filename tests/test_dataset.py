@@ -230,6 +230,60 @@ def test_scoring_interpolates_a_moving_solution():
     assert s.max_h_m[0] == pytest.approx(0.1, abs=1e-6) and s.n_ref[0] == 8
 
 
+def test_scoring_never_interpolates_across_an_update():
+    # Moving north at 2 m/s, sampled at 100 Hz; the solution is 1 m ahead until an update at t = 5.004 puts it
+    # on the track. Reference epochs at 5.004 (the update's own instant), 5.002 (before it) and 5.0065 (after
+    # it, between the same samples): the output there is the state after the updates up to that instant,
+    # so 0, 1 and 0 m (linear interpolation across the step would give 0.6, 0.8 and 0.35 m).
+    llh = np.array([np.radians(59.0), np.radians(18.0), 20.0])
+    t_sol = np.round(np.arange(0.0, 10.001, 0.01), 9)
+    north = lambda t: np.column_stack([2.0 * t, 0 * t, 0 * t])  # noqa: E731
+    r_sol = _core.ned_to_ecef(north(t_sol) + np.where(t_sol < 5.004, 1.0, 0.0)[:, None] * [1, 0, 0], llh)
+    v_sol = _core.ned_to_ecef(north(t_sol + 1.0), llh) - _core.ned_to_ecef(north(t_sol), llh)  # 2 m/s north
+    t_ref = np.array([5.004, 5.002, 5.0065])
+    r_ref = _core.ned_to_ecef(north(t_ref), llh)
+    _, e = outages.errors_ned(t_sol, r_sol, t_ref, r_ref, v_sol, np.array([1.0, 5.004, 7.0]))
+    np.testing.assert_allclose(e[:, 0], [0.0, 1.0, 0.0], atol=1e-6)
+    _, lin = outages.errors_ned(t_sol, r_sol, t_ref, r_ref)
+    np.testing.assert_allclose(lin[:, 0], [0.6, 0.8, 0.35], atol=1e-6)
+    # An update closer after a reference epoch than the reference's time resolution is at that epoch.
+    _, e = outages.errors_ned(t_sol, r_sol, t_ref[1:2], r_ref[1:2], v_sol, np.array([5.004]), same_instant_s=0.003)
+    assert e[0, 0] == pytest.approx(0.0, abs=1e-6)
+
+
+def _circling_fixes(velocity_at):
+    """4 Hz RTK-fixed fixes of a walk round a 5 m circle at 1.5 m/s (north-east, fixed height), with the
+    stated velocity from ``velocity_at(t, positions, times)``."""
+    from gpsins.readers.common import Fixes
+    llh = np.array([np.radians(40.0), np.radians(-105.0), 1600.0])
+    t = np.arange(0.0, 30.0, 0.25)
+    ned = lambda x: np.column_stack([5 * np.cos(0.3 * x), 5 * np.sin(0.3 * x), 0 * x])  # noqa: E731
+    r = _core.ned_to_ecef(ned(t), llh)
+    n = len(t)
+    return Fixes(t + 1e9, r, np.full((n, 3), 0.01), np.ones(n, int), np.full(n, 20), velocity_at(t, ned),
+                 np.full((n, 3), 0.05))
+
+
+def test_velocity_lag_is_measured_from_the_fixes_positions():
+    # Instantaneous velocities: no lag. Velocities that are the mean over the epoch just ended (what NAV-PVT
+    # gives, per the walk): half an epoch. The true values are set by construction, not by the estimator.
+    now = _circling_fixes(lambda t, ned: np.column_stack([-1.5 * np.sin(0.3 * t), 1.5 * np.cos(0.3 * t), 0 * t]))
+    mean = _circling_fixes(lambda t, ned: (ned(t) - ned(t - 0.25)) / 0.25)
+    a, b = dataset.velocity_lag(now), dataset.velocity_lag(mean)
+    assert a["epochs"] == len(now) - 2 and a["interval_s"] == pytest.approx(0.25)  # all but the ends
+    assert abs(a["lag_s"]) < 0.005 and b["lag_s"] == pytest.approx(0.125, abs=0.005)
+    assert b["rms_mps"] < 0.01 < b["rms_mps_at_zero_lag"]
+    # Standalone (Q 5) fixes cannot tell: no figure.
+    mean.q[:] = 5
+    assert dataset.velocity_lag(mean) is None
+
+
+def test_the_walk_velocity_lag_is_half_its_epoch():
+    from gpsins.readers import rtklib_pos
+    m = dataset.velocity_lag(rtklib_pos.read(WALK / "gnss_1730_sf.pos"))
+    assert m["lag_s"] == pytest.approx(0.125, abs=0.01) and m["rms_mps"] < 0.5 * m["rms_mps_at_zero_lag"]
+
+
 def test_a_damaged_ubx_stream_is_one_note_and_the_rest_is_kept(tmp_path):
     data = bytearray((WALK / "gnss_1730.ubx").read_bytes())
     at = data.index(b"\xb5\x62\x02\x15", 200_000)  # an RXM-RAWX frame

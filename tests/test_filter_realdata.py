@@ -190,9 +190,11 @@ def test_nonholonomic_constraint_reduces_outage_drift_on_a_simulated_car(car_set
 
 @pytest.mark.parametrize("name", ["walk_0827.toml", "walk_0827_ubx.toml"])
 def test_walk_replays_loose_with_the_heading_searched(tmp_path, name):
-    """Measured: .pos 1.29 m drift RMS, 0.075 m outside; NAV-PVT 1.19 m, 0.058 m, with the RTK solution's
-    cm-level correlated fix errors (white fixes: 1.33 / 0.080 and 1.23 / 0.064; before: 96 m, 3.8 / 0.08 m).
-    The goal (2.3 m) is asserted for the drift; outside the outages the issue's 0.05 m is not reached."""
+    """Measured: .pos 1.85 m drift RMS, 0.046 m outside; NAV-PVT 1.93 m, 0.046 m, with the RTK solution's
+    cm-level correlated fix errors and NAV-PVT's velocity taken as the mean over the epoch just ended (lag
+    measured 0.134 s; without it 1.29 / 0.050 and 1.19 / 0.052 m: this schedule's drift is luck either way,
+    pooled over 12 shifted schedules 3.6-3.8 m with or without). The issue's goals are asserted: drift
+    2.3 m, outside the outages 0.05 m (the peer: 4.6 m, 0.036 m)."""
     res = replay.replay(WALK.parent / name, tmp_path / "walk").summary
     h = res["scoring"]["horizontal_m"]
     outside = res["scoring"]["outside"]["rms_h_m"]
@@ -202,5 +204,5 @@ def test_walk_replays_loose_with_the_heading_searched(tmp_path, name):
     # The device points far from where it goes (course about -90 deg; hand-tuned runs used 160 deg).
     assert abs(_wrap(found["yaw_deg"] + 90.0)) > 45.0 and abs(_wrap(found["yaw_deg"] - 160.0)) < 45.0
     assert h["rms"] < 2.3 < 0.1 * WALK_BASELINE_DRIFT_M
-    assert outside < 0.2
+    assert outside < 0.05
     assert res["counters"]["gnss_resets"] == 0

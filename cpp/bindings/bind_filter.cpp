@@ -619,6 +619,7 @@ void bind_filter(py::module_& m) {
   GPSINS_FIELD(use_fix_velocity);
   GPSINS_FIELD(fix_velocity_sigma_mps);
   GPSINS_FIELD(fix_velocity_sigma_hdop_scaled);
+  GPSINS_FIELD(fix_velocity_lag_s);
   GPSINS_FIELD(pseudorange_sigma_m);
   GPSINS_FIELD(pseudorange_elevation_mask_rad);
   GPSINS_FIELD(pseudorange_min_cn0_dbhz);

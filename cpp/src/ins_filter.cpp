@@ -432,6 +432,37 @@ void InsFilter<NB, NC>::inflate_unknown_heading(const Increment& inc) {
   core_.P.template block<3, 3>(es::vel, es::vel) += q * (Mat3::Identity() - u * u.transpose());
 }
 
+// The core's propagation over `inc` (which ends at t_end), keeping its velocity
+// change when fix velocities lag.
+template <int NB, int NC>
+void InsFilter<NB, NC>::propagate_nav(const Increment& inc, double t_end) {
+  if (!(cfg_.fix_velocity_lag_s > 0.0)) {
+    core_.propagate(inc);
+    return;
+  }
+  const Vec3 v0 = core_.nav.v_ecef_mps;
+  core_.propagate(inc);
+  if (velocity_steps_.empty()) velocity_steps_.resize(kVelocitySteps);
+  velocity_steps_[static_cast<std::size_t>(velocity_steps_head_)] = {t_end, inc.dt_s, core_.nav.v_ecef_mps - v0};
+  velocity_steps_head_ = (velocity_steps_head_ + 1) % kVelocitySteps;
+  velocity_steps_count_ = std::min(velocity_steps_count_ + 1, kVelocitySteps);
+}
+
+// The navigation velocity's change by propagation from t0 to now (a step across t0
+// counts in proportion).
+template <int NB, int NC>
+Vec3 InsFilter<NB, NC>::velocity_change_since(double t0) const {
+  Vec3 sum = Vec3::Zero();
+  for (int i = 1; i <= velocity_steps_count_; ++i) {
+    const int at = (velocity_steps_head_ - i + kVelocitySteps) % kVelocitySteps;
+    const auto& st = velocity_steps_[static_cast<std::size_t>(at)];
+    if (st.t_end <= t0) break;
+    const double start = st.t_end - st.dt_s;
+    sum += start >= t0 || st.dt_s <= 0.0 ? st.dv : Vec3(st.dv * ((st.t_end - t0) / st.dt_s));
+  }
+  return sum;
+}
+
 // Propagate across `inc`, which starts at t_last_, stopping at every pending
 // fix inside it; t_last_ ends at its end.
 template <int NB, int NC>
@@ -448,7 +479,7 @@ void InsFilter<NB, NC>::propagate_to(const Increment& inc) {
     const double frac = std::clamp((t_meas - t_last_) / rest.dt_s, 0.0, 1.0);
     Increment first, second;
     split_increment(rest, frac, first, second);
-    if (initialised_) core_.propagate(first);
+    if (initialised_) propagate_nav(first, t_last_ + first.dt_s);
     t_last_ += first.dt_s;
     if (take_fix) {
       const FixInput fix = pending_[0];
@@ -473,7 +504,7 @@ void InsFilter<NB, NC>::propagate_to(const Increment& inc) {
   }
   t_last_ += rest.dt_s;
   if (!initialised_) return;
-  core_.propagate(rest);
+  propagate_nav(rest, t_last_);
   if (!heading_known_) {
     if (!standstill_) inflate_unknown_heading(rest);
     decouple_yaw();
@@ -873,7 +904,11 @@ void InsFilter<NB, NC>::process_fix(const FixInput& fix) {
     const Vec3 sv = stated_or(fix.sigma_v_ned_mps, Vec3::Constant(s));
     const Mat3 r_v = c_en * square(sv).asDiagonal() * c_en.transpose();
     const Vec3 rate = last_inc_.dt_s > 0.0 ? Vec3(last_inc_.dtheta_rad / last_inc_.dt_s) : Vec3::Zero();
-    const auto mv = gnss_velocity(core_, fix.v_ecef_mps, r_v, cfg_.lever_arm_body_m, rate);
+    // A lagged velocity, moved to now by what the navigation's velocity did since.
+    const Vec3 v_meas = cfg_.fix_velocity_lag_s > 0.0
+                            ? Vec3(fix.v_ecef_mps + velocity_change_since(fix.t_s - cfg_.fix_velocity_lag_s))
+                            : fix.v_ecef_mps;
+    const auto mv = gnss_velocity(core_, v_meas, r_v, cfg_.lever_arm_body_m, rate);
     record(kFixVelocity, apply(mv, 3), 3);
   }
 }

@@ -25,7 +25,8 @@ table nor ``--set`` names the key itself): ``lever_arm_body_m`` from ``[gnss] an
 ``imu_rate_hz`` from the median IMU interval (the core's gap bridging and standstill
 window use it); ``use_fix_velocity`` when the fixes carry velocities and
 ``fix_velocity_sigma_mps`` from their stated sigmas (``dataset.velocity_sigma``, for fixes that
-state none); ``pseudorange_decimation`` so that the tight
+state none); ``fix_velocity_lag_s`` from ``[gnss] velocity_lag_s`` (``"measured"``: ``dataset.velocity_lag``,
+which run.json reports for any data set whose fixes allow it); ``pseudorange_decimation`` so that the tight
 filter uses about one epoch per second whatever the receiver's rate. Fix position and velocity
 sigmas travel per fix in the fix table's sigma columns (``dataset.fix_table``). The mounting rotation and
 the IMU time offset are applied by ``dataset.load``.
@@ -85,6 +86,7 @@ MODES = ("loose", "tight", "ins")
 UNKNOWN_CN0_DBHZ = 99.0  # what the tight filter is given for a pseudorange whose C/N0 the file does not state
 POINTS = ("antenna", "imu")
 TRUTH_SCORING_HZ = 10.0  # a simulated truth scored as the reference is taken at about this rate
+POS_TIME_RESOLUTION_S = 0.001  # an RTKLIB .pos reference's epochs are printed to the millisecond
 
 
 @dataclass
@@ -217,6 +219,7 @@ def _dataset_inputs(path: Path, config, overrides: dict) -> Inputs:
     if len(dt):
         derived["imu_rate_hz"] = float(1.0 / np.median(dt))
     uere = float(cfg0["fix_uere_m"])
+    measured_lag = None
     if ds.fixes is not None and len(ds.fixes):
         fixes = dataset_mod.fix_table(ds.fixes, t_week, uere, ds.sigma_floor_m, ds.sigma_default_m,
                                       ds.velocity_sigma_floor_mps)
@@ -225,6 +228,14 @@ def _dataset_inputs(path: Path, config, overrides: dict) -> Inputs:
         if vs is not None:
             # Per-fix velocity sigmas travel in the fix table; this median only stands in where a fix has none.
             derived.update(use_fix_velocity=True, fix_velocity_sigma_mps=vs, fix_velocity_sigma_hdop_scaled=False)
+            measured_lag = dataset_mod.velocity_lag(ds.fixes)
+            if ds.velocity_lag_s == "measured":
+                if measured_lag is None:
+                    ds.notes.append('[gnss] velocity_lag_s = "measured": too few RTK-fixed epochs to measure it; '
+                                    "0 used")
+                derived["fix_velocity_lag_s"] = max(0.0, measured_lag["lag_s"]) if measured_lag else 0.0
+            elif ds.velocity_lag_s > 0.0:
+                derived["fix_velocity_lag_s"] = ds.velocity_lag_s
     elif ds.pseudoranges is not None:
         fixes, sats = _spp_fixes(ds.pseudoranges, ds.navigation, t_week)
     else:
@@ -255,7 +266,7 @@ def _dataset_inputs(path: Path, config, overrides: dict) -> Inputs:
                 "warnings": list(ds.notes), "imu_to_body": ds.imu_to_body.tolist(),
                 "imu_time_offset_s": ds.imu_time_offset_s, "antenna_m": ds.antenna_m.tolist(),
                 "gnss_format": ds.gnss_format, "vehicle_kind": ds.vehicle_kind, "fix_quality": n_fix_q,
-                "from_data": inp.data_config,
+                "from_data": inp.data_config, "velocity_lag_measured": measured_lag,
                 "ephemerides_prn": ds.navigation.prns() if ds.navigation is not None else []}
     return inp
 
@@ -310,11 +321,13 @@ def _reference_system(source: Path):
     return reference_mod.load(source)
 
 
-def reference_scores(t: np.ndarray, r_score: np.ndarray, ref: tuple, schedule: np.ndarray
+def reference_scores(t: np.ndarray, r_score: np.ndarray, ref: tuple, schedule: np.ndarray,
+                     v: np.ndarray | None = None, update_t: np.ndarray | None = None, same_instant_s: float = 0.0
                      ) -> tuple[dict, dict, np.ndarray]:
     """Errors against a reference (t, r_ecef, name) and the per-outage drift: arrays, the scoring
-    summary, and which reference epochs were used."""
-    use, e = outages_mod.errors_ned(t, r_score, ref[0], ref[1])
+    summary, and which reference epochs were used. With the solution's velocities and update times the
+    solution is never interpolated across an update (``outages.solution_at``)."""
+    use, e = outages_mod.errors_ned(t, r_score, ref[0], ref[1], v, update_t, same_instant_s)
     sc = outages_mod.score_errors(np.asarray(ref[0], float)[use], e, schedule)
     h = np.hypot(e[:, 0], e[:, 1])
     scoring = {"all": {"rms_h_m": float(np.sqrt(np.mean(h ** 2))) if len(h) else float("nan"),
@@ -350,7 +363,9 @@ def _score_stream(stream, ref, schedule, prefix: str = "") -> _Scored:
     rows = stream.brackets.rows()
     if ref is None or not len(ref[0]) or len(rows.get("t", ())) < 1:
         return _Scored({}, {})
-    arrays, scoring, use = reference_scores(rows["t"], rows["r_score"], ref, schedule)
+    same_instant = 0.0 if stream.truth is not None and ref[2] == "truth.npz" else POS_TIME_RESOLUTION_S
+    arrays, scoring, use = reference_scores(rows["t"], rows["r_score"], ref, schedule, rows.get("v"),
+                                            stream.update_times(), same_instant)
     arrays.update(ref_t=ref[0][use], ref_r_ecef=ref[1][use], ref_outage=outages_mod.outage_index(ref[0][use], schedule))
     return _Scored({prefix + k: v for k, v in arrays.items()}, scoring)
 

@@ -281,6 +281,7 @@ class Stream:
         self._pos = PosWriter(self.pos, self.week, self.note, reversed_blocks=self.newest_first)
         self.score = TruthScore(self.truth) if self.truth is not None else None
         self.brackets = Brackets(self.bracket_epochs)
+        self._update_t: list[np.ndarray] = []
         self._cov = None
         if self.covariance_path is not None and self.covariance_every > 0:
             self._cov = results.TableWriter(self.covariance_path)
@@ -298,8 +299,12 @@ class Stream:
         if self.score is not None:
             a.update(self.score.errors(sol))
         self._writer.append(a)
-        self.brackets.add(sol.t, r_score=r_score, r_imu=sol.r_ecef, yaw=np.radians(a["ypr_deg"][:, 0]),
+        # Velocities only carry a row to a reference epoch within one IMU step: float32 is ample (12 B a row).
+        self.brackets.add(sol.t, r_score=r_score, r_imu=sol.r_ecef, v=sol.v_ecef.astype(np.float32),
+                          yaw=np.radians(a["ypr_deg"][:, 0]),
                           pitch=np.radians(a["ypr_deg"][:, 1]))
+        if len(sol.updates.get("t", ())):
+            self._update_t.append(np.asarray(sol.updates["t"], float))
         llh_pos = a["llh"] if self.pos_point == "imu" else flt._core.ecef_to_geodetic(r_ant)
         k = np.clip(np.searchsorted(self.fix_t, sol.t, side="right") - 1, 0, max(len(self.fix_t) - 1, 0))
         sats = self.fix_sats[k] if len(self.fix_t) else np.zeros(len(sol.t), int)
@@ -310,6 +315,10 @@ class Stream:
         self.epochs += len(sol.t)
         self.first_t = float(sol.t[0]) if self.first_t is None else min(self.first_t, float(sol.t[0]))
         self.last_t = float(sol.t[-1]) if self.last_t is None else max(self.last_t, float(sol.t[-1]))
+
+    def update_times(self) -> np.ndarray:
+        """The times of every measurement update so far (where the solution steps)."""
+        return np.concatenate(self._update_t) if self._update_t else np.zeros(0)
 
     def close(self) -> None:
         self._writer.close()

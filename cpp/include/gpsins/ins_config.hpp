@@ -95,6 +95,11 @@ struct InsConfig {
   bool use_fix_velocity = false;
   double fix_velocity_sigma_mps = 0.1;  // per axis (unless the fix states its own); times HDOP when scaled
   bool fix_velocity_sigma_hdop_scaled = false;
+  // How long before its fix's time a fix velocity applies: a receiver that reports the
+  // mean velocity over the epoch just ended (carrier-phase or position differences)
+  // refers to its middle, half an epoch back. The filter then moves it to the fix's time
+  // with its own velocity change since. 0: at the fix's time.
+  double fix_velocity_lag_s = 0.0;
 
   // Pseudoranges (tight coupling). Variance from the elevation model when the
   // sigma is <= 0 (RTKLIB's, as in single-point positioning).

@@ -232,6 +232,18 @@ class InsFilter {
   int steps_count_ = 0, steps_head_ = 0;
   Increment last_inc_;  // calibrated, for gap bridging
 
+  // The navigation velocity's change over each recent propagation step (ECEF, updates
+  // excluded): what moves a lagged fix velocity (fix_velocity_lag_s) to its fix's time.
+  struct VelocityStep {
+    double t_end = 0.0, dt_s = 0.0;
+    Vec3 dv = Vec3::Zero();
+  };
+  static constexpr int kVelocitySteps = 1024;  // 1 s at 1 kHz; a longer lag uses what is kept
+  std::vector<VelocityStep> velocity_steps_;   // ring, allocated only with a lag
+  int velocity_steps_count_ = 0, velocity_steps_head_ = 0;
+  void propagate_nav(const Increment& inc, double t_end);
+  Vec3 velocity_change_since(double t0) const;
+
   // Levelling sums before initialisation.
   Vec3 level_f_sum_ = Vec3::Zero();
   double level_time_ = 0.0;

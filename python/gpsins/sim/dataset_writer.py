@@ -113,7 +113,8 @@ class DatasetWriter:
                  imu_to_body_ypr_deg=(-90.0, 3.0, 180.0), antenna_m=(0.6, -0.3, -1.1), imu_time_offset_s: float = 0.05,
                  imu_format: str = "increments", gnss_rate_hz: float = 5.0, gnss_phase_s: float = 0.137,
                  fix_sigma_range_m=(0.01, 0.04), float_every: int = 13, zero_sigma_every: int = 7,
-                 velocity_sigma_mps: float = 0.03, seed_offset: int = 0, vehicle_kind: str = "car"):
+                 velocity_sigma_mps: float = 0.03, seed_offset: int = 0, vehicle_kind: str = "car",
+                 velocity_mean_over_epoch: bool = False):
         if imu_format not in ("increments", "rates"):
             raise ValueError(f"imu_format {imu_format!r}: increments or rates")
         # The simulated vehicle moves along its body x axis without slip (also the walk profile and the
@@ -128,6 +129,9 @@ class DatasetWriter:
         self.fix_sigma_range_m = fix_sigma_range_m
         self.float_every, self.zero_sigma_every = float_every, zero_sigma_every
         self.velocity_sigma_mps = velocity_sigma_mps
+        # A receiver whose velocity is the antenna's mean over the fix interval just ended (as u-blox NAV-PVT's
+        # is), not the velocity at the fix's instant.
+        self.velocity_mean_over_epoch = velocity_mean_over_epoch
         self.t_start_abs = sc.start.gps_week * 604800.0 + sc.start.gps_tow_s  # run time 0 in GPS seconds
         key = (seed, seed_offset, 16)
         self.draw = {"sigma": Stream(key + (1,), "uniform"), "position": Stream(key + (2,), width=3),
@@ -182,6 +186,10 @@ class DatasetWriter:
             c_en = ecef_to_ned_matrix(lat, lon)  # (n, 3, 3) NED -> ECEF
             e_ned = self.draw["position"].rows(i0, i1) * np.column_stack([drawn_h, drawn_h, drawn_v])
             r_fix = r_true + np.einsum("nij,nj->ni", c_en, e_ned)
+            if self.velocity_mean_over_epoch:  # from the antenna's position an interval earlier (or the block start)
+                t_before = np.maximum(t_fix - 1.0 / self.gnss_rate_hz, b.truth.t[0])
+                r_before = antenna_truth(b, t_before, self.antenna_m)[0]
+                v_true = (r_true - r_before) / np.maximum(t_fix - t_before, 1e-9)[:, None]
             v_ned = (np.einsum("nji,nj->ni", c_en, v_true)
                      + self.draw["velocity"].rows(i0, i1) * self.velocity_sigma_mps)
             sd = np.column_stack([s_h, s_h, s_v]) * ~stated_zero[:, None]
