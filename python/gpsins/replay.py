@@ -314,6 +314,25 @@ def heading_aiding(ref, week: int, interval_s: float = HEADING_AIDING_INTERVAL_S
                             ref.sigma_heading_rad[ok], np.where(pitch_ok, ref.sigma_pitch_rad[ok], np.nan)])[keep]
 
 
+def _truth_reference(truth: evaluate.Truth, system_epochs: np.ndarray) -> tuple:
+    """The simulated truth as the reference (t, r_ecef, name): at the reference system's epochs when the
+    session has one (so both are scored from one set of bracketing rows: a day's brackets then take
+    150 MB less), else every sample at about TRUTH_SCORING_HZ; either is enough for drift and outage
+    maxima. Read block by block from a memory-mapped truth, whose pages are given back."""
+    tt = truth.t
+    if len(system_epochs):
+        te = system_epochs[(system_epochs >= tt[0]) & (system_epochs <= tt[-1])]
+        r = np.empty((len(te), 3))
+        for a in range(0, len(te), 1 << 16):
+            r[a:a + (1 << 16)] = truth.at(te[a:a + (1 << 16)]).r_ecef
+            truth.release()
+        return te, r, "truth.npz"
+    step = max(1, int(round(1.0 / (TRUTH_SCORING_HZ * float(np.median(np.diff(tt))))))) if len(tt) > 1 else 1
+    out = (tt[::step], np.array(truth.r_ecef[::step]), "truth.npz")
+    truth.release()
+    return out
+
+
 def _reference_system(source: Path):
     """A session's reference system (``reference.csv``), if it has one."""
     if not (source.is_dir() and (source / reference_mod.FILE_NAME).exists()):
@@ -477,15 +496,11 @@ def run_mode(inp: Inputs, out: str | Path, *, mode: str = "loose", overrides: di
         f = dataset_mod.load_reference(reference, reference_q)
         ref = (f.t_abs - inp.week * measurements.SECONDS_PER_WEEK, f.r_ecef, f.source)
     scored_point = "antenna"
+    sys_epochs = (ref_system.gps_seconds() - inp.week * measurements.SECONDS_PER_WEEK) if ref_system else np.zeros(0)
     if ref is None and found:
-        # The truth as the reference, at no more than TRUTH_SCORING_HZ: enough for drift and outage maxima.
-        tt = found[0].t
-        step = max(1, int(round(1.0 / (TRUTH_SCORING_HZ * float(np.median(np.diff(tt))))))) if len(tt) > 1 else 1
-        ref, scored_point = (tt[::step], np.array(found[0].r_ecef[::step]), "truth.npz"), "imu"
-        found[0].release()
+        ref, scored_point = _truth_reference(found[0], sys_epochs), "imu"
     has_ref = ref is not None and len(ref[0]) > 0
     score_sched = schedule
-    sys_epochs = (ref_system.gps_seconds() - inp.week * measurements.SECONDS_PER_WEEK) if ref_system else np.zeros(0)
     bracket_epochs = np.concatenate([ref[0] if has_ref else np.zeros(0), sys_epochs])
     lever = np.broadcast_to(np.asarray(cfg.get("lever_arm_body_m", 0.0), float), (3,)).copy()
 
