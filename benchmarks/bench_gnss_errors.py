@@ -15,7 +15,10 @@ over the seeds and fitted with white + first-order Gauss-Markov:
     C(0) = w^2 + s^2,   C(lag) = s^2 exp(-lag / tau)  (lag > 0)
 
 w is the white UERE, s the correlated one (fix_error_gm_sigma_m with
-fix_error_gm_dop_scaled), tau its correlation time. The same is done with the
+fix_error_gm_dop_scaled), tau its correlation time. Then the two-part fit over lags
+1..120 s the preset uses: white + a fast and a slow Gauss-Markov part (one fast and one slow
+tau for all axes); the filter carries the slow part as states (fix_error_gm_*) and the
+fast part in each fix's R (fix_error_fast_*). The same is done with the
 multipath, the atmosphere residuals, or the code noise switched off in turn, to say which
 source gives which part. Nothing here reads the filter: the simulator is the truth.
 """
@@ -26,7 +29,8 @@ import sys
 import numpy as np
 
 from gpsins import sim
-from gpsins.gnss_errors import autocovariance_sums, fit_white_gauss_markov as fit, fix_errors_per_dop
+from gpsins.gnss_errors import autocovariance_sums, fit_white_gauss_markov as fit, fit_white_two_gauss_markov, \
+    fix_errors_per_dop
 from gpsins.sim import earth
 
 MAX_LAG_S = 300
@@ -71,6 +75,12 @@ def measure(sc, seeds: int, label: str) -> dict:
         lag = {L: c[L, i] / c[0, i] for L in (1, 10, 30, 60, 120, 300) if L < len(c)}
         print(f"  {axis}: per unit of DOP, RMS {np.sqrt(c[0, i]):.2f} m = white {w:.2f} m + Gauss-Markov {g:.2f} m, "
               f"tau {tau:.0f} s; correlation " + ", ".join(f"{L} s {v:.2f}" for L, v in lag.items()))
+    two = fit_white_two_gauss_markov(c[:, :3], 120)
+    out["two"] = two
+    print(f"  white + fast + slow Gauss-Markov over lags 1..120 s (taus shared by the axes): white "
+          f"{np.round(two['white'], 2)} m, fast {np.round(two['fast'], 2)} m tau {two['tau_fast']:.1f} s, slow "
+          f"{np.round(two['slow'], 2)} m tau {two['tau_slow']:.1f} s (N, E, D per unit of DOP; RMS residual "
+          f"{two['rms_residual']:.3f} m^2)")
     return out
 
 
@@ -117,6 +127,10 @@ def main() -> None:
           f"(down {f['D'][0]:.2f}), fix_error_gm_sigma_m ~ [{gm_h:.2f}, {gm_h:.2f}, {f['D'][1]:.2f}], "
           f"fix_error_gm_tau_s ~ {np.mean([f[a][2] for a in 'NED']):.0f}; 2D fixes, the rest of their error as "
           f"white: fix_uere_2d_m ~ {np.sqrt(max(f['2D'] ** 2 - gm_h ** 2, 0.0)):.2f}")
+    two = f["two"]
+    print(f"two-part model: fix_uere_m ~ {two['white'][0]:.2f} (north's), fix_error_gm_sigma_m ~ "
+          f"{np.round(two['slow'], 2).tolist()}, fix_error_gm_tau_s ~ {two['tau_slow']:.1f}, fix_error_fast_sigma_m ~ "
+          f"{np.round(two['fast'], 2).tolist()}, fix_error_fast_tau_s ~ {two['tau_fast']:.1f}")
     pseudorange_errors(sc, seeds)
     if "--sources" not in sys.argv:
         return

@@ -614,6 +614,8 @@ void bind_filter(py::module_& m) {
   GPSINS_FIELD(fix_sigma_ecef_m);
   GPSINS_FIELD(fix_error_gm_sigma_m);
   GPSINS_FIELD(fix_error_gm_tau_s);
+  GPSINS_FIELD(fix_error_fast_sigma_m);
+  GPSINS_FIELD(fix_error_fast_tau_s);
   GPSINS_FIELD(fix_uere_2d_m);
   GPSINS_FIELD(fix_error_gm_dop_scaled);
   GPSINS_FIELD(use_fix_velocity);

@@ -875,6 +875,7 @@ void InsFilter<NB, NC>::process_fix(const FixInput& fix) {
     const Vec3 s = stated_or(fix.sigma_ned_m, Vec3(sh, sh, sv));
     r_cov = c_en * square(s).asDiagonal() * c_en.transpose();
   }
+  r_cov += fast_fix_error_cov(fix, c_en);
   const auto m = position_fix(core_, fix.r_ecef_m, r_cov, cfg_.lever_arm_body_m, fix_error_map(fix));
   bool accepted;
   if (fix.mode == 3) {
@@ -911,6 +912,23 @@ void InsFilter<NB, NC>::process_fix(const FixInput& fix) {
     const auto mv = gnss_velocity(core_, v_meas, r_v, cfg_.lever_arm_body_m, rate);
     record(kFixVelocity, apply(mv, 3), 3);
   }
+}
+
+// The variance the fix's fast correlated part adds to its update (ECEF; see
+// fix_error_fast_sigma_m): sigma^2 (1 + a) / (1 - a), a = exp(-dt / tau), dt since the
+// previous fix (none before: a = 0), per axis times its DOP when DOP-scaled.
+template <int NB, int NC>
+Mat3 InsFilter<NB, NC>::fast_fix_error_cov(const FixInput& fix, const Mat3& c_en) const {
+  if (!(cfg_.fix_error_fast_sigma_m.array() > 0.0).any()) return Mat3::Zero();
+  Vec3 s = cfg_.fix_error_fast_sigma_m;
+  if (cfg_.fix_error_gm_dop_scaled) s = s.cwiseProduct(Vec3(fix.hdop / std::sqrt(2.0), fix.hdop / std::sqrt(2.0), fix.vdop));
+  double factor = 1.0;
+  const double dt = fix.t_s - prev_fix_.t_s;
+  if (have_prev_fix_ && dt > 0.0 && cfg_.fix_error_fast_tau_s > 0.0) {
+    const double one_minus_a = -std::expm1(-dt / cfg_.fix_error_fast_tau_s);  // accurate for dt << tau
+    factor = (2.0 - one_minus_a) / one_minus_a;
+  }
+  return c_en * (square(s) * factor).asDiagonal() * c_en.transpose();
 }
 
 // How the fix-error states reach this fix (metres per state unit, ECEF): identity,

@@ -129,6 +129,10 @@ def load_config(source: str | Path | dict | None = None, overrides: dict | None 
     for key, value in PLATFORM_DEFAULTS.get(cfg.get("platform", "vehicle"), {}).items():
         if key not in given:
             cfg[key] = value
+    # A fix-error model is stated whole: a data set (or caller) giving its own correlated part
+    # (e.g. an RTK solution's centimetres) does not inherit the preset's fast part on top.
+    if "fix_error_gm_sigma_m" in given and "fix_error_fast_sigma_m" not in given:
+        cfg["fix_error_fast_sigma_m"] = [0.0, 0.0, 0.0]
     return cfg
 
 

@@ -48,3 +48,27 @@ def fit_white_gauss_markov(c: np.ndarray) -> tuple[float, float, float]:
 
     s2, tau = np.exp(least_squares(resid, np.log([max(c[1], 1e-6), 30.0])).x)
     return float(np.sqrt(max(c[0] - s2, 0.0))), float(np.sqrt(s2)), float(tau)
+
+
+def fit_white_two_gauss_markov(c: np.ndarray, max_lag: int = 120) -> dict:
+    """White + fast + slow Gauss-Markov fit of autocovariances c[lag, axis] over lags 1..max_lag,
+    one fast and one slow correlation time shared by the axes (as the filter carries them):
+    C(lag) = f^2 exp(-lag / tau_f) + s^2 exp(-lag / tau_s), white^2 = C(0) - f^2 - s^2.
+    Returns per-axis sigmas (white, fast, slow) and the two taus in lag units."""
+    lags = np.arange(1, min(max_lag, len(c) - 1) + 1)
+    y = c[lags].T
+
+    def model(p):
+        tf, ts = np.exp(p[:2])
+        f2, s2 = np.exp(p[2:2 + len(y)]), np.exp(p[2 + len(y):])
+        return f2[:, None] * np.exp(-lags / tf) + s2[:, None] * np.exp(-lags / ts)
+
+    start = np.log(np.r_[5.0, 40.0, 0.5 * np.maximum(y[:, 0], 1e-6), 0.5 * np.maximum(y[:, 0], 1e-6)])
+    p = least_squares(lambda q: (model(q) - y).ravel(), start).x
+    tf, ts = np.exp(p[:2])
+    f2, s2 = np.exp(p[2:2 + len(y)]), np.exp(p[2 + len(y):])
+    if tf > ts:  # name them by speed
+        tf, ts, f2, s2 = ts, tf, s2, f2
+    return {"white": np.sqrt(np.maximum(c[0] - f2 - s2, 0.0)), "fast": np.sqrt(f2), "slow": np.sqrt(s2),
+            "tau_fast": float(tf), "tau_slow": float(ts),
+            "rms_residual": float(np.sqrt(np.mean((model(p) - y) ** 2)))}

@@ -92,6 +92,13 @@ struct InsConfig {
   // its geometry's DOP as its noise does): the states' sigmas are then UERE-like and
   // each fix sees them times its HDOP / sqrt(2) (north, east) and VDOP (down).
   bool fix_error_gm_dop_scaled = false;
+  // A second, faster correlated part per north, east, down axis (per unit of DOP like
+  // the states' when fix_error_gm_dop_scaled), carried without states: each fix's R
+  // grows by sigma^2 (1 + a) / (1 - a), a = exp(-dt / tau), dt since the previous fix,
+  // so N fixes weigh as much as the mean of N correlated samples (as
+  // pseudorange_error_gm_* does). With it the states can carry a slow part alone.
+  Vec3 fix_error_fast_sigma_m = Vec3::Zero();
+  double fix_error_fast_tau_s = 0.0;  // <= 0: the fast part is white
   bool use_fix_velocity = false;
   double fix_velocity_sigma_mps = 0.1;  // per axis (unless the fix states its own); times HDOP when scaled
   bool fix_velocity_sigma_hdop_scaled = false;

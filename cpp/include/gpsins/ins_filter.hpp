@@ -195,6 +195,7 @@ class InsFilter {
   void note_gnss(bool accepted, double t);
   void reset_to_fix(const FixInput& fix);
   Mat3 fix_error_map(const FixInput& fix) const;
+  Mat3 fast_fix_error_cov(const FixInput& fix, const Mat3& c_en) const;
   // This fix's correlated error as estimated (zero without those states).
   Vec3 fix_error_estimate(const FixInput& fix) const {
     if constexpr (NC == 3) return fix_error_map(fix) * core_.fix_error;
