@@ -133,3 +133,21 @@ def test_preset_fix_error_figures_are_the_simulated_receivers():
     # One UERE for both horizontal axes: between their pooled white part and the larger one's.
     pooled = np.hypot(fits[0, 0], fits[1, 0]) / np.sqrt(2)
     assert 0.9 * pooled <= cfg["fix_uere_m"] <= 1.1 * max(fits[0, 0], fits[1, 0])
+
+
+@pytest.mark.parametrize("tau_s", [0.0, 4.0])
+def test_fast_fix_error_weighs_like_its_inflated_variance(stop_and_go, tau_s):
+    """The fast part (fix_error_fast_*) adds sigma^2 (1 + a) / (1 - a) per axis to a 1 Hz fix's
+    variance, a = exp(-1 s / tau) (white: a = 0): the same solution as a white UERE grown by it."""
+    s = stop_and_go
+    imu, fixes = sim.imu_table(s)[:64 * 120], sim.fix_table(s)
+    a = np.exp(-1.0 / tau_s) if tau_s > 0 else 0.0
+    base = {**sim.imu_noise_truth(s.scenario.imu), "fix_error_gm_sigma_m": 0.0, "fix_uere_2d_m": 0.0,
+            "fix_error_gm_dop_scaled": True}
+    fast = flt.run(imu, fixes, flt.load_config(None, {**base, "fix_uere_m": 1.0, "fix_error_fast_sigma_m": 0.7,
+                                                       "fix_error_fast_tau_s": tau_s}))
+    grown = flt.run(imu, fixes, flt.load_config(None, {**base, "fix_uere_m": np.sqrt(1.0 + 0.49 * (1 + a) / (1 - a))}))
+    plain = flt.run(imu, fixes, flt.load_config(None, {**base, "fix_uere_m": 1.0}))
+    late = fast.t > fast.t[0] + 30.0  # past the first fix, the only one without a predecessor
+    np.testing.assert_allclose(fast.r_ecef[late], grown.r_ecef[late], rtol=0, atol=1e-3)
+    assert np.abs(fast.r_ecef[late] - plain.r_ecef[late]).max() > 0.05
