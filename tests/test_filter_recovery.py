@@ -155,10 +155,7 @@ def _ned(d_ecef: np.ndarray, llh: np.ndarray) -> np.ndarray:
 
 
 @pytest.mark.parametrize("over", [{}, {"use_fix_velocity": True}, {"scale_factor_states": True},
-                                  pytest.param({"lever_arm_body_m": LEVER}, marks=pytest.mark.xfail(
-                                      strict=True, reason="whole-run NEES 14.8 over 4 seeds, above 13.6 (white "
-                                      "fixes: 15.3 and 7 good fixes refused): the attitude is over-confident "
-                                      "(its NEES 1.3-2.2 per axis), not the fixes' model"))],
+                                  {"lever_arm_body_m": LEVER}],
                          ids=["default", "fix_velocity", "scale_factors", "lever_arm"])
 def test_nees_over_the_whole_default_drive_is_inside_its_band(over):
     """From the first output on, standing with the heading unknown and moving off included;

@@ -210,6 +210,9 @@ def test_gnss_errors_measured_at_the_station_make_both_filters_consistent():
             nees[name] = float(evaluate.nees(err.e9[m], sol.covariance[m][:, :9, :9]).mean())
         print(f"{mode}: laps' NEES preset {nees['preset']:.1f}, measured {nees['measured']:.1f}")
         # The preset's GNSS errors are sized for the open sky (loose white fixes; tight with the ordinary
-        # receiver's 0.6 m multipath): under the steel structure it is clearly over-confident.
-        assert nees["preset"] > 1.5 * nees["measured"] and nees["preset"] > 12.0, (mode, nees)
+        # receiver's 0.6 m multipath): under the steel structure loose is clearly over-confident (27.9
+        # against 8.6). Tight is more confident than with the measured errors (11.1 against 5.7) but no
+        # longer outside the band since its IMU noise covers the bias instability (was above 12).
+        assert nees["preset"] > 1.5 * nees["measured"], (mode, nees)
+        assert mode == "tight" or nees["preset"] > 12.0, (mode, nees)
         assert 3.0 < nees["measured"] < 13.5, (mode, nees)

@@ -100,10 +100,11 @@ def test_tight_nees_is_consistent_over_five_seeds():
 
     avg, lo, hi = nees_over_seeds(lambda s: both(s)["tight"])
     print(f"tight: time-averaged NEES over 5 seeds x 60 s {avg:.2f}, band {lo:.2f}..{hi:.2f}")
-    # Never over-confident. On the safe side by a little (5.6 against 5.7): the preset uses every 10 Hz
-    # epoch with the correlated variance, and the elevation model's white part carries the broadcast
-    # URA (2 m), a satellite error the simulator does not make.
-    assert 0.9 * lo <= avg <= hi
+    # Never over-confident. On the safe side (5.0 against 5.7): the preset uses every 10 Hz epoch with
+    # the correlated variance, and the elevation model's white part carries the broadcast URA (2 m), a
+    # satellite error the simulator does not make; the IMU's process noise covering its bias
+    # instability at short averaging times (filter.flicker_white_var) took it from 5.6 to 5.0.
+    assert 0.85 * lo <= avg <= hi
 
 
 def test_streaming_tight_equals_batch():

@@ -589,11 +589,14 @@ void bind_filter(py::module_& m) {
   GPSINS_FIELD(accel_scale_factor_cal);
   GPSINS_FIELD(gyro_arw_rad_per_sqrt_s);
   GPSINS_FIELD(accel_vrw_mps_per_sqrt_s);
+  GPSINS_FIELD(gyro_flicker_white_rad_per_sqrt_s);
+  GPSINS_FIELD(accel_flicker_white_mps_per_sqrt_s);
   GPSINS_FIELD(gyro_bias);
   GPSINS_FIELD(accel_bias);
   GPSINS_FIELD(scale_factor_states);
   GPSINS_FIELD(gyro_scale_factor_sigma);
   GPSINS_FIELD(accel_scale_factor_sigma);
+  GPSINS_FIELD(gyro_misalignment_sigma_rad);
   GPSINS_FIELD(attitude_sigma_rad);
   GPSINS_FIELD(velocity_sigma_mps);
   GPSINS_FIELD(position_sigma_m);

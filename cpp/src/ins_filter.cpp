@@ -32,8 +32,8 @@ Vec3 square(const Vec3& v) { return v.cwiseProduct(v); }
 
 ProcessNoise noise_of(const InsConfig& c) {
   ProcessNoise q;
-  q.gyro_white_var = square(c.gyro_arw_rad_per_sqrt_s);
-  q.accel_white_var = square(c.accel_vrw_mps_per_sqrt_s);
+  q.gyro_white_var = square(c.gyro_arw_rad_per_sqrt_s) + square(c.gyro_flicker_white_rad_per_sqrt_s);
+  q.accel_white_var = square(c.accel_vrw_mps_per_sqrt_s) + square(c.accel_flicker_white_mps_per_sqrt_s);
   auto bias = [](const BiasConfig& b, Vec3& drive, Vec3& inv_tau) {
     switch (b.model) {
       case BiasModel::RandomWalk:
@@ -52,6 +52,7 @@ ProcessNoise noise_of(const InsConfig& c) {
   };
   bias(c.gyro_bias, q.gyro_bias_drive_var, q.gyro_bias_inv_tau);
   bias(c.accel_bias, q.accel_bias_drive_var, q.accel_bias_inv_tau);
+  q.gyro_misalignment_var = c.gyro_misalignment_sigma_rad * c.gyro_misalignment_sigma_rad;
   q.clock_bias_var = c.clock_bias_noise_m_per_sqrt_s * c.clock_bias_noise_m_per_sqrt_s;
   q.clock_drift_var = c.clock_drift_noise_mps_per_sqrt_s * c.clock_drift_noise_mps_per_sqrt_s;
   q.fix_error_var_ned = square(c.fix_error_gm_sigma_m);

@@ -158,7 +158,7 @@ Eigen::Matrix<double, 21, 21> code_phi(const Case& c) {
   std::array<Mat3, 7> qc;
   Eigen::Matrix<double, 21, 21> qd;
   after.error_dynamics(k.dtheta_rad / dt, k.dv_mps / dt, c0, dt, F);
-  after.noise_blocks(c0, qc);
+  after.noise_blocks(k.dtheta_rad / dt, c0, qc);
   after.discretise(F, qc, dt, phi, qd);
   return dense(phi);
 }

@@ -44,6 +44,9 @@ struct ProcessNoise {
   Vec3 accel_bias_inv_tau = Vec3::Zero();
   Vec3 gyro_sf_drive_var = Vec3::Zero();     // 1/s
   Vec3 accel_sf_drive_var = Vec3::Zero();
+  // Gyro misalignment left by the calibration (variance of each off-diagonal element
+  // of the triad's matrix, rad^2): white attitude noise driven by the rate, below.
+  double gyro_misalignment_var = 0.0;
   double clock_bias_var = 0.0;   // m^2/s
   double clock_drift_var = 0.0;  // m^2/s^3
   // Fix error (NC = 3): first-order Gauss-Markov per local north, east, down axis,
@@ -205,9 +208,37 @@ class Eskf {
     }
   }
 
-  // Diagonal blocks of the continuous noise covariance Qc = G W G^T.
-  void noise_blocks(const Mat3& c, std::array<Mat3, NB>& qc) const {
-    qc[0] = noise.gyro_white_var.asDiagonal();
+  // Misalignment of the gyro triad: the rate error M w, M's off-diagonal elements
+  // unknown with variance s^2 (the calibration's uncertainty). It is a constant times
+  // the motion, so neither the bias nor the scale-factor states absorb it. Carrying M
+  // as 6 more states (or Schmidt "consider" parameters) would grow P by a quarter for
+  // an error that stays small: a triad misaligned by m measures a rotation about an
+  // axis tilted by m, so after turning by phi about a fixed axis u its body-frame
+  // attitude error is bounded, variance 4 s^2 sin^2(phi / 2) on each axis across u
+  // (2 s^2 after a quarter turn, 4 s^2 after a half turn, 0 after a full one).
+  // Here it is white attitude noise driven by the rate,
+  //   q_i = s^2 Theta (|w|^2 - w_i^2) / |w|,
+  // which adds s^2 Theta phi across u over a rotation by phi at any rate. Theta = 4 / pi
+  // matches the truth's variance after a quarter and after a half turn (it is larger
+  // below a quarter turn, and the attitude aiding bounds what it adds beyond a half).
+  // The error follows the net rotation, so w is the rate averaged over kNetRateTauS:
+  // back-and-forth motion (a hand's swing, a walker's gait, vibration) turns nowhere and
+  // leaves an error bounded by its small amplitude, while the instantaneous |w| would
+  // add noise at every swing (test_eskf: a tenth of it over a 1.5 Hz swing).
+  static constexpr double kCoherentRotationRad = 4.0 / 3.14159265358979323846;
+  static constexpr double kNetRateTauS = 1.0;
+  Vec3 net_rate = Vec3::Zero();  // rad/s, the corrected rate's exponential average
+  Vec3 misalignment_noise_var(const Vec3& w) const {
+    const double w2 = w.squaredNorm();
+    if (!(noise.gyro_misalignment_var > 0.0) || !(w2 > 0.0)) return Vec3::Zero();
+    const Vec3 across = Vec3::Constant(w2) - w.cwiseAbs2();
+    return noise.gyro_misalignment_var * kCoherentRotationRad / std::sqrt(w2) * across;
+  }
+
+  // Diagonal blocks of the continuous noise covariance Qc = G W G^T; w is the net rate
+  // (rad/s) that drives the misalignment term.
+  void noise_blocks(const Vec3& w, const Mat3& c, std::array<Mat3, NB>& qc) const {
+    qc[0] = (noise.gyro_white_var + misalignment_noise_var(w)).asDiagonal();
     qc[1] = c * noise.accel_white_var.asDiagonal() * c.transpose();
     qc[2].setZero();
     qc[3] = noise.gyro_bias_drive_var.asDiagonal();
@@ -266,7 +297,8 @@ class Eskf {
     std::array<Mat3, NB> qc;
     MatNav qd;
     error_dynamics(w, f, c, dt, F);
-    noise_blocks(c, qc);
+    net_rate += -std::expm1(-dt / kNetRateTauS) * (w - net_rate);
+    noise_blocks(net_rate, c, qc);
     discretise(F, qc, dt, phi, qd);
 
     // P <- Phi P Phi^T + Qd, with Phi = blkdiag(Phi_nav, Phi of the augmented states).

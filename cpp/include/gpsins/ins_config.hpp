@@ -44,11 +44,22 @@ struct InsConfig {
   // White noise densities (Allan N): process noise V = N^2.
   Vec3 gyro_arw_rad_per_sqrt_s = Vec3::Constant(1e-3);
   Vec3 accel_vrw_mps_per_sqrt_s = Vec3::Constant(1e-2);
+  // White density added to the process noise (not to the detectors' noise) for the part
+  // of the bias instability the random-walk bias does not reach at short averaging
+  // times (gpsins.filter.flicker_white_var); the process noise is then N^2 + this^2.
+  Vec3 gyro_flicker_white_rad_per_sqrt_s = Vec3::Zero();
+  Vec3 accel_flicker_white_mps_per_sqrt_s = Vec3::Zero();
   BiasConfig gyro_bias;
   BiasConfig accel_bias;
   bool scale_factor_states = false;
   Vec3 gyro_scale_factor_sigma = Vec3::Constant(1e-3);
   Vec3 accel_scale_factor_sigma = Vec3::Constant(1e-3);
+
+  // Misalignment (non-orthogonality) of the gyro triad left by the calibration: 1 sigma
+  // of each off-diagonal element of its matrix (a datasheet's cross-axis sensitivity or
+  // the calibration's uncertainty), carried as rate-driven attitude noise (eskf.hpp).
+  // 0: not modelled.
+  double gyro_misalignment_sigma_rad = 0.0;
 
   // Initial uncertainty (1 sigma). Attitude as roll, pitch, yaw about local NED.
   Vec3 attitude_sigma_rad = Vec3(0.02, 0.02, 0.1);

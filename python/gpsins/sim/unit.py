@@ -2,8 +2,9 @@
 with its uncertainty. The filter is configured from the same description
 (``filter_overrides``), never from the drawn unit, so tests see the model mismatch
 a real campaign has: scale factors off their calibration, a bias off its
-calibrated value, misalignment and g-sensitivity the filter does not model, and
-noise coefficients that differ from the figures the filter was tuned with.
+calibrated value, misalignment the filter knows only by its sigma, g-sensitivity
+it does not model, and noise coefficients that differ from the figures the filter
+was tuned with.
 
 Default figures: the report's calibration (Tables 5.1, 5.5) and Allan noise
 (Tables 5.8, 5.9); the calibration uncertainties are this project's estimates of
@@ -82,6 +83,7 @@ def filter_overrides(ds: Datasheet, scale_factor_states: bool = True) -> dict:
         "accel_scale_factor_cal": list(ds.accel_scale_factor_cal),
         "gyro_bias_residual_rad_per_s": ds.gyro_bias_sigma_rad_per_s,
         "accel_bias_residual_mps2": ds.accel_bias_sigma_mps2,
+        "gyro_misalignment_sigma_rad": ds.misalignment_sigma_rad,
         "imu_noise": {k: list(getattr(ds, k)) for k in NOISE},
     }
     if scale_factor_states:
