@@ -21,10 +21,10 @@ filter), and whether it converged: not diverged and a final horizontal error
 under 5 m. A summary per rate, profile and mode follows.
 
 Runs go to worker processes (``--jobs``, default 2), one process per run, so
-each run's peak RSS is its own. A run needs about 6.5 kB per IMU sample (the
-replay keeps every epoch's state and covariance): 1.6 GB for the 1-hour profile
-at 64 Hz, about 9 GB at 400 Hz. Another run starts only while the estimated
-peaks of the running ones fit ``--memory-gb``.
+each run's peak RSS is its own (printed). Another run starts only while the
+estimated peaks of the running ones fit ``--memory-gb``; the estimate, 6.5 kB per
+IMU sample, dates from before replay streamed its results and is now far above
+what a run takes (at most 619 MB for the 5-minute profiles at 400 Hz).
 """
 
 from __future__ import annotations
@@ -72,7 +72,7 @@ def metrics(run_dir: Path, mode: str) -> dict:
     out = {"mode": mode, "rejected": _rejected(summary["counters"], mode)}
     diverged, resets, found = _counters(summary["counters"])
     out.update(diverged=diverged, resets=resets, reset_counters=found)
-    if "err_ned_m" not in z.files:
+    if "err_ned_m" not in z:
         return {**out, "error": "no errors (no truth)"}
     err, nees = z["err_ned_m"], z["nees9"]
     ok = np.all(np.isfinite(err), axis=1)
@@ -83,7 +83,7 @@ def metrics(run_dir: Path, mode: str) -> dict:
                rms_v_m=float(np.sqrt(np.mean(v ** 2))), max_h_m=float(h.max()),
                nees_all=float(np.mean(n_ok)), nees_heading=float(np.mean(n_ok[hk])) if hk.any() else float("nan"),
                heading_known_s=float(np.sum(np.diff(z["t"][ok])[hk[1:]])),
-               t_first_s=float(z["t"][ok][0] - z["seg_t"][0, 0]) if "seg_t" in z.files else float("nan"))
+               t_first_s=float(z["t"][ok][0] - z["seg_t"][0, 0]) if "seg_t" in z else float("nan"))
     out["converged"] = bool(not diverged and out["final_h_m"] < CONVERGED_FINAL_H_M)
     return out
 
