@@ -221,3 +221,23 @@ def test_the_report_divergence_test_is_selectable():
     assert cfg.max_attitude_correction_rad == pytest.approx(np.radians(2.0))
     with pytest.raises(flt.ConfigError, match="update_check"):
         flt.core_config(flt.load_config(None, {"update_check": "sometimes"}))
+
+
+def test_a_refused_zero_velocity_update_ends_the_standstill():
+    """Pulling away smoothly can look quiet to the detector; the gate refusing a zero-velocity
+    update is then the evidence of motion: no further zero-velocity update for the hold-off.
+    (The built-in stop_and_go, seed 1, 380 s: without the rule the detector went on standing
+    at up to 1.4 m/s, and 95 zero-velocity updates in a row were refused.)"""
+    s = sim.simulate(sim.load("stop_and_go"), seed=1)
+    cfg = flt.load_config("default")
+    imu, fixes = sim.imu_table(s), sim.fix_table(s)
+    end = imu[0, 0] + 380.0
+    sol = flt.run(imu[imu[:, 0] < end], fixes[fixes[:, 0] < end], cfg)
+    u = sol.updates
+    zv = np.asarray(u["kind"]) == 4
+    t, ok = np.asarray(u["t"])[zv], np.asarray(u["accepted"])[zv]
+    refused = t[~ok]
+    assert len(refused) >= 1  # the case happens in this drive
+    for tr in refused:
+        later = t[(t > tr) & (t < tr + _core.InsConfig().standstill_holdoff_s)]
+        assert len(later) == 0, f"zero-velocity updates {later - tr} s after one refused at {tr:.2f}"

@@ -962,8 +962,11 @@ void InsFilter<NB, NC>::detect_standstill(const Increment& inc) {
   // it yet); a recent GNSS speed above its limit bars or ends one.
   // A recent GNSS speed below it, while the IMU is quiet, may also start one:
   // the filter's velocity after a stop can be off by more than its limit.
+  // A refused zero-velocity update is motion the detector missed (pulling away
+  // smoothly): no standstill for the hold-off after it.
   const bool gnss_fresh = t_last_ - gnss_speed_t_ <= 1.5;
-  const bool veto = gnss_fresh && gnss_speed_mps_ > cfg_.standstill_max_gnss_speed_mps;
+  const bool zupt_refused = t_last_ - zupt_refused_t_ < cfg_.standstill_holdoff_s;
+  const bool veto = (gnss_fresh && gnss_speed_mps_ > cfg_.standstill_max_gnss_speed_mps) || zupt_refused;
   const bool may_begin = core_.nav.v_ecef_mps.norm() < cfg_.standstill_max_speed_mps || gnss_fresh;
   standstill_ = detector_.decide(rate - earth_b, may_begin, veto, t_last_);
   if (!standstill_) {
@@ -976,8 +979,13 @@ void InsFilter<NB, NC>::detect_standstill(const Increment& inc) {
   // mean's noise is independent between windows), with the noise measured from
   // the spread of the block means (vibration included), at least the ARW's.
   const auto m = zero_velocity(core_, cfg_.zero_velocity_sigma_mps);
-  record(kZeroVelocity, apply(m, 3), 3);
+  const auto r = apply(m, 3);
+  record(kZeroVelocity, r, 3);
   ++counters_.zero_velocity_updates;
+  if (!r.accepted) {
+    zupt_refused_t_ = t_last_;
+    return;
+  }
   if (standstill_blocks_ % detector_.window_blocks() == 0) {
     const Vec3 var = detector_.mean_rate_variance().cwiseMax(square(cfg_.gyro_arw_rad_per_sqrt_s) / detector_.window_duration_s()) +
                      Vec3::Constant(cfg_.zero_rate_sigma_rad_per_s * cfg_.zero_rate_sigma_rad_per_s);

@@ -284,6 +284,7 @@ class InsFilter {
   int pending_att_count_ = 0;
   double last_att_t_ = -1e300;
   double last_nhc_t_ = -1e300;
+  double zupt_refused_t_ = -1e300;  // the last zero-velocity update the gate refused
 };
 
 extern template class InsFilter<5, 0>;
