@@ -922,7 +922,7 @@ template <int NB, int NC>
 Mat3 InsFilter<NB, NC>::fast_fix_error_cov(const FixInput& fix, const Mat3& c_en) const {
   if (!(cfg_.fix_error_fast_sigma_m.array() > 0.0).any()) return Mat3::Zero();
   Vec3 s = cfg_.fix_error_fast_sigma_m;
-  if (cfg_.fix_error_gm_dop_scaled) s = s.cwiseProduct(Vec3(fix.hdop / std::sqrt(2.0), fix.hdop / std::sqrt(2.0), fix.vdop));
+  if (cfg_.fix_error_gm_dop_scaled) s = s.cwiseProduct(fix_error_dops(fix));
   double factor = 1.0;
   const double dt = fix.t_s - prev_fix_.t_s;
   if (have_prev_fix_ && dt > 0.0 && cfg_.fix_error_fast_tau_s > 0.0) {
@@ -932,16 +932,22 @@ Mat3 InsFilter<NB, NC>::fast_fix_error_cov(const FixInput& fix, const Mat3& c_en
   return c_en * (square(s) * factor).asDiagonal() * c_en.transpose();
 }
 
+// The DOP per local axis (north, east, down) that scales a fix's correlated errors.
+// A 2D fix's vertical row is projected out by its update, so its VDOP does not matter.
+template <int NB, int NC>
+Vec3 InsFilter<NB, NC>::fix_error_dops(const FixInput& fix) {
+  const double h = fix.hdop / std::sqrt(2.0);
+  return Vec3(h, h, fix.mode == 3 ? 1.0 : fix.vdop);
+}
+
 // How the fix-error states reach this fix (metres per state unit, ECEF): identity,
-// or its DOP per local axis (fix_error_gm_dop_scaled). A 2D fix's vertical row is
-// projected out by its update, so its VDOP does not matter.
+// or its DOP per local axis (fix_error_gm_dop_scaled).
 template <int NB, int NC>
 Mat3 InsFilter<NB, NC>::fix_error_map(const FixInput& fix) const {
   if (!cfg_.fix_error_gm_dop_scaled) return Mat3::Identity();
   const Geodetic llh = ecef_to_geodetic(fix.r_ecef_m);
   const Mat3 c_en = rot_ned_to_ecef(llh.lat_rad, llh.lon_rad);
-  const double h = fix.hdop / std::sqrt(2.0);
-  return c_en * Vec3(h, h, fix.mode == 3 ? 1.0 : fix.vdop).asDiagonal() * c_en.transpose();
+  return c_en * fix_error_dops(fix).asDiagonal() * c_en.transpose();
 }
 
 template <int NB, int NC>

@@ -322,9 +322,9 @@ def _truth_reference(truth: evaluate.Truth, system_epochs: np.ndarray) -> tuple:
     tt = truth.t
     if len(system_epochs):
         te = system_epochs[(system_epochs >= tt[0]) & (system_epochs <= tt[-1])]
-        r = np.empty((len(te), 3))
-        for a in range(0, len(te), 1 << 16):
-            r[a:a + (1 << 16)] = truth.at(te[a:a + (1 << 16)]).r_ecef
+        r, block = np.empty((len(te), 3)), outages_mod.ERRORS_BLOCK
+        for a in range(0, len(te), block):
+            r[a:a + block] = truth.at(te[a:a + block]).r_ecef
             truth.release()
         return te, r, "truth.npz"
     step = max(1, int(round(1.0 / (TRUTH_SCORING_HZ * float(np.median(np.diff(tt))))))) if len(tt) > 1 else 1

@@ -194,6 +194,7 @@ class InsFilter {
   void restart_after_gap(double gap_s, double t_end);
   void note_gnss(bool accepted, double t);
   void reset_to_fix(const FixInput& fix);
+  static Vec3 fix_error_dops(const FixInput& fix);
   Mat3 fix_error_map(const FixInput& fix) const;
   Mat3 fast_fix_error_cov(const FixInput& fix, const Mat3& c_en) const;
   // This fix's correlated error as estimated (zero without those states).
