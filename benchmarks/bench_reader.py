@@ -11,7 +11,7 @@ in a fresh process, so peaks do not mix, and prints its wall and CPU time
 reading (interpreter and imports):
 
 - scan: `logs.read_record_file` (block by block; stamps, offsets, lengths, frame bytes kept)
-- imu: scan, then `logs.imu_log` (float64 increments, 50 bytes a record on top)
+- imu: scan, then `logs.imu_log` (int16 counts, 14 bytes a record on top)
 - decoded: `logs.read_record_file(..., imu_rate_hz=64)`, replay's route: increments decoded
   block by block, no frames kept
 - whole: the whole-buffer `logs.scan` of the file in memory, then `logs.imu_log` (what the

@@ -127,6 +127,9 @@ def test_imu_decoded_while_reading_equals_the_frames_decoded_one_by_one(tmp_path
         # Independent decoder: the logger's own frame decoder, one frame at a time.
         samples = [bp3010.ImuSample.decode(f, 64) for f in framed.frames()]
         imu = logs.imu_log(lean, 64)
+        # Held as the frames' int16 counts (a quarter of the floats' memory on a day-long log).
+        assert imu.dtheta.dtype == imu.dv.dtype == np.int16
+        assert imu.lsb == (bp3010.dtheta_lsb_rad(64), bp3010.dv_lsb_mps(64))
         np.testing.assert_array_equal(imu.stamps, framed.stamps)
         np.testing.assert_array_equal(imu.dtheta_rad, [s.dtheta_rad for s in samples])
         np.testing.assert_array_equal(imu.dv_mps, [s.dv_mps for s in samples])

@@ -130,7 +130,7 @@ def test_smoothed_covariance_is_a_covariance(tight_inputs):
 def test_imu_columns_index_like_the_table():
     rng = np.random.default_rng(2)
     c = flt.ImuColumns(np.arange(9.0), rng.normal(size=(9, 3)), rng.normal(size=(9, 3)))
-    t = np.column_stack([c.t, c.dtheta_rad, c.dv_mps])
+    t = np.column_stack([c.t, c.dtheta, c.dv])
     for ix in (slice(2, 5), slice(None, None, 3), (0, 0), (-1, 0), (slice(None), 0), (4, slice(1, 4)),
                (slice(1, 7), slice(0, 2))):
         np.testing.assert_array_equal(c[ix], t[ix])

@@ -106,9 +106,10 @@ def write_csv(directory: str | Path, out) -> int:
     for name, files in session.sensors.items():
         if files.device == "bp3010":
             imu = session.imu()
+            dtheta, dv = imu.dtheta_rad, imu.dv_mps
             for k in range(len(imu)):
                 w.writerow([name, repr(float(imu.stamps[k])), "", bp3010.FRAME_LEN, int(imu.counter[k]),
-                            int(imu.status[k]), *map(repr, imu.dtheta_rad[k].tolist()), *map(repr, imu.dv_mps[k].tolist())])
+                            int(imu.status[k]), *map(repr, dtheta[k].tolist()), *map(repr, dv[k].tolist())])
             n += len(imu)
             continue
         for s in files.scans:

@@ -437,32 +437,15 @@ class ImuColumns:
     built whole (for a day at 64 Hz that would be another 300 MB); ``[a:b]`` gives its rows."""
 
     t: np.ndarray
-    dtheta_rad: np.ndarray
-    dv_mps: np.ndarray
+    dtheta: np.ndarray  # rad, or counts of lsb[0]
+    dv: np.ndarray  # m/s, or counts of lsb[1]
     lsb: tuple[float, float] | None = None  # set: the increments are held as integer counts of these units
-
-    @classmethod
-    def compact(cls, t: np.ndarray, dtheta_rad: np.ndarray, dv_mps: np.ndarray, lsb: tuple[float, float],
-                block_rows: int = 1 << 20) -> "ImuColumns":
-        """The increments as int16 counts of ``lsb`` when every value is exactly count x lsb (as a
-        BP3010 decoder makes them; a quarter of the memory, the same values back), else as given."""
-        counts = []
-        for x, unit in ((dtheta_rad, lsb[0]), (dv_mps, lsb[1])):
-            c = np.empty(x.shape, np.int16)
-            for a in range(0, len(x), block_rows):
-                blk = x[a:a + block_rows]
-                r = np.rint(blk / unit)
-                if not (np.all(np.abs(r) <= np.iinfo(np.int16).max) and np.array_equal(r.astype(np.int16) * unit, blk)):
-                    return cls(t, dtheta_rad, dv_mps)
-                c[a:a + block_rows] = r
-            counts.append(c)
-        return cls(t, counts[0], counts[1], (float(lsb[0]), float(lsb[1])))
 
     def increments(self, rows: slice) -> tuple[np.ndarray, np.ndarray]:
         """Angle (rad) and velocity (m/s) increments of these rows."""
         if self.lsb is None:
-            return self.dtheta_rad[rows], self.dv_mps[rows]
-        return self.dtheta_rad[rows] * self.lsb[0], self.dv_mps[rows] * self.lsb[1]
+            return self.dtheta[rows], self.dv[rows]
+        return self.dtheta[rows] * self.lsb[0], self.dv[rows] * self.lsb[1]
 
     def __len__(self) -> int:
         return len(self.t)

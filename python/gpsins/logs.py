@@ -396,30 +396,29 @@ class _ImuColumns:
     def __init__(self, lay: Layout, size: int, rate_hz: int):
         n = size // lay.min_len + 1
         self.lay, self.rate_hz = lay, rate_hz
-        self.lsb = bp3010.dtheta_lsb_rad(rate_hz), bp3010.dv_lsb_mps(rate_hz)
         self.starts, self.stamps = _Growing(np.int64, n), _Growing(np.float64, n)
-        self.dtheta, self.dv = _Growing(np.float64, n, (3,)), _Growing(np.float64, n, (3,))
+        self.dtheta, self.dv = _Growing(np.int16, n, (3,)), _Growing(np.int16, n, (3,))
         self.status, self.counter = _Growing(np.uint8, n), _Growing(np.uint8, n)
 
     def add(self, buf: np.ndarray, p: np.ndarray, length: np.ndarray, base: int) -> None:
         self.starts.extend(p + base)
         self.stamps.extend(_stamps_at(buf, p, self.lay))
-        _decode_bp3010(_gather(buf, p + (1 + self.lay.stamp_len), 14), self.lsb, self.dtheta.reserve(len(p)),
+        _decode_bp3010(_gather(buf, p + (1 + self.lay.stamp_len), 14), self.dtheta.reserve(len(p)),
                        self.dv.reserve(len(p)), self.status.reserve(len(p)), self.counter.reserve(len(p)))
 
     def scan(self, path: str, stats: dict) -> Scan:
         starts = self.starts.take()
         imu = ImuLog(self.stamps.take(), self.dtheta.take(), self.dv.take(), self.status.take(), self.counter.take(),
-                     self.rate_hz)
+                     self.rate_hz, bp3010_lsb(self.rate_hz))
         return Scan(path, self.lay, starts, _same_lengths(self.lay, len(starts)), imu.stamps, None, stats, imu)
 
 
-def _decode_bp3010(body: np.ndarray, lsb: tuple[float, float], dtheta: np.ndarray, dv: np.ndarray,
-                   status: np.ndarray, counter: np.ndarray) -> None:
-    """(n, 14) frame bodies (after the sync, without the checksum) into the given outputs."""
+def _decode_bp3010(body: np.ndarray, dtheta: np.ndarray, dv: np.ndarray, status: np.ndarray,
+                   counter: np.ndarray) -> None:
+    """(n, 14) frame bodies (after the sync, without the checksum) into the given outputs (counts)."""
     counts = np.ascontiguousarray(body[:, :12]).view("<i2")
-    np.multiply(counts[:, 0:3], lsb[0], out=dtheta)
-    np.multiply(counts[:, 3:6], lsb[1], out=dv)
+    dtheta[:] = counts[:, 0:3]
+    dv[:] = counts[:, 3:6]
     status[:] = body[:, 12]
     counter[:] = body[:, 13]
 
@@ -740,20 +739,38 @@ def ubx_class_ids(s: Scan) -> np.ndarray:
 
 @dataclass
 class ImuLog:
+    """IMU samples. A BP3010's increments are kept as the int16 counts its frames carry
+    (``lsb`` set: a quarter of the memory of floats, exactly the same values back);
+    other sources give floats (``lsb`` None). ``dtheta_rad``/``dv_mps`` give floats either way."""
+
     stamps: np.ndarray  # (n,) system time of each frame's first byte
-    dtheta_rad: np.ndarray  # (n, 3)
-    dv_mps: np.ndarray  # (n, 3)
+    dtheta: np.ndarray  # (n, 3) rad, or counts of lsb[0]
+    dv: np.ndarray  # (n, 3) m/s, or counts of lsb[1]
     status: np.ndarray  # (n,) uint8
     counter: np.ndarray  # (n,) uint8
     rate_hz: int
+    lsb: tuple[float, float] | None = None  # (rad, m/s) per count when the increments are counts
 
     def __len__(self) -> int:
         return len(self.stamps)
 
+    @property
+    def dtheta_rad(self) -> np.ndarray:
+        return self.dtheta if self.lsb is None else self.dtheta * self.lsb[0]
+
+    @property
+    def dv_mps(self) -> np.ndarray:
+        return self.dv if self.lsb is None else self.dv * self.lsb[1]
+
     def keep(self, keep: np.ndarray) -> None:
         """Keep only the samples where keep is true, in place, one column at a time."""
-        for name in ("stamps", "dtheta_rad", "dv_mps", "status", "counter"):
+        for name in ("stamps", "dtheta", "dv", "status", "counter"):
             setattr(self, name, getattr(self, name)[keep])
+
+
+def bp3010_lsb(rate_hz: int) -> tuple[float, float]:
+    """A BP3010's angle (rad) and velocity (m/s) increment per count at this rate."""
+    return bp3010.dtheta_lsb_rad(rate_hz), bp3010.dv_lsb_mps(rate_hz)
 
 
 IMU_DECODE_ROWS = 1 << 20  # frames decoded at a time from a Scan's frame bytes
@@ -767,11 +784,11 @@ def imu_log(s: Scan, rate_hz: int = bp3010.NOMINAL_RATE_HZ) -> ImuLog:
         return s.imu
     frames = s._require_frames().reshape(-1, bp3010.FRAME_LEN)
     n = len(frames)
-    out = ImuLog(s.stamps, np.empty((n, 3)), np.empty((n, 3)), np.empty(n, np.uint8), np.empty(n, np.uint8), rate_hz)
-    lsb = bp3010.dtheta_lsb_rad(rate_hz), bp3010.dv_lsb_mps(rate_hz)
+    out = ImuLog(s.stamps, np.empty((n, 3), np.int16), np.empty((n, 3), np.int16), np.empty(n, np.uint8),
+                 np.empty(n, np.uint8), rate_hz, bp3010_lsb(rate_hz))
     for a in range(0, n, IMU_DECODE_ROWS):
         r = slice(a, a + IMU_DECODE_ROWS)
-        _decode_bp3010(frames[r, 1:15], lsb, out.dtheta_rad[r], out.dv_mps[r], out.status[r], out.counter[r])
+        _decode_bp3010(frames[r, 1:15], out.dtheta[r], out.dv[r], out.status[r], out.counter[r])
     return out
 
 
@@ -823,10 +840,10 @@ class SessionLog:
         if len(parts) == 1:
             return parts[0]
         if not parts:
-            return ImuLog(np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, np.uint8),
-                          np.zeros(0, np.uint8), rate)
+            return ImuLog(np.zeros(0), np.zeros((0, 3), np.int16), np.zeros((0, 3), np.int16), np.zeros(0, np.uint8),
+                          np.zeros(0, np.uint8), rate, bp3010_lsb(rate))
         return ImuLog(*(np.concatenate([getattr(p, f) for p in parts]) for f in
-                        ("stamps", "dtheta_rad", "dv_mps", "status", "counter")), rate)
+                        ("stamps", "dtheta", "dv", "status", "counter")), rate, bp3010_lsb(rate))
 
 
 def read_session(directory: str | Path, imu_frames: bool = True) -> SessionLog:

@@ -147,18 +147,15 @@ def _session_inputs(session: Path, mode: str, config, timing_method: str, gps_la
         dec = measurements_ubx.decode_session(session, flt.load_config(config, overrides or {})["fix_uere_m"])
     else:
         dec = measurements.decode_session(session)
-    # Increments as counts of the sensor's units while the session is replayed (exact; 200 MB less a day).
-    from gpsins_logger import bp3010
-    rate = dec.imu.rate_hz
-    increments = flt.ImuColumns.compact(dec.imu.stamps, dec.imu.dtheta_rad, dec.imu.dv_mps,
-                                        (bp3010.dtheta_lsb_rad(rate), bp3010.dv_lsb_mps(rate)))
-    dec.imu.dtheta_rad = dec.imu.dv_mps = None
+    # A BP3010's increments stay counts of its units while the session is replayed (exact; 200 MB less a day).
+    increments = dec.imu.dtheta, dec.imu.dv, dec.imu.lsb
+    dec.imu.dtheta = dec.imu.dv = None
     decode_s = time.perf_counter() - t0
     t1 = time.perf_counter()
     al = timing.align(dec.gps.tow, dec.gps.stamps, dec.gps.week, dec.imu.stamps, dec.imu.counter, dec.imu.rate_hz,
                       method=timing_method, gps_latency_s=gps_latency_s, imu_latency_s=imu_latency_s)
     align_s = time.perf_counter() - t1
-    imu = flt.ImuColumns(al.imu_t, increments.dtheta_rad, increments.dv_mps, increments.lsb)
+    imu = flt.ImuColumns(al.imu_t, *increments)
     fixes = dec.gps.fixes
     span = (float(fixes[0, 0]), float(fixes[-1, 0])) if len(fixes) else (float(imu[0, 0]), float(imu[-1, 0]))
     inp = Inputs(session, "session", int(dec.gps.week), imu, fixes, dec.gps.fix_sats, span, base_config=config)

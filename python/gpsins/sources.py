@@ -150,9 +150,9 @@ class SessionSource:
             return
         imu = self._imu
         t = imu.stamps - self.t0
+        dtheta, dv = imu.dtheta_rad, imu.dv_mps
         for k in np.flatnonzero(t >= t0 - 1e-9):
-            yield TimedSample(float(t[k]), bp3010.ImuSample(tuple(imu.dtheta_rad[k]), tuple(imu.dv_mps[k]),
-                                                            int(imu.status[k])))
+            yield TimedSample(float(t[k]), bp3010.ImuSample(tuple(dtheta[k]), tuple(dv[k]), int(imu.status[k])))
 
 
 class UbloxSimSource:
