@@ -5,6 +5,7 @@ decimation and the per-chunk running statistics equal to statistics over everyth
 import json
 
 import numpy as np
+import pyarrow.parquet as pq
 import pytest
 
 from gpsins import filter as flt, replay, results, sim
@@ -72,11 +73,21 @@ def test_results_tables_round_trip(tmp_path):
     back = results.read_table(tmp_path / "x.parquet")
     for k, v in full.items():
         np.testing.assert_array_equal(back[k], v)
+    # Chunks gathered into row groups (of at least 1000 bytes here), newest first as the smoother
+    # writes them: reversing the row groups gives time order, whatever the grouping.
+    with results.TableWriter(tmp_path / "r.parquet", newest_first=True, group_bytes=1000) as w:
+        for c in chunks[::-1]:
+            w.append(c)
+    assert pq.ParquetFile(tmp_path / "r.parquet").num_row_groups == 2  # (3 + 7 rows), then 5 rows
+    results.reverse_row_groups(tmp_path / "r.parquet", tmp_path / "f.parquet")
+    back = results.read_table(tmp_path / "f.parquet")
+    for k, v in full.items():
+        np.testing.assert_array_equal(back[k], v)
     for stride in (2, 4):
         dec = results.read_table(tmp_path / "x.parquet", columns=["t", "r_ecef"], stride=stride)
         np.testing.assert_array_equal(dec["t"], full["t"][::stride])
         np.testing.assert_array_equal(dec["r_ecef"], full["r_ecef"][::stride])
-    import pyarrow.parquet as pq  # what pandas.read_parquet uses: the components are plain named columns
+    # What pandas.read_parquet uses: the components are plain named columns.
     np.testing.assert_array_equal(pq.read_table(tmp_path / "x.parquet").column("r_ecef_y").to_numpy(),
                                   full["r_ecef"][:, 1])
 

@@ -11,7 +11,7 @@ A results directory holds
 - ``results.npz``: what is small whatever the session length: the receiver's fixes, the
   outage schedule, the truth's segments, the scoring against a reference.
 
-Why Parquet: replay writes a row group per chunk as the filter produces it, so memory does not
+Why Parquet: replay writes row groups as the filter produces its chunks, so memory does not
 grow with the session; pandas (``pandas.read_parquet``), pyarrow, polars and DuckDB open it
 directly; it is columnar, so a plot reads only its columns; and it compresses. An array of
 several columns (``r_ecef``: x, y, z) is stored as one column per component
@@ -68,13 +68,27 @@ def _columns(arrays: dict) -> tuple[dict, dict]:
     return cols, meta
 
 
-class TableWriter:
-    """A Parquet file written a row group at a time; the first chunk fixes the columns."""
+ROW_GROUP_BYTES = 16 << 20  # chunks are gathered into row groups of about this much column data
 
-    def __init__(self, path: Path):
+
+class TableWriter:
+    """A Parquet file written as the chunks come; the first chunk fixes the columns.
+
+    Chunks are gathered into row groups of about ``group_bytes``: the writer keeps every row
+    group's metadata until it closes and then writes it out, about 65 kB per row group for a
+    solution table, so a row group per 4096-row chunk would grow by 90 MB over a day at 64 Hz,
+    and again as much when closed. ``newest_first``: chunks arrive newest first (the smoother's)
+    and each row group holds its chunks in time order, so reversing the row groups
+    (``reverse_row_groups``) puts the whole file in time order."""
+
+    def __init__(self, path: Path, newest_first: bool = False, group_bytes: int = ROW_GROUP_BYTES):
         self.path = Path(path)
+        self.newest_first = newest_first
+        self.group_bytes = group_bytes
         self._writer = None
         self._schema = None
+        self._pending: list = []
+        self._pending_bytes = 0
         self.rows = 0
 
     def append(self, arrays: dict) -> None:
@@ -86,11 +100,24 @@ class TableWriter:
             self._writer = pq.ParquetWriter(self.path, self._schema, **_WRITE_OPTIONS)
         table = pa.table(cols, schema=self._schema)
         if table.num_rows:
-            self._writer.write_table(table)
+            self._pending.append(table)
+            self._pending_bytes += table.nbytes
             self.rows += table.num_rows
+            if self._pending_bytes >= self.group_bytes:
+                self._flush()
+
+    def _flush(self) -> None:
+        if not self._pending:
+            return
+        pa, _ = _pa()
+        parts = self._pending[::-1] if self.newest_first else self._pending
+        table = pa.concat_tables(parts)
+        self._writer.write_table(table, row_group_size=table.num_rows)
+        self._pending, self._pending_bytes = [], 0
 
     def close(self) -> None:
         if self._writer is not None:
+            self._flush()
             self._writer.close()
             self._writer = None
 

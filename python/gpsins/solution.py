@@ -277,7 +277,7 @@ class Stream:
 
     def __post_init__(self):
         self._part = self.table.with_name(self.table.name + ".part") if self.newest_first else self.table
-        self._writer = results.TableWriter(self._part)
+        self._writer = results.TableWriter(self._part, newest_first=self.newest_first)
         self._pos = PosWriter(self.pos, self.week, self.note, reversed_blocks=self.newest_first)
         self.score = TruthScore(self.truth) if self.truth is not None else None
         self.brackets = Brackets(self.bracket_epochs)
