@@ -197,30 +197,57 @@ def _running_min(y: np.ndarray, w: int) -> tuple[np.ndarray, np.ndarray]:
     return m[:n], m[w:w + n]
 
 
+DAMAGE_BLOCK = 1 << 18  # values per block of _damaged_low
+
+
 def _damaged_low(y: np.ndarray, w: int, tol: float) -> np.ndarray:
     """Values below every neighbour within w on both sides by more than tol. Delays only ever
     raise a stamp and a clock step moves all later ones: a lone low stamp is damage. The
     tolerance grows with the delays: the minimum of w exponential delays exceeds 7/w of their
     mean once in a thousand, so a good stamp is rarely below both windows by more."""
-    if len(y) < 3:
-        return np.zeros(len(y), dtype=bool)
-    left, right_incl = _running_min(y, w)
-    right = np.concatenate([right_incl[1:], [np.inf]])
-    floor = np.minimum(left, right)
-    ok = np.isfinite(floor)
-    mean_delay = float(np.median(np.maximum(y[ok] - floor[ok], 0.0))) / np.log(2.0) if ok.any() else 0.0
+    n = len(y)
+    if n < 3:
+        return np.zeros(n, dtype=bool)
+    # Block by block, each with the w values either side it needs (a day's IMU stamps without
+    # day-long temporaries); the same numbers as over the whole series.
+    floor = np.empty(n)
+    delays = np.empty(n)
+    m = 0
+    for a in range(0, n, DAMAGE_BLOCK):
+        b = min(a + DAMAGE_BLOCK, n)
+        lo, hi = max(0, a - w), min(n, b + w + 1)
+        left, right_incl = _running_min(y[lo:hi], w)
+        right = np.concatenate([right_incl[1:], [np.inf]])
+        f = floor[a:b] = np.minimum(left[a - lo:b - lo], right[a - lo:b - lo])
+        ok = np.isfinite(f)
+        d = np.maximum(y[a:b][ok] - f[ok], 0.0)
+        delays[m:m + len(d)] = d
+        m += len(d)
+    mean_delay = float(np.median(delays[:m], overwrite_input=True)) / np.log(2.0) if m else 0.0
+    del delays
     return y < floor - max(tol, 7.0 * mean_delay / w)
 
 
+SLOPE_BLOCK = 1 << 18  # points per block of _median_slope: a day's IMU stamps without day-long temporaries
+
+
 def _median_slope(x: np.ndarray, y: np.ndarray, span: float) -> float:
-    """Median of the slopes between each point and the first one at least `span` later in x."""
-    j = np.searchsorted(x, x + span)
-    ok = j < len(x)
-    if not ok.any():
+    """Median of the slopes between each point and the first one at least `span` later in x
+    (x ascending), worked out block by block into one array of slopes."""
+    n = len(x)
+    slopes = np.empty(n)
+    m = 0
+    for a in range(0, n, SLOPE_BLOCK):
+        j = np.searchsorted(x, x[a:a + SLOPE_BLOCK] + span)
+        i = np.flatnonzero(j < n)
+        j = j[i]
+        i += a
+        slopes[m:m + len(i)] = (y[j] - y[i]) / (x[j] - x[i])
+        m += len(i)
+    if not m:
         i, j = np.argmin(x), np.argmax(x)
         return float((y[j] - y[i]) / (x[j] - x[i])) if x[j] > x[i] else 1.0
-    i = np.flatnonzero(ok)
-    return float(np.median((y[j[ok]] - y[i]) / (x[j[ok]] - x[i])))
+    return float(np.median(slopes[:m], overwrite_input=True))
 
 
 def _steps(values: np.ndarray, threshold_s: float, window: int = GPS_WINDOW) -> tuple[np.ndarray, float]:
