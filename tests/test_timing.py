@@ -155,3 +155,24 @@ def test_numpy_window_minimum_and_lower_hull_equal_scipys():
             inside = (x >= x[a]) & (x <= x[b])
             line = y[a] + (y[b] - y[a]) * (x[inside] - x[a]) / (x[b] - x[a])
             assert np.all(y[inside] >= line - 1e-9)
+
+
+def test_block_by_block_stamp_statistics_equal_the_whole_series(monkeypatch):
+    """The damaged-stamp test and the median slope give, block by block (small blocks here), what
+    they give over the whole series in one block: a day's stamps are worked through in blocks."""
+    rng = np.random.default_rng(4)
+    n = 5000
+    x = np.cumsum(rng.integers(1, 3, n)).astype(float)
+    y = x / 64.0 + rng.exponential(0.003, n)
+    y[rng.integers(0, n, 8)] -= 0.5  # damaged stamps
+    y[n // 2:] += 3.0  # a clock step
+    direct = np.median([(y[j] - y[i]) / (x[j] - x[i]) for i in range(n)
+                        for j in [np.searchsorted(x, x[i] + 40.0)] if j < n])
+    stamps = y - x / 64.0  # as align gives it: the counter's trend removed
+    whole = [timing._damaged_low(stamps, w, 0.02) for w in (8, 64)]
+    monkeypatch.setattr(timing, "DAMAGE_BLOCK", 97)
+    monkeypatch.setattr(timing, "SLOPE_BLOCK", 97)
+    assert timing._median_slope(x, y, 40.0) == direct
+    for w, expected in zip((8, 64), whole):
+        got = timing._damaged_low(stamps, w, 0.02)
+        assert np.array_equal(got, expected) and 4 <= got.sum() <= 8
