@@ -142,6 +142,28 @@ def test_compare_scores_an_estimate_against_the_reference(session):
     assert np.all(np.abs(shifted.heading_rad[good]) <= np.pi)
 
 
+def test_summary_block_by_block_equals_the_whole_comparison(session, monkeypatch):
+    """Replay scores its reference system block by block without the per-epoch arrays: the same figures
+    as the whole comparison's, recomputed here from its arrays."""
+    s, _, ref = session
+    tr, i = s.truth, s.truth_at_imu
+    gps0 = s.scenario.start.gps_week * 604800.0 + s.scenario.start.gps_tow_s
+    args = (ref, gps0 + tr.t[i], tr.r_ecef[i] + 0.3, tr.ypr[i, 0] + 0.01, tr.ypr[i, 1])
+    e = reference.compare(*args)
+    pos = np.all(np.isfinite(e.position_ned_m), axis=1)
+    att = np.isfinite(e.heading_rad)
+    monkeypatch.setattr(reference, "COMPARE_BLOCK", 37)
+    got = reference.compare_summary(*args)
+    assert got["epochs"] == len(e.gps_s) and got["position_epochs"] == pos.sum() and got["attitude_epochs"] == att.sum()
+    assert got["horizontal_rms_m"] == pytest.approx(np.sqrt(np.mean(np.sum(e.position_ned_m[pos, :2] ** 2, 1))),
+                                                    rel=1e-12)
+    assert got["vertical_rms_m"] == pytest.approx(np.sqrt(np.mean(e.position_ned_m[pos, 2] ** 2)), rel=1e-12)
+    assert got["heading_rms_deg"] == pytest.approx(np.degrees(np.sqrt(np.mean(e.heading_rad[att] ** 2))), rel=1e-12)
+    assert got["reference_horizontal_sigma_m"] == pytest.approx(
+        np.sqrt(np.mean(np.hypot(*e.sigma_ned_m[pos, :2].T) ** 2)), rel=1e-12)
+    assert got == pytest.approx(reference.compare(*args).summary(), rel=1e-12)
+
+
 def test_replay_scores_a_session_against_its_reference_system(session, tmp_path):
     """run.json's reference scoring equals the truth-based errors at the reference's epochs,
     to within the reference's own centimetre-level error."""

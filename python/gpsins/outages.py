@@ -115,7 +115,9 @@ def solution_at(t_sol: np.ndarray, r_sol: np.ndarray, te: np.ndarray, v_sol: np.
     est = np.column_stack([np.interp(te, t_sol, r_sol[:, j]) for j in range(3)]) if len(te) else np.zeros((0, 3))
     if v_sol is None or update_t is None or len(t_sol) < 2 or not len(te):
         return est
-    u = np.sort(np.asarray(update_t, float))
+    u = np.asarray(update_t, float)
+    if len(u) > 1 and np.any(u[1:] < u[:-1]):
+        u = np.sort(u)
     k = np.clip(np.searchsorted(t_sol, te, side="right") - 1, 0, len(t_sol) - 2)
     between = t_sol[k] < te
     n_after_row = np.searchsorted(u, t_sol[k], side="right")

@@ -20,7 +20,7 @@ means no solution: position and attitude drop out independently.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 import numpy as np
@@ -192,20 +192,63 @@ class ReferenceErrors:
 
     def summary(self) -> dict:
         """RMS errors and how much of the time the reference could score at all."""
-        pos = np.all(np.isfinite(self.position_ned_m), axis=1)
-        att = np.isfinite(self.heading_rad) & np.isfinite(self.pitch_rad)
-        p, h = self.position_ned_m[pos], self.heading_rad[att]
+        s = _Summary()
+        s.add(self)
+        return s.result()
 
-        def rms(x):
-            return float(np.sqrt(np.mean(x ** 2))) if len(x) else float("nan")
-        return {"epochs": int(len(self.gps_s)), "position_epochs": int(pos.sum()), "attitude_epochs": int(att.sum()),
-                "horizontal_rms_m": float(np.sqrt(np.mean(np.sum(p[:, :2] ** 2, 1)))) if len(p) else float("nan"),
-                "vertical_rms_m": rms(p[:, 2]), "heading_rms_deg": float(np.degrees(rms(h))),
-                "pitch_rms_deg": float(np.degrees(rms(self.pitch_rad[att]))),
-                "reference_horizontal_sigma_m": rms(np.hypot(*self.sigma_ned_m[pos, :2].T)) if len(p) else float("nan")}
+
+class _Summary:
+    """ReferenceErrors.summary's figures, gathered block by block."""
+
+    def __init__(self):
+        self.epochs = self.pos = self.att = 0
+        self.h2 = self.v2 = self.sig2 = self.head2 = self.pitch2 = 0.0
+
+    def add(self, e: ReferenceErrors) -> None:
+        pos = np.all(np.isfinite(e.position_ned_m), axis=1)
+        att = np.isfinite(e.heading_rad) & np.isfinite(e.pitch_rad)
+        p = e.position_ned_m[pos]
+        self.epochs += len(e.gps_s)
+        self.pos += int(pos.sum())
+        self.att += int(att.sum())
+        self.h2 += float(np.sum(p[:, :2] ** 2))
+        self.v2 += float(np.sum(p[:, 2] ** 2))
+        self.sig2 += float(np.sum(e.sigma_ned_m[pos, :2] ** 2))
+        self.head2 += float(np.sum(e.heading_rad[att] ** 2))
+        self.pitch2 += float(np.sum(e.pitch_rad[att] ** 2))
+
+    def result(self) -> dict:
+        def rms(total, n):
+            return float(np.sqrt(total / n)) if n else float("nan")
+        return {"epochs": self.epochs, "position_epochs": self.pos, "attitude_epochs": self.att,
+                "horizontal_rms_m": rms(self.h2, self.pos), "vertical_rms_m": rms(self.v2, self.pos),
+                "heading_rms_deg": float(np.degrees(rms(self.head2, self.att))),
+                "pitch_rms_deg": float(np.degrees(rms(self.pitch2, self.att))),
+                "reference_horizontal_sigma_m": rms(self.sig2, self.pos)}
 
 
 COMPARE_BLOCK = 1 << 16  # reference epochs per block: a day at 10 Hz is compared without day-long temporaries
+
+
+def _compared_blocks(ref: Reference, gps_s: np.ndarray, r_ecef_m: np.ndarray, yaw_rad: np.ndarray,
+                     pitch_rad: np.ndarray):
+    """compare()'s errors, COMPARE_BLOCK reference epochs at a time."""
+    gps_s = np.asarray(gps_s, dtype=np.float64)
+    if len(gps_s) < 2 or np.any(np.diff(gps_s) <= 0):
+        raise ValueError("estimate times must be at least two and strictly increasing")
+    tr = ref.gps_seconds()
+    idx = np.flatnonzero((tr >= gps_s[0]) & (tr <= gps_s[-1]))
+    yaw_u = _unwrap(np.asarray(yaw_rad, dtype=np.float64))
+    for a in range(0, len(idx), COMPARE_BLOCK):
+        k = idx[a:a + COMPARE_BLOCK]
+        tk = tr[k]
+        r = np.stack([np.interp(tk, gps_s, r_ecef_m[:, i]) for i in range(3)], axis=-1)
+        r_ref = ref.r_ecef_m[k]
+        lat, lon = _lat_lon(np.where(np.isfinite(r_ref), r_ref, r))
+        yield ReferenceErrors(tk, _ecef_to_ned(r - r_ref, lat, lon), ref.sigma_ned_m[k],
+                              np.mod(np.interp(tk, gps_s, yaw_u) - ref.heading_rad[k] + np.pi, 2.0 * np.pi) - np.pi,
+                              np.interp(tk, gps_s, pitch_rad) - ref.pitch_rad[k], ref.sigma_heading_rad[k],
+                              ref.sigma_pitch_rad[k])
 
 
 def compare(ref: Reference, gps_s: np.ndarray, r_ecef_m: np.ndarray, yaw_rad: np.ndarray,
@@ -213,27 +256,21 @@ def compare(ref: Reference, gps_s: np.ndarray, r_ecef_m: np.ndarray, yaw_rad: np
     """Errors of an estimate (continuous GPS seconds, ECEF position, yaw and pitch relative to
     local NED, e.g. a filter's solution) against the reference, the estimate interpolated
     linearly to the reference's epochs (yaw unwrapped first)."""
-    gps_s = np.asarray(gps_s, dtype=np.float64)
-    if len(gps_s) < 2 or np.any(np.diff(gps_s) <= 0):
-        raise ValueError("estimate times must be at least two and strictly increasing")
-    tr = ref.gps_seconds()
-    idx = np.flatnonzero((tr >= gps_s[0]) & (tr <= gps_s[-1]))
-    yaw_u = _unwrap(np.asarray(yaw_rad, dtype=np.float64))
-    t = tr[idx]
-    d_ned = np.empty((len(idx), 3))
-    dh = np.empty(len(idx))
-    dp = np.empty(len(idx))
-    for a in range(0, len(idx), COMPARE_BLOCK):
-        b = min(a + COMPARE_BLOCK, len(idx))
-        k, tk = idx[a:b], t[a:b]
-        r = np.stack([np.interp(tk, gps_s, r_ecef_m[:, i]) for i in range(3)], axis=-1)
-        r_ref = ref.r_ecef_m[k]
-        lat, lon = _lat_lon(np.where(np.isfinite(r_ref), r_ref, r))
-        d_ned[a:b] = _ecef_to_ned(r - r_ref, lat, lon)
-        dh[a:b] = np.mod(np.interp(tk, gps_s, yaw_u) - ref.heading_rad[k] + np.pi, 2.0 * np.pi) - np.pi
-        dp[a:b] = np.interp(tk, gps_s, pitch_rad) - ref.pitch_rad[k]
-    return ReferenceErrors(t, d_ned, ref.sigma_ned_m[idx], dh, dp, ref.sigma_heading_rad[idx],
-                           ref.sigma_pitch_rad[idx])
+    blocks = list(_compared_blocks(ref, gps_s, r_ecef_m, yaw_rad, pitch_rad))
+    if not blocks:
+        z = np.zeros(0)
+        return ReferenceErrors(z, np.zeros((0, 3)), np.zeros((0, 3)), z, z, z, z)
+    return ReferenceErrors(*(np.concatenate([getattr(b, f.name) for b in blocks]) for f in fields(ReferenceErrors)))
+
+
+def compare_summary(ref: Reference, gps_s: np.ndarray, r_ecef_m: np.ndarray, yaw_rad: np.ndarray,
+                    pitch_rad: np.ndarray) -> dict:
+    """``compare(...).summary()`` without the per-epoch arrays (a day's replay scores its reference
+    system this way: the arrays would be 100 MB on top of everything else the run holds)."""
+    s = _Summary()
+    for block in _compared_blocks(ref, gps_s, r_ecef_m, yaw_rad, pitch_rad):
+        s.add(block)
+    return s.result()
 
 
 def _unwrap(p: np.ndarray) -> np.ndarray:

@@ -288,9 +288,9 @@ def _score_reference_system(ref, week: int, rows: dict) -> dict:
     ``rows``: the solution rows that bracket its epochs (``solution.Brackets``)."""
     if ref is None or len(rows.get("t", ())) < 2:
         return {}
-    e = reference_mod.compare(ref, week * measurements.SECONDS_PER_WEEK + rows["t"], rows["r_imu"], rows["yaw"],
-                              rows["pitch"])
-    return {"file": reference_mod.FILE_NAME, "damaged_lines": len(ref.damaged_lines), **e.summary()}
+    summary = reference_mod.compare_summary(ref, week * measurements.SECONDS_PER_WEEK + rows["t"], rows["r_imu"],
+                                            rows["yaw"], rows["pitch"])
+    return {"file": reference_mod.FILE_NAME, "damaged_lines": len(ref.damaged_lines), **summary}
 
 
 HEADING_AIDING_INTERVAL_S = 1.0  # the reference's heading errors are partly slow (multipath): not at its full rate

@@ -303,8 +303,8 @@ class Stream:
         self.brackets.add(sol.t, r_score=r_score, r_imu=sol.r_ecef, v=sol.v_ecef.astype(np.float32),
                           yaw=np.radians(a["ypr_deg"][:, 0]),
                           pitch=np.radians(a["ypr_deg"][:, 1]))
-        if len(sol.updates.get("t", ())):
-            self._update_t.append(np.asarray(sol.updates["t"], float))
+        if len(sol.updates.get("t", ())):  # once per instant: a tight epoch updates each satellite (5 M a day)
+            self._update_t.append(np.unique(np.asarray(sol.updates["t"], float)))
         llh_pos = a["llh"] if self.pos_point == "imu" else flt._core.ecef_to_geodetic(r_ant)
         k = np.clip(np.searchsorted(self.fix_t, sol.t, side="right") - 1, 0, max(len(self.fix_t) - 1, 0))
         sats = self.fix_sats[k] if len(self.fix_t) else np.zeros(len(sol.t), int)
@@ -317,8 +317,8 @@ class Stream:
         self.last_t = float(sol.t[-1]) if self.last_t is None else max(self.last_t, float(sol.t[-1]))
 
     def update_times(self) -> np.ndarray:
-        """The times of every measurement update so far (where the solution steps)."""
-        return np.concatenate(self._update_t) if self._update_t else np.zeros(0)
+        """The instants of the measurement updates so far (where the solution steps), ascending."""
+        return np.unique(np.concatenate(self._update_t)) if self._update_t else np.zeros(0)
 
     def close(self) -> None:
         self._writer.close()
