@@ -90,11 +90,12 @@ def _cmd_replay(args: argparse.Namespace) -> int:
     inp = replay.load_inputs(args.session, modes=modes, config=args.config, overrides=overrides,
                              timing_method=args.timing, gps_latency_s=args.gps_latency, imu_latency_s=args.imu_latency,
                              truth=not args.no_truth, nav=args.nav)
-    for mode in modes:
+    for i, mode in enumerate(modes):
         res = replay.run_mode(inp, Path(args.out) / mode if len(modes) > 1 else args.out, mode=mode,
                               overrides=overrides, outages=args.outages, reference=args.reference,
                               reference_q=args.reference_q, point=args.point, smooth=args.smooth,
-                              covariance_every=args.covariance_every, aid_heading=args.aid_heading)
+                              covariance_every=args.covariance_every, aid_heading=args.aid_heading,
+                              last_use=i == len(modes) - 1)
         c = res.summary["counters"]
         print(f"{mode}: {res.summary['imu_samples']} IMU samples, {c['fixes_accepted']} fixes used, "
               f"{c['updates_rejected']} updates rejected; results in {res.out}")

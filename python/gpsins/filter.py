@@ -705,6 +705,11 @@ class ChunkedRun:
             j, q, g = j2, q2, g2
             yield Solution.from_batch(out, self.mode, self._setup.scale_factors)
 
+    def release_inputs(self) -> None:
+        """Let go of the IMU samples, pseudoranges and attitude fixes once ``chunks()`` has run through
+        (a day's are 240 MB); the smoother needs only its record."""
+        self.imu = self.prs = self.attitude = None
+
     def smooth(self, sink, block_rows: int | None = None, covariance: bool = True) -> dict:
         """After ``chunks()`` ran through with ``record=True``: the backward pass, handing
         ``sink(index of the block's first epoch, Solution)`` each block as it completes (newest

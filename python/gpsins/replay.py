@@ -423,10 +423,12 @@ def replay(source: str | Path, out: str | Path, *, mode: str = "loose", config=N
 def run_mode(inp: Inputs, out: str | Path, *, mode: str = "loose", overrides: dict | None = None,
              outages: str | outages_mod.OutageSpec | None = None, reference: str | Path | None = None,
              reference_q=(1,), point: str = "antenna", smooth: bool = False, covariance_every: int = 0,
-             chunk_rows: int = flt.CHUNK_ROWS, aid_heading: bool = False) -> ReplayResult:
+             chunk_rows: int = flt.CHUNK_ROWS, aid_heading: bool = False, last_use: bool = False) -> ReplayResult:
     """One filter mode over decoded inputs (``load_inputs``), written to ``out`` (see ``replay``);
     ``aid_heading``: the session's reference system's dual-antenna heading and pitch (``reference.csv``)
-    aid the filter (then it no longer scores the attitude independently)."""
+    aid the filter (then it no longer scores the attitude independently); ``last_use``: no later call
+    uses ``inp``, so its IMU samples and pseudoranges are let go once the filter has run, before the
+    scoring (a day's: 240 MB)."""
     if mode not in MODES:
         raise ValueError(f"--mode {mode!r}: one of {', '.join(MODES)}")
     if point not in POINTS:
@@ -446,8 +448,10 @@ def run_mode(inp: Inputs, out: str | Path, *, mode: str = "loose", overrides: di
     fix_out = outages_mod.inside(inp.fixes[:, 0], schedule)
     fixes = inp.fixes[~fix_out]
     prs = inp.pseudoranges if filter_mode == "tight" else None
+    n_imu, n_prs = len(inp.imu), len(prs) if prs is not None else 0
     if prs is not None and len(schedule):  # a copy only when something is left out (a day's table is 200 MB)
         prs = prs[~outages_mod.inside(prs[:, 0], schedule)]
+    prs_removed = n_prs - len(prs) if prs is not None else 0
     tight = {}
     if filter_mode == "tight":
         tight = dict(pseudoranges=prs if prs is not None else np.zeros((0, 5)), ephemerides=inp.ephemerides,
@@ -534,6 +538,9 @@ def run_mode(inp: Inputs, out: str | Path, *, mode: str = "loose", overrides: di
     if forward.epochs == 0:
         raise measurements.logs.LogError(f"{source}: the filter never initialised (no usable fix after levelling)")
     counters = run.counters
+    if last_use:
+        run.release_inputs()
+        inp.imu = inp.pseudoranges = prs = tight = None
     if mode == "ins":  # the whole free stretch is one outage
         score_sched = np.array([[free_from, max(forward.last_t, free_from) + 1e-6]])
 
@@ -586,7 +593,7 @@ def run_mode(inp: Inputs, out: str | Path, *, mode: str = "loose", overrides: di
                "events": event_list,
                "warnings": info.pop("warnings", []),
                "skipped": info.pop("skipped", {}), "fixes_after_end": run.fixes_after_end,
-               "wall_time_s": clock, "imu_samples": int(len(inp.imu)), "epochs": forward.epochs,
+               "wall_time_s": clock, "imu_samples": n_imu, "epochs": forward.epochs,
                "errors": forward.score.summary() if forward.score is not None else {},
                "update_kinds": {flt.UPDATE_KINDS[k]: n for k, n in sorted(update_kinds.items())},
                "solution_point": point,
@@ -595,8 +602,7 @@ def run_mode(inp: Inputs, out: str | Path, *, mode: str = "loose", overrides: di
                "outages": {"spec": spec.text() if spec is not None else None, "schedule": schedule.tolist(),
                            "gnss_first_t": inp.gnss_span[0], "gnss_last_t": inp.gnss_span[1],
                            "fixes_removed": int(fix_out.sum()),
-                           "pseudoranges_removed": 0 if prs is None or inp.pseudoranges is None else
-                           int(len(inp.pseudoranges) - len(prs))},
+                           "pseudoranges_removed": int(prs_removed)},
                "scoring": scoring}
     if reference_system:
         summary["reference_system"] = reference_system
