@@ -182,3 +182,16 @@ def test_replay_scores_a_session_against_its_reference_system(session, tmp_path)
     assert got["position_epochs"] == len(t_ref)
     assert abs(got["horizontal_rms_m"] - h_truth) < 0.05, (got, h_truth)
     assert np.isfinite(got["heading_rms_deg"]) and got["attitude_epochs"] > 0
+
+
+def test_fast_reader_equals_the_line_parser(session, monkeypatch):
+    """A clean file goes through pyarrow's CSV reader; the line-by-line parser (used for damaged
+    files) reads the same numbers, outages' empty fields included."""
+    _, d, fast = session
+    assert (~fast.position_ok).any() and (~fast.attitude_ok).any()
+    monkeypatch.setattr(reference, "_read_clean", lambda path: None)
+    slow = reference.load(d)
+    for name in ("gps_week", "gps_tow_s", "r_ecef_m", "sigma_ned_m", "heading_rad", "pitch_rad",
+                 "sigma_heading_rad", "sigma_pitch_rad"):
+        a, b = getattr(fast, name), getattr(slow, name)
+        assert a.dtype == b.dtype and np.array_equal(a, b, equal_nan=True), name

@@ -8,6 +8,7 @@ void bind_filter(py::module_& m);
 void bind_allan(py::module_& m);
 void bind_gnss(py::module_& m);
 void bind_smoother(py::module_& m);
+void bind_text(py::module_& m);
 
 PYBIND11_MODULE(_core, m) {
   m.doc() = "gpsins C++ core: Earth model, attitude, the integrated navigation filter.";
@@ -17,4 +18,5 @@ PYBIND11_MODULE(_core, m) {
   bind_allan(m);
   bind_gnss(m);
   bind_smoother(m);
+  bind_text(m);
 }

@@ -77,6 +77,7 @@ class NavErrors:
     dr: np.ndarray  # (n, 3) ECEF, m
     r_ned: np.ndarray  # (n, 3) position error estimate - truth in local NED, m
     ypr_deg: np.ndarray  # (n, 3) yaw, pitch, roll estimate - truth, deg (wrapped)
+    v_ned: np.ndarray  # (n, 3) velocity error estimate - truth in local NED, m/s
 
     @property
     def e9(self) -> np.ndarray:
@@ -109,6 +110,7 @@ def nav_errors(sol, truth: Truth) -> NavErrors:
     c = c_en(llh[:, 0], llh[:, 1])
     c_ne = np.swapaxes(c, -1, -2)
     r_ned = np.einsum("nij,nj->ni", c_ne, sol.r_ecef - ref.r_ecef)
+    v_ned = np.einsum("nij,nj->ni", c_ne, sol.v_ecef - ref.v_ecef)
     ypr_est = _core.euler_from_body_to_ecef(sol.q_eb, llh)
     ypr_true = _core.euler_from_body_to_ecef(ref.q_eb, llh)
     dypr = np.degrees(np.angle(np.exp(1j * (ypr_est - ypr_true))))
@@ -120,7 +122,7 @@ def nav_errors(sol, truth: Truth) -> NavErrors:
         turned = _qmul(_about(down, dpsi), q_est)
         down_b = np.einsum("nji,nj->ni", _dcm(q_est), down)
         dtheta[unknown] = _attitude_error(turned, ref.q_eb[unknown]) + dpsi[:, None] * down_b
-    return NavErrors(sol.t, dtheta, ref.v_ecef - sol.v_ecef, ref.r_ecef - sol.r_ecef, r_ned, dypr)
+    return NavErrors(sol.t, dtheta, ref.v_ecef - sol.v_ecef, ref.r_ecef - sol.r_ecef, r_ned, dypr, v_ned)
 
 
 def _dcm(q: np.ndarray) -> np.ndarray:

@@ -100,10 +100,53 @@ def row_lines(gps_week: int, tow_s: np.ndarray, r_ecef_m: np.ndarray, sigma_ned_
 ROWS_PER_BLOCK = 1 << 16
 
 
+def _leading_comment_lines(path: Path) -> int | None:
+    """How many comment or blank lines come before the header (None: no header line)."""
+    with open(path, "rb") as f:
+        for count, line in enumerate(f):
+            if line.strip() and not line.startswith(b"#"):
+                return count
+    return None
+
+
+def _read_clean(path: Path) -> Reference | None:
+    """A file whose every row parses, read by pyarrow's CSV reader (a day at 10 Hz in well under a
+    second); None when anything is off, for ``read``'s line-by-line parser to name the lines."""
+    import pyarrow as pa
+    from pyarrow import csv
+
+    try:
+        skip = _leading_comment_lines(path)
+        if skip is None:
+            return None
+        types = {c: (pa.int64() if c == "gps_week" else pa.float64()) for c in COLUMNS}
+        table = csv.read_csv(path, read_options=csv.ReadOptions(skip_rows=skip),
+                             parse_options=csv.ParseOptions(ignore_empty_lines=True),
+                             convert_options=csv.ConvertOptions(column_types=types, include_columns=list(COLUMNS)))
+    except (OSError, pa.ArrowInvalid, pa.ArrowKeyError):
+        return None
+    if tuple(table.column_names) != COLUMNS or table.column("gps_week").null_count \
+            or table.column("gps_tow_s").null_count:
+        return None
+    col = lambda name: table.column(name).to_numpy(zero_copy_only=False).astype(np.float64, copy=False)  # noqa: E731
+    tow = col("gps_tow_s")
+    if not np.all(np.isfinite(tow)):
+        return None
+    deg = np.pi / 180.0
+    return Reference(table.column("gps_week").to_numpy().astype(np.int64), tow,
+                     np.column_stack([col("x_m"), col("y_m"), col("z_m")]),
+                     np.column_stack([col("sigma_n_m"), col("sigma_e_m"), col("sigma_d_m")]),
+                     col("heading_deg") * deg, col("pitch_deg") * deg, col("sigma_heading_deg") * deg,
+                     col("sigma_pitch_deg") * deg, [])
+
+
 def read(path: str | Path) -> Reference:
     """Read a reference file. A row that does not parse is skipped and listed in damaged_lines;
     a file without the header is an error naming the file."""
     path = Path(path)
+    clean = _read_clean(path)
+    if clean is not None:
+        return clean
     try:
         text = path.read_text(encoding="ascii", errors="replace")
     except OSError as e:

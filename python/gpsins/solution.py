@@ -22,23 +22,18 @@ from . import evaluate, filter as flt, results
 POS_HEADER = ("% (lat/lon/height=WGS84/ellipsoidal,Q=1:fix,2:float,3:sbas,4:dgps,5:single,6:ppp,ns=# of satellites)\n"
               "%  GPST                   latitude(deg) longitude(deg)  height(m)   Q  ns   sdn(m)   sde(m)   sdu(m)"
               "  sdne(m)  sdeu(m)  sdun(m) age(s)  ratio\n")
-_POS_LINE = ("%04d/%02d/%02d %02d:%02d:%02d.%03d %14.9f %14.9f %10.4f %3d %3d %8.4f %8.4f %8.4f %8.4f %8.4f %8.4f "
-             "%6.2f %6.1f")
 SECONDS_PER_WEEK = 604800.0
 
 
 def nav_sigmas(sol: flt.Solution, llh: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Position (m), velocity (m/s) and attitude (deg, about N, E, D) sigmas in local NED."""
     c_en = evaluate.c_en(llh[:, 0], llh[:, 1])
-    c_ne = np.swapaxes(c_en, -1, -2)
     p = sol.covariance
-    pos = c_ne @ p[:, 6:9, 6:9] @ c_en
-    vel = c_ne @ p[:, 3:6, 3:6] @ c_en
-    # Body-side attitude error dtheta -> NED axes: C_nb dtheta.
-    c_nb = c_ne @ flt._core.dcm_from_quat(sol.q_eb)
-    att = c_nb @ p[:, 0:3, 0:3] @ np.swapaxes(c_nb, -1, -2)
-    diag = lambda m: np.sqrt(np.diagonal(m, axis1=1, axis2=2))  # noqa: E731
-    return diag(pos), diag(vel), np.degrees(diag(att))
+    # Only the diagonal of C^T P C is wanted: sum_j C_ji (P C)_ji, one product instead of two.
+    sigma = lambda c, block: np.sqrt(np.einsum("nji,nji->ni", c, block @ c))  # noqa: E731
+    # Body-side attitude error dtheta -> NED axes: C_nb dtheta, so C = C_bn.
+    c_bn = np.swapaxes(flt._core.dcm_from_quat(sol.q_eb), -1, -2) @ c_en
+    return sigma(c_en, p[:, 6:9, 6:9]), sigma(c_en, p[:, 3:6, 3:6]), np.degrees(sigma(c_bn, p[:, 0:3, 0:3]))
 
 
 def antenna_positions(sol: flt.Solution, lever_arm_body_m) -> np.ndarray:
@@ -83,10 +78,6 @@ class TruthScore:
         m = (sol.t >= tr.t[0]) & (sol.t <= tr.t[-1])
         sub = _subset(sol, m)
         err = evaluate.nav_errors(sub, tr)
-        ref = tr.at(sub.t)
-        llh_ref = flt._core.ecef_to_geodetic(ref.r_ecef)
-        c_en = evaluate.c_en(llh_ref[:, 0], llh_ref[:, 1])
-        dv_ned = np.einsum("nji,nj->ni", c_en, sub.v_ecef - ref.v_ecef)
         nees = evaluate.nees(err.e9, sol.covariance[m][:, :9, :9])
         tr.release()  # a memory-mapped truth: only this chunk's rows were read; keep none of them
         hk = sub.heading_known
@@ -101,7 +92,7 @@ class TruthScore:
             self.sum_nees += float(nees[hk].sum())
             self.inside += int(np.sum(np.abs(err.e9[hk]) <= 3 * sub.sigma[hk, :9]))
         return dict(err_ned_m=_fill(m, err.r_ned), err_ypr_deg=_fill(m, err.ypr_deg),
-                    err_v_ned_mps=_fill(m, dv_ned), nees9=_fill(m, nees))
+                    err_v_ned_mps=_fill(m, err.v_ned), nees9=_fill(m, nees))
 
     def summary(self) -> dict:
         """The run's statistics (none if a short or standing run never knew its heading)."""
@@ -202,10 +193,10 @@ class PosWriter:
     def __init__(self, path: Path, week: int, note: str, reversed_blocks: bool = False):
         self.path, self.week, self.reversed = Path(path), week, reversed_blocks
         self._tmp = self.path.with_name(self.path.name + ".part") if reversed_blocks else self.path
-        self._f = open(self._tmp, "w", encoding="ascii")
+        self._f = open(self._tmp, "wb")
         self._blocks: list[tuple[int, int]] = []  # (offset, length) of each block in the part file
         if not reversed_blocks:
-            self._f.write(self._header(note))
+            self._f.write(self._header(note).encode("ascii"))
         self.note = note
 
     @staticmethod
@@ -226,14 +217,12 @@ class PosWriter:
         d = (date - date.astype("datetime64[M]")).astype(np.int64) + 1
         r = ms - days * day_ms
         hh, mm, ss, mmm = r // 3_600_000, r // 60_000 % 60, r // 1000 % 60, r % 1000
-        lat, lon = np.degrees(llh[:, 0]), np.degrees(llh[:, 1])
-        z = np.zeros(len(t))
-        q = np.full(len(t), 5)
-        cols = zip(y.tolist(), mo.tolist(), d.tolist(), hh.tolist(), mm.tolist(), ss.tolist(), mmm.tolist(),
-                   lat.tolist(), lon.tolist(), llh[:, 2].tolist(), q.tolist(), np.asarray(sats, int).tolist(),
-                   *(sigma_ned[:, i].tolist() for i in range(3)), z.tolist(), z.tolist(), z.tolist(), z.tolist(),
-                   z.tolist())
-        text = "\n".join(_POS_LINE % row for row in cols) + "\n"
+        n = len(t)
+        llh_deg = np.column_stack([np.degrees(llh[:, 0]), np.degrees(llh[:, 1]), llh[:, 2]])
+        sd = np.zeros((n, 6))
+        sd[:, :3] = sigma_ned
+        q_ns = np.column_stack([np.full(n, 5), np.asarray(sats, np.int64)])
+        text = flt._core.pos_lines(np.column_stack([y, mo, d, hh, mm, ss, mmm]), llh_deg, q_ns, sd, np.zeros((n, 2)))
         if self.reversed:
             self._blocks.append((self._f.tell(), len(text)))
         self._f.write(text)
@@ -242,8 +231,8 @@ class PosWriter:
         self._f.close()
         if not self.reversed:
             return
-        with open(self._tmp, "r", encoding="ascii") as src, open(self.path, "w", encoding="ascii") as dst:
-            dst.write(self._header(self.note))
+        with open(self._tmp, "rb") as src, open(self.path, "wb") as dst:
+            dst.write(self._header(self.note).encode("ascii"))
             for offset, length in reversed(self._blocks):
                 src.seek(offset)
                 dst.write(src.read(length))
