@@ -283,6 +283,9 @@ def test_a_sweep_on_a_local_cluster_reaches_the_filter(short_scenario, tmp_path)
                 sweep_values=["1.0", "10.0"], sweep_texts=["1.0", "10.0"], keep="results")
     with open_client(workers=1) as client:
         outcome = run_plan(plan, client, progress=False)
+        environ = client.run(lambda: {k: os.environ.get(k) for k in ("MALLOC_TRIM_THRESHOLD_", "OMP_NUM_THREADS")})
+    # The local workers keep Dask's thread limit but not its 64 kB heap trim (see open_client).
+    assert list(environ.values()) == [{"MALLOC_TRIM_THRESHOLD_": None, "OMP_NUM_THREADS": "1"}]
     rows = _table(tmp_path / "sweep" / "runs.csv")
     assert [(int(r["seed"]), r["fix_uere_m"]) for r in rows] == [(1, "1.0"), (1, "10.0"), (2, "1.0"), (2, "10.0")]
     assert all(r["status"] == "ok" for r in rows)
