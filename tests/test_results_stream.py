@@ -25,27 +25,28 @@ def tight_inputs(session):
     return replay.load_inputs(session, modes=("tight",))
 
 
-def _whole_and_chunked(inp, chunk_rows, output_every=2):
+def _whole_and_chunked(inp, chunk_rows, output_every=2, overlap=True):
     cfg = flt.load_config(None, {"mode": "tight"})
     kw = dict(pseudoranges=inp.pseudoranges, ephemerides=inp.ephemerides, klobuchar=inp.klobuchar,
               gps_time_offset_s=inp.week * 604800.0)
     whole = flt.run(inp.imu, inp.fixes, cfg, mode="tight", covariance=True, smooth=True, output_every=output_every,
                     **kw)
     run = flt.ChunkedRun(inp.imu, inp.fixes, cfg, mode="tight", record=True, chunk_rows=chunk_rows,
-                         output_every=output_every, **kw)
+                         output_every=output_every, overlap=overlap, **kw)
     chunks = list(run.chunks())
     blocks = []
     run.smooth(lambda first, sol: blocks.append((first, sol)), block_rows=997)
     return whole, run, chunks, blocks
 
 
-@pytest.mark.parametrize("chunk_rows", [1, 777, 10 ** 6])
-def test_chunked_run_equals_one_call(tight_inputs, chunk_rows):
+# overlap: the next chunk runs on a second thread while this one is taken (the default), or not.
+@pytest.mark.parametrize("chunk_rows, overlap", [(1, True), (777, True), (777, False), (10 ** 6, True)])
+def test_chunked_run_equals_one_call(tight_inputs, chunk_rows, overlap):
     inp = tight_inputs
     if chunk_rows == 1:  # one sample per call over the first 1500 samples is enough to show the seams
         inp = replay.Inputs(inp.source, inp.kind, inp.week, inp.imu[:1500], inp.fixes, inp.fix_sats, inp.gnss_span,
                             inp.pseudoranges, inp.ephemerides, inp.klobuchar)
-    whole, run, chunks, blocks = _whole_and_chunked(inp, chunk_rows)
+    whole, run, chunks, blocks = _whole_and_chunked(inp, chunk_rows, overlap=overlap)
     cat = lambda parts, name: np.concatenate([getattr(p, name) for p in parts])  # noqa: E731
     for name in ("t", "r_ecef", "v_ecef", "q_eb", "sigma", "clock", "covariance", "heading_known"):
         np.testing.assert_array_equal(cat(chunks, name), getattr(whole, name), err_msg=name)

@@ -662,13 +662,14 @@ class ChunkedRun:
     what is in memory at a time does not grow with the run: ``chunks()`` yields each call's
     ``Solution`` (its epochs only, with their covariances), the same rows one ``run`` gives.
     ``record=True`` keeps the smoother's record of the forward pass (spilled to a temporary
-    file in ``smooth_chunk_mb`` pieces); ``smooth(sink)`` then hands the smoothed
+    file in ``smooth_chunk_mb`` pieces); ``overlap``: the core runs the next chunk on a second
+    thread while the caller works on this one (off where runs are already one per core); ``smooth(sink)`` then hands the smoothed
     solution over in blocks, newest block first, each in time order."""
 
     def __init__(self, imu: np.ndarray, fixes: np.ndarray, config=None, *, mode: str | None = None,
                  output_every: int = 1, pseudoranges: np.ndarray | None = None, ephemerides=(), klobuchar=None,
                  gps_time_offset_s: float | None = None, record: bool = False, smooth_chunk_mb: float = 256.0,
-                 chunk_rows: int = CHUNK_ROWS, attitude: np.ndarray | None = None):
+                 chunk_rows: int = CHUNK_ROWS, attitude: np.ndarray | None = None, overlap: bool = True):
         if chunk_rows < 1:
             raise ValueError("chunk_rows must be >= 1")
         self.imu = imu
@@ -677,12 +678,34 @@ class ChunkedRun:
         self.prs = _pr_table(pseudoranges)
         self.attitude = _attitude_table(attitude)
         self.mode, self.output_every, self.record = self._setup.mode, output_every, record
-        self.smooth_chunk_mb, self.chunk_rows = smooth_chunk_mb, chunk_rows
+        self.smooth_chunk_mb, self.chunk_rows, self.overlap = smooth_chunk_mb, chunk_rows, overlap
         self.counters: dict = {}
         self.fixes_after_end = len(self.fixes)
         self.heading_search = self._setup.search
 
     def chunks(self, covariance: bool = True):
+        """The solution chunk by chunk. The core runs the next chunk on a second thread while
+        the caller works on this one (the core lets go of the GIL): replay's scoring and writing
+        overlap the filter instead of following it. One chunk is in flight at a time and the
+        filter still sees its calls in order, so the rows are those of a single thread."""
+        from concurrent.futures import ThreadPoolExecutor
+
+        calls = self._calls(covariance)
+        if not self.overlap:
+            for out in calls:
+                yield Solution.from_batch(out, self.mode, self._setup.scale_factors)
+            return
+        with ThreadPoolExecutor(max_workers=1, thread_name_prefix="gpsins-filter") as pool:
+            pending = pool.submit(next, calls, None)
+            while True:
+                out = pending.result()
+                if out is None:
+                    return
+                pending = pool.submit(next, calls, None)
+                yield Solution.from_batch(out, self.mode, self._setup.scale_factors)
+
+    def _calls(self, covariance: bool):
+        """The core's calls, one per chunk, each output dict as it comes."""
         f = self._setup.core_filter
         n = len(self.imu)
         j = q = g = 0
@@ -703,7 +726,7 @@ class ChunkedRun:
                         self.record, a, j, q, att, g)
             self.counters, self.fixes_after_end = out["counters"], len(self.fixes) - j2 + int(out["fixes_after_end"])
             j, q, g = j2, q2, g2
-            yield Solution.from_batch(out, self.mode, self._setup.scale_factors)
+            yield out
 
     def release_inputs(self) -> None:
         """Let go of the IMU samples, pseudoranges and attitude fixes once ``chunks()`` has run through

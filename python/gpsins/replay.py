@@ -405,25 +405,28 @@ def replay(source: str | Path, out: str | Path, *, mode: str = "loose", config=N
            nav: str | Path | None = None, outages: str | outages_mod.OutageSpec | None = None,
            reference: str | Path | None = None, reference_q=(1,), point: str = "antenna",
            smooth: bool = False, covariance_every: int = 0, chunk_rows: int = flt.CHUNK_ROWS,
-           aid_heading: bool = False) -> ReplayResult:
+           aid_heading: bool = False, overlap: bool = True) -> ReplayResult:
     """Replay a session directory or a data-set TOML (see the module doc); ``outages``: FIRST:LENGTH:PERIOD[:END];
     ``reference``: an RTKLIB .pos (its ``reference_q`` epochs) at the antenna point; ``point``: the point
     solution.pos gives (antenna or imu); ``smooth``: also the fixed-interval smoother (smoothed.parquet,
     smoothed.pos, run.json "smoothed"); ``covariance_every``: also the full covariance of every so many
-    epochs (covariance.parquet); ``chunk_rows``: IMU samples per filter call (memory, not results)."""
+    epochs (covariance.parquet); ``chunk_rows``: IMU samples per filter call (memory, not results);
+    ``overlap``: the filter's next chunk runs on a second thread while this one is scored and written
+    (results unchanged; off for one run per core, as Monte Carlo workers are)."""
     if mode not in MODES:
         raise ValueError(f"--mode {mode!r}: one of {', '.join(MODES)}")
     inp = load_inputs(source, modes=(mode,), config=config, overrides=overrides, timing_method=timing_method,
                       gps_latency_s=gps_latency_s, imu_latency_s=imu_latency_s, truth=truth, nav=nav)
     return run_mode(inp, out, mode=mode, overrides=overrides, outages=outages, reference=reference,
                     reference_q=reference_q, point=point, smooth=smooth, covariance_every=covariance_every,
-                    chunk_rows=chunk_rows, aid_heading=aid_heading)
+                    chunk_rows=chunk_rows, aid_heading=aid_heading, overlap=overlap)
 
 
 def run_mode(inp: Inputs, out: str | Path, *, mode: str = "loose", overrides: dict | None = None,
              outages: str | outages_mod.OutageSpec | None = None, reference: str | Path | None = None,
              reference_q=(1,), point: str = "antenna", smooth: bool = False, covariance_every: int = 0,
-             chunk_rows: int = flt.CHUNK_ROWS, aid_heading: bool = False, last_use: bool = False) -> ReplayResult:
+             chunk_rows: int = flt.CHUNK_ROWS, aid_heading: bool = False, last_use: bool = False,
+             overlap: bool = True) -> ReplayResult:
     """One filter mode over decoded inputs (``load_inputs``), written to ``out`` (see ``replay``);
     ``aid_heading``: the session's reference system's dual-antenna heading and pitch (``reference.csv``)
     aid the filter (then it no longer scores the attitude independently); ``last_use``: no later call
@@ -469,7 +472,7 @@ def run_mode(inp: Inputs, out: str | Path, *, mode: str = "loose", overrides: di
 
     def make_run(cfg_run: dict, fixes_run: np.ndarray, record: bool) -> flt.ChunkedRun:
         return flt.ChunkedRun(inp.imu, fixes_run, cfg_run, mode=filter_mode, record=record, chunk_rows=chunk_rows,
-                              attitude=attitude, **tight)
+                              attitude=attitude, overlap=overlap, **tight)
 
     t2 = time.perf_counter()
     free_from, searched = None, None

@@ -79,7 +79,8 @@ def replay_task(simulated: dict, run: dict, grid_s: float) -> dict:
     t0, c0 = time.perf_counter(), time.process_time()
     try:
         res = replay.replay(simulated["session"], run["out"], mode=run["mode"], config=run.get("config"),
-                            overrides=run.get("overrides") or {}, outages=run.get("outages"))
+                            overrides=run.get("overrides") or {}, outages=run.get("outages"),
+                            overlap=False)  # a worker is one core's: the cluster runs replays side by side
         out = summarise(Path(run["out"]), res.summary, grid_s)
     except Exception as e:
         return {**head, "error": f"replay: {_failure(e)}", "simulate_s": simulated["simulate_s"]}
