@@ -422,3 +422,29 @@ def test_report_of_a_data_set_has_the_drift_figure_and_table(walk_runs, tmp_path
     np.testing.assert_allclose(np.sort(shown), np.sort(z["drift_h_m"]))  # every drift epoch of the loose run
     for f in figs.values():
         plt.close(f)
+
+
+def test_outage_table_puts_the_smoothed_drift_beside_the_forward(tmp_path):
+    import io
+
+    from gpsins import report
+
+    def scoring(h, v):
+        return {"reference": "ref.pos", "point": "antenna",
+                "per_outage": [{"start": 10.0, "end": 25.0, "n_ref": 60, "max_h_m": h, "max_v_m": v}],
+                "horizontal_m": {"mean": h, "worst": h, "rms": h}, "vertical_m": {"mean": v, "worst": v, "rms": v},
+                "outside": {"n": 9, "rms_h_m": h / 100, "rms_v_m": v / 100}}
+
+    summary = {"mode": "loose", "outages": {"gnss_first_t": 0.0}, "scoring": scoring(1.75, 4.25),
+               "smoothed": {"scoring": scoring(0.14, 0.66)}}
+    buf = io.StringIO()
+    report.print_outage_table(summary, buf)
+    rows = [ln for ln in buf.getvalue().splitlines() if ln.startswith("│ rms") or ln.startswith("│ 1 ")]
+    assert len(rows) == 2
+    for row in rows:
+        cells = [c.strip() for c in row.strip("│").split("│")]
+        assert cells[-4:] == ["1.75", "4.25", "0.14", "0.66"]
+    summary.pop("smoothed")
+    buf = io.StringIO()
+    report.print_outage_table(summary, buf)
+    assert "smooth" not in buf.getvalue()

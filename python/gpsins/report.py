@@ -960,22 +960,33 @@ def comparison_tables(results: list[Result]) -> list:
 
 
 def outage_table(summary: dict, title: str | None = None):
-    """A rich table of one run's drift per outage and the statistics (from run.json's ``scoring``)."""
+    """A rich table of one run's drift per outage and the statistics (from run.json's ``scoring``),
+    with the smoothed solution's beside the forward one's when the run was smoothed."""
     from rich.table import Table
 
     sc = summary["scoring"]
+    sm = (summary.get("smoothed") or {}).get("scoring")
+    if sm is not None and len(sm.get("per_outage", ())) != len(sc["per_outage"]):
+        sm = None
     t = Table(title=title or f"{summary.get('mode', '')}: drift against {Path(sc['reference']).name} "
               f"({sc['point']} point), m", title_justify="left")
-    for name in ("outage", "from (s)", "to (s)", "ref epochs", "max H", "max V"):
+    names = ["outage", "from (s)", "to (s)", "ref epochs", "max H", "max V"]
+    names += ["smooth H", "smooth V"] if sm is not None else []
+    for name in names:
         t.add_column(name, justify="left" if name == "outage" else "right")
+    both = lambda cells, s_cells: cells + (s_cells if sm is not None else [])  # noqa: E731
     t0 = summary["outages"].get("gnss_first_t", 0.0)  # the schedule's origin: the first GNSS epoch
     for j, o in enumerate(sc["per_outage"]):
-        t.add_row(str(j + 1), f"{o['start'] - t0:.1f}", f"{o['end'] - t0:.1f}", str(o["n_ref"]),
-                  _fmt(o["max_h_m"]), _fmt(o["max_v_m"]))
+        s_o = sm["per_outage"][j] if sm is not None else {}
+        t.add_row(*both([str(j + 1), f"{o['start'] - t0:.1f}", f"{o['end'] - t0:.1f}", str(o["n_ref"]),
+                         _fmt(o["max_h_m"]), _fmt(o["max_v_m"])],
+                        [_fmt(s_o.get("max_h_m")), _fmt(s_o.get("max_v_m"))]))
     for stat in ("mean", "worst", "rms"):
-        t.add_row(stat, "", "", "", _fmt(sc["horizontal_m"][stat]), _fmt(sc["vertical_m"][stat]))
-    t.add_row("outside RMS", "", "", str(sc["outside"]["n"]), _fmt(sc["outside"]["rms_h_m"], 3),
-              _fmt(sc["outside"]["rms_v_m"], 3))
+        t.add_row(*both([stat, "", "", "", _fmt(sc["horizontal_m"][stat]), _fmt(sc["vertical_m"][stat])],
+                        [_fmt(sm["horizontal_m"][stat]), _fmt(sm["vertical_m"][stat])] if sm else []))
+    t.add_row(*both(["outside RMS", "", "", str(sc["outside"]["n"]), _fmt(sc["outside"]["rms_h_m"], 3),
+                     _fmt(sc["outside"]["rms_v_m"], 3)],
+                    [_fmt(sm["outside"]["rms_h_m"], 3), _fmt(sm["outside"]["rms_v_m"], 3)] if sm else []))
     return t
 
 
