@@ -88,6 +88,33 @@ Euler levelled(const Vec3& f_mean) {
   return e;
 }
 
+// At rest the window's mean specific force, in the filter's attitude and less
+// its bias, cancels gravity. Smooth braking or creeping at constant speed is
+// quiet too, but leaves the acceleration in it (0.7 m/s^2 braking at 0.9 m/s
+// began a standstill that pinned the velocity there). Tested against the
+// spread the filter's tilt and bias allow, the window mean's noise and the
+// configured at-rest shift.
+template <class Core>
+bool force_at_rest(const Core& core, const StandstillDetector& det, const InsConfig& cfg) {
+  const Vec3 f_b = (det.mean_f() - core.imu.accel_bias_mps2).cwiseQuotient(Vec3::Ones() + core.imu.accel_scale_factor);
+  const Mat3 c_eb = core.nav.q_eb.toRotationMatrix();
+  const Vec3 f_e = c_eb * f_b;
+  const Vec3 a = f_e + normal_gravity_ecef(core.nav.r_ecef_m);
+  Eigen::Matrix<double, 3, 6> J;
+  J.template leftCols<3>() = skew(f_e);
+  J.template rightCols<3>() = c_eb;
+  Eigen::Matrix<double, 6, 6> Pab;
+  Pab.template block<3, 3>(0, 0) = core.P.template block<3, 3>(es::att, es::att);
+  Pab.template block<3, 3>(0, 3) = core.P.template block<3, 3>(es::att, es::ba);
+  Pab.template block<3, 3>(3, 0) = core.P.template block<3, 3>(es::ba, es::att);
+  Pab.template block<3, 3>(3, 3) = core.P.template block<3, 3>(es::ba, es::ba);
+  const double noise = cfg.accel_vrw_mps_per_sqrt_s.squaredNorm() / 3.0 / std::max(det.window_duration_s(), 1e-3);
+  const Mat3 S = J * Pab * J.transpose() +
+                 Mat3::Identity() * (noise + cfg.standstill_accel_shift_mps2 * cfg.standstill_accel_shift_mps2);
+  const double d2 = a.dot(S.ldlt().solve(a));
+  return std::isfinite(d2) && d2 < 16.27;  // chi-square, 3 dof, 0.999
+}
+
 }  // namespace
 
 template <int NB, int NC>
@@ -973,7 +1000,8 @@ void InsFilter<NB, NC>::detect_standstill(const Increment& inc) {
   const bool gnss_fresh = t_last_ - gnss_speed_t_ <= 1.5;
   const bool zupt_refused = t_last_ - zupt_refused_t_ < cfg_.standstill_holdoff_s;
   const bool veto = (gnss_fresh && gnss_speed_mps_ > cfg_.standstill_max_gnss_speed_mps) || zupt_refused;
-  const bool may_begin = core_.nav.v_ecef_mps.norm() < cfg_.standstill_max_speed_mps || gnss_fresh;
+  const bool may_begin = (core_.nav.v_ecef_mps.norm() < cfg_.standstill_max_speed_mps || gnss_fresh) &&
+                         force_at_rest(core_, detector_, cfg_);
   standstill_ = detector_.decide(rate - earth_b, may_begin, veto, t_last_);
   if (!standstill_) {
     standstill_blocks_ = 0;
