@@ -272,3 +272,22 @@ def test_stamp_model_options_are_applied_and_recorded(tmp_path):
     step = np.diff(imu_log.stamps)
     assert np.count_nonzero(step > 0.25) == 1 and abs(imu_log.stamps[np.argmax(step) + 1] - realtime(s, 10.0)) < 0.05
     assert side.sidecar["simulation"]["timing"]["clock_step_s"] == 0.3
+
+
+def test_signal_in_space_error_is_per_satellite_slow_and_off_by_default():
+    spec = {"segment": [{"label": "a", "duration_s": 60.0, "speed_mps": 5}]}
+    base = sim.simulate(parse(spec), seed=3).gnss
+    assert parse(spec).gnss.sis_error_m == 0.0
+    sc = parse(spec)
+    sc.gnss.sis_error_m = 0.65
+    g = sim.simulate(sc, seed=3).gnss
+    d = g.pseudorange_m - base.pseudorange_m
+    both = np.isfinite(d)
+    per_sat = [d[both[:, j], j] for j in range(gnss.MAX_PRN) if both[:, j].sum() > 100]
+    assert len(per_sat) >= 5
+    # Slow (a tenth of a second moves it by well under a millimetre) and per satellite, not common.
+    assert max(np.abs(np.diff(x)).max() for x in per_sat) < 1e-3
+    means = np.array([x.mean() for x in per_sat])
+    assert 0.2 < np.sqrt(np.mean(means ** 2)) < 2.0 and means.std() > 0.2
+    # Its own generator: the other errors are drawn as without it.
+    np.testing.assert_array_equal(g.multipath_m, base.multipath_m)

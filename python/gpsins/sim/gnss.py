@@ -152,6 +152,9 @@ class Receiver:
         self.r_last = earth.geodetic_to_ecef(np.radians(sc.start.lat_deg), np.radians(sc.start.lon_deg),
                                              sc.start.height_m) + const.normal(0.0, 50.0, 3)  # a cold guess
         self.h_last = None
+        # Signal-in-space error: its own generator, so the other draws do not move with it.
+        sis = np.random.default_rng([seed, 2, 1])
+        self.sis = (sis.normal(0.0, 1.0, MAX_PRN), sis.normal(0.0, 1.0, MAX_PRN), sis.uniform(0.0, 2 * np.pi, MAX_PRN))
         key = (seed, 2)
         self.draw = {name: Stream(key + (j,), width=w) for j, (name, w) in enumerate(
             (("clock frequency", None), ("clock phase", None), ("multipath", MAX_PRN), ("code", MAX_PRN),
@@ -262,8 +265,10 @@ class Receiver:
         self._mp = unit_mp[-1]
         mp = unit_mp * model.multipath_m / sin_el
         noise = self.draw["code"].rows(k0, k1) * model.code_noise_m / np.sqrt(sin_el)
-        pr = rng_geo + ephemeris.C * (clock.bias_s[:, None] - sat_clk) + iono + trop + mp + noise
-        carrier = ((rng_geo + ephemeris.C * (clock.bias_s[:, None] - sat_clk) - iono + trop) / L1_WAVELENGTH
+        a, b, ph = self.sis
+        sis = model.sis_error_m * (a + b * np.sin(2 * np.pi * t[:, None] / model.sis_period_s + ph))
+        pr = rng_geo + ephemeris.C * (clock.bias_s[:, None] - sat_clk) + iono + trop + mp + noise + sis
+        carrier = ((rng_geo + ephemeris.C * (clock.bias_s[:, None] - sat_clk) - iono + trop + sis) / L1_WAVELENGTH
                    + self.ambiguity + self.draw["carrier"].rows(k0, k1) * model.carrier_noise_cycles)
         cn0 = model.cn0_zenith_dbhz - 13.0 * (1.0 - sin_el) + self.draw["cn0"].rows(k0, k1)
         nan = ~tracked
