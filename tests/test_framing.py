@@ -45,12 +45,15 @@ def check_no_loss(rule, frames, seed, p_flip, p_garbage):
     want = [f for f, ok in zip(frames, intact) if ok]
     # Every intact frame is found, in order; nothing else is (no false accepts).
     assert found_set == want, f"seed {seed}: {len(want)} intact, {len(found_set)} found"
-    assert stats.discarded_bytes + sum(map(len, want)) == len(data)
+    # Every byte is a found frame's, discarded, or the tail: a last candidate whose declared length
+    # runs past the end (here a damaged frame near the end, which looks exactly like a cut one).
+    assert stats.discarded_bytes + stats.tail_bytes + sum(map(len, want)) == len(data)
     return stats
 
 
 @settings(max_examples=40, deadline=None)
 @given(st.integers(0, 2**32 - 1))
+@example(seed=260)  # a damaged frame near the end claims more bytes than are left: the tail
 def test_flips_and_garbage_never_lose_an_intact_superstar2_frame(seed):
     check_no_loss(ss2.FRAMING, SS2, seed, p_flip=0.1, p_garbage=0.1)
 
