@@ -663,8 +663,9 @@ class ChunkedRun:
     ``Solution`` (its epochs only, with their covariances), the same rows one ``run`` gives.
     ``record=True`` keeps the smoother's record of the forward pass (spilled to a temporary
     file in ``smooth_chunk_mb`` pieces); ``overlap``: the core runs the next chunk on a second
-    thread while the caller works on this one (off where runs are already one per core); ``smooth(sink)`` then hands the smoothed
-    solution over in blocks, newest block first, each in time order."""
+    thread while the caller works on this one (off where runs are already one per core);
+    ``smooth(sink)`` then hands the smoothed solution over in blocks, newest block first, each
+    in time order."""
 
     def __init__(self, imu: np.ndarray, fixes: np.ndarray, config=None, *, mode: str | None = None,
                  output_every: int = 1, pseudoranges: np.ndarray | None = None, ephemerides=(), klobuchar=None,
