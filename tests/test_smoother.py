@@ -326,3 +326,18 @@ def test_tight_smoothed_clock_and_position():
     h = lambda e: float(np.sqrt(np.mean(e.r_ned[:, 0] ** 2 + e.r_ned[:, 1] ** 2)))  # noqa: E731
     assert h(es) < h(ef)
     assert np.all(ss <= sf * (1 + 1e-6) + 1e-12)
+
+
+@pytest.mark.xfail(strict=True, reason="the smoothed height leaves the walk's cm-accurate RTK fixes: vertical RMS "
+                   "0.278 m smoothed vs 0.094 m forward at the fixes the filter used (smoothed sigma 0.04 m); the "
+                   "smoothed fix-error states reach 0.43 m against their 2-4 cm stationary sigma (0.122 m without them)")
+def test_smoothed_height_stays_on_the_walks_rtk_fixes(tmp_path):
+    from pathlib import Path
+
+    from gpsins import replay
+    toml = Path(__file__).parent / "data" / "walk_0827" / "walk_0827.toml"
+    res = replay.replay(toml, tmp_path / "r", outages="1000:1:1000", smooth=True)  # no outage inside the walk
+    fwd, sm = res.summary["scoring"]["outside"], res.summary["smoothed"]["scoring"]["outside"]
+    # Every epoch scored is a fix the filter took: the smoothed solution, which has all of them, is no
+    # farther from them than the forward pass right after each update.
+    assert sm["rms_v_m"] <= 1.1 * fwd["rms_v_m"]
