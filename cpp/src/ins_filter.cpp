@@ -1000,7 +1000,10 @@ void InsFilter<NB, NC>::detect_standstill(const Increment& inc) {
   const bool gnss_fresh = t_last_ - gnss_speed_t_ <= 1.5;
   const bool zupt_refused = t_last_ - zupt_refused_t_ < cfg_.standstill_holdoff_s;
   const bool veto = (gnss_fresh && gnss_speed_mps_ > cfg_.standstill_max_gnss_speed_mps) || zupt_refused;
-  const bool may_begin = (core_.nav.v_ecef_mps.norm() < cfg_.standstill_max_speed_mps || gnss_fresh) &&
+  // The detector reads may_begin only when nothing vetoes and it is not standing already: only
+  // then is the force test (a 3x3 solve every sample otherwise) worth doing.
+  const bool may_begin = !veto && !detector_.standing() &&
+                         (core_.nav.v_ecef_mps.norm() < cfg_.standstill_max_speed_mps || gnss_fresh) &&
                          force_at_rest(core_, detector_, cfg_);
   standstill_ = detector_.decide(rate - earth_b, may_begin, veto, t_last_);
   if (!standstill_) {
