@@ -611,6 +611,7 @@ void bind_filter(py::module_& m) {
   GPSINS_FIELD(initial_yaw_rad);
   GPSINS_FIELD(heading_min_speed_mps);
   GPSINS_FIELD(heading_sigma_rad);
+  GPSINS_FIELD(heading_max_course_sigma_rad);
   GPSINS_FIELD(lever_arm_body_m);
   GPSINS_FIELD(antenna_baseline_body);
   GPSINS_FIELD(fix_uere_m);

@@ -802,7 +802,7 @@ void InsFilter<NB, NC>::decouple_yaw() {
 // the fix (what the filter did before, without a heading, is not trustworthy
 // once moving); the tilt and the IMU error estimates learnt so far are kept.
 template <int NB, int NC>
-void InsFilter<NB, NC>::set_heading(const FixInput& fix, const Vec3& v_ecef, double course_rad) {
+void InsFilter<NB, NC>::set_heading(const FixInput& fix, const Vec3& v_ecef, double course_rad, double sigma_rad) {
   const Geodetic llh = ecef_to_geodetic(fix.r_ecef_m);
   Euler e = euler_from_body_to_ecef(core_.nav.q_eb, llh.lat_rad, llh.lon_rad);
   e.yaw_rad = course_rad;
@@ -819,7 +819,7 @@ void InsFilter<NB, NC>::set_heading(const FixInput& fix, const Vec3& v_ecef, dou
   auto& P = core_.P;
   P.template middleRows<3>(es::att) = (keep * P.template middleRows<3>(es::att)).eval();
   P.template middleCols<3>(es::att) = (P.template middleCols<3>(es::att) * keep).eval();
-  P.template block<3, 3>(es::att, es::att) += up_b * up_b.transpose() * (cfg_.heading_sigma_rad * cfg_.heading_sigma_rad);
+  P.template block<3, 3>(es::att, es::att) += up_b * up_b.transpose() * (sigma_rad * sigma_rad);
   P.template middleRows<6>(es::vel).setZero();
   P.template middleCols<6>(es::vel).setZero();
   P.template block<3, 3>(es::vel, es::vel) = Mat3::Identity() * cfg_.velocity_sigma_mps * cfg_.velocity_sigma_mps;
@@ -866,19 +866,32 @@ void InsFilter<NB, NC>::process_fix(const FixInput& fix) {
   const Geodetic llh = ecef_to_geodetic(fix.r_ecef_m);
   const Mat3 c_en = rot_ned_to_ecef(llh.lat_rad, llh.lon_rad);
 
-  // Heading from the course over ground once moving, if not configured.
+  // Heading from the course over ground once moving, if not configured: at
+  // heading_min_speed_mps from any course, below it from a measured velocity
+  // whose course is accurate enough (sigma_v / speed), as a walk's must be.
   if (!heading_known_) {
     Vec3 v = fix.v_ecef_mps;
-    if (!v.allFinite() && have_prev_fix_ && fix.t_s - prev_fix_.t_s > 0.0 && fix.t_s - prev_fix_.t_s <= 2.0)
+    double sigma_v_mps = std::numeric_limits<double>::infinity();  // per horizontal axis
+    if (v.allFinite()) {
+      const Vec3 sv = stated_or(fix.sigma_v_ned_mps, Vec3::Constant(fix_velocity_sigma(fix)));
+      sigma_v_mps = std::max(sv.x(), sv.y());
+    } else if (have_prev_fix_ && fix.t_s - prev_fix_.t_s > 0.0 && fix.t_s - prev_fix_.t_s <= 2.0) {
       v = (fix.r_ecef_m - prev_fix_.r_ecef_m) / (fix.t_s - prev_fix_.t_s);
+    }
     const Vec3 v_ned = c_en.transpose() * v;
-    if (v.allFinite() && std::hypot(v_ned.x(), v_ned.y()) >= cfg_.heading_min_speed_mps)
-      set_heading(fix, v, std::atan2(v_ned.y(), v_ned.x()));
+    const double speed = std::hypot(v_ned.x(), v_ned.y());
+    const double course_sigma_rad = speed > 0.0 ? sigma_v_mps / speed : std::numeric_limits<double>::infinity();
+    const bool accurate = cfg_.heading_max_course_sigma_rad > 0.0 && course_sigma_rad <= cfg_.heading_max_course_sigma_rad;
+    if (v.allFinite() && (speed >= cfg_.heading_min_speed_mps || accurate))
+      set_heading(fix, v, std::atan2(v_ned.y(), v_ned.x()),
+                  std::isfinite(course_sigma_rad) ? std::max(cfg_.heading_sigma_rad, course_sigma_rad) : cfg_.heading_sigma_rad);
   }
   if (fix.v_ecef_mps.allFinite()) {
     const Vec3 v_ned = c_en.transpose() * fix.v_ecef_mps;
     gnss_speed_mps_ = std::hypot(v_ned.x(), v_ned.y());
     gnss_speed_t_ = fix.t_s;
+    const Vec3 sv = stated_or(fix.sigma_v_ned_mps, Vec3::Constant(fix_velocity_sigma(fix)));
+    gnss_speed_sigma_mps_ = std::max(sv.x(), sv.y());
   }
   // Only a 3D fix may take over the position: a 2D fix's height is the receiver's
   // assumption, and its horizontal position is off with it (on the roller coaster's
@@ -929,8 +942,7 @@ void InsFilter<NB, NC>::process_fix(const FixInput& fix) {
   have_prev_fix_ = true;
 
   if (cfg_.use_fix_velocity && fix.v_ecef_mps.allFinite() && heading_known_) {
-    const double s = cfg_.fix_velocity_sigma_mps * (cfg_.fix_velocity_sigma_hdop_scaled ? fix.hdop : 1.0);
-    const Vec3 sv = stated_or(fix.sigma_v_ned_mps, Vec3::Constant(s));
+    const Vec3 sv = stated_or(fix.sigma_v_ned_mps, Vec3::Constant(fix_velocity_sigma(fix)));
     const Mat3 r_v = c_en * square(sv).asDiagonal() * c_en.transpose();
     const Vec3 rate = last_inc_.dt_s > 0.0 ? Vec3(last_inc_.dtheta_rad / last_inc_.dt_s) : Vec3::Zero();
     // A lagged velocity, moved to now by what the navigation's velocity did since.
@@ -993,17 +1005,29 @@ void InsFilter<NB, NC>::detect_standstill(const Increment& inc) {
   const Vec3 earth_b = core_.nav.q_eb.conjugate() * earth_rate_ecef();
   // The filter's speed may start a standstill (no zero-velocity update has pinned
   // it yet); a recent GNSS speed above its limit bars or ends one.
-  // A recent GNSS speed below it, while the IMU is quiet, may also start one:
-  // the filter's velocity after a stop can be off by more than its limit.
+  // A recent GNSS speed below it, while the IMU is quiet, may also start one
+  // (the filter's velocity after a stop can be off by more than its limit), if
+  // that velocity is accurate enough to tell rest (a 2D fix at HDOP 20 once read
+  // 0.3 m/s on a walk at 0.8 m/s, which looks like rest to the IMU).
   // A refused zero-velocity update is motion the detector missed (pulling away
   // smoothly): no standstill for the hold-off after it.
   const bool gnss_fresh = t_last_ - gnss_speed_t_ <= 1.5;
+  // Once it has moved, the filter's speed counts as slow only with its sigma: on a
+  // smooth slow walk its velocity drifted to 0.2 m/s (sigma 0.34) at a true
+  // 0.75 m/s, and the IMU, with no vibration, looked at rest. Before that its
+  // velocity is the levelling's at-rest assumption, and its sigma the initial one.
+  const double speed_mps = core_.nav.v_ecef_mps.norm();
+  if (speed_mps >= cfg_.standstill_max_speed_mps || (gnss_fresh && gnss_speed_mps_ > cfg_.standstill_max_gnss_speed_mps))
+    moved_ = true;
+  const double v_sigma_mps = std::sqrt(core_.P.template block<3, 3>(es::vel, es::vel).trace());
+  const bool slow_for_sure = speed_mps + (moved_ ? v_sigma_mps : 0.0) < cfg_.standstill_max_speed_mps;
   const bool zupt_refused = t_last_ - zupt_refused_t_ < cfg_.standstill_holdoff_s;
   const bool veto = (gnss_fresh && gnss_speed_mps_ > cfg_.standstill_max_gnss_speed_mps) || zupt_refused;
   // The detector reads may_begin only when nothing vetoes and it is not standing already: only
   // then is the force test (a 3x3 solve every sample otherwise) worth doing.
   const bool may_begin = !veto && !detector_.standing() &&
-                         (core_.nav.v_ecef_mps.norm() < cfg_.standstill_max_speed_mps || gnss_fresh) &&
+                         (slow_for_sure ||
+                          (gnss_fresh && gnss_speed_sigma_mps_ <= cfg_.standstill_max_gnss_speed_mps)) &&
                          force_at_rest(core_, detector_, cfg_);
   standstill_ = detector_.decide(rate - earth_b, may_begin, veto, t_last_);
   if (!standstill_) {

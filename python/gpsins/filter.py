@@ -19,8 +19,9 @@ A configuration is a TOML table whose keys are the core's `InsConfig` names
   what the standstill detector and the zero-rate update use.
 - ``gyro_bias_residual_rad_per_s`` / ``accel_bias_residual_mps2``: turn-on bias
   left after calibration; P0 of the bias states is this plus the process spread.
-- ``platform = "vehicle" | "handheld"``: a vehicle's heading is its course over ground
-  (``heading_min_speed_mps``); a handheld device's heading is searched over the first
+- ``platform = "vehicle" | "handheld"``: a vehicle's heading is its course over ground, taken at
+  ``heading_min_speed_mps``, or slower once a measured velocity's course sigma (sigma_v / speed)
+  is at most ``heading_max_course_sigma_deg``; a handheld device's heading is searched over the first
   ``heading_search_s`` seconds of fixes (``search_heading``). Replay sets it from the data
   set's ``[vehicle] kind`` (car: vehicle, with the non-holonomic constraint).
 - ``[gyro_bias]`` / ``[accel_bias]``: explicit bias models (``model`` =
@@ -53,7 +54,8 @@ GM_PEAK_PER_SIGMA = 0.617  # ADEV peak of a Gauss-Markov process / its stationar
 FLAT_PER_B = 0.664  # ADEV floor of bias instability B
 
 _DEGREE_KEYS = {"attitude_sigma_deg": "attitude_sigma_rad", "initial_yaw_deg": "initial_yaw_rad",
-                "heading_sigma_deg": "heading_sigma_rad", "gyro_range_deg_per_s": "gyro_range_rad_per_s",
+                "heading_sigma_deg": "heading_sigma_rad",
+                "heading_max_course_sigma_deg": "heading_max_course_sigma_rad", "gyro_range_deg_per_s": "gyro_range_rad_per_s",
                 "max_attitude_correction_deg": "max_attitude_correction_rad",
                 "pseudorange_elevation_mask_deg": "pseudorange_elevation_mask_rad",
                 "body_to_vehicle_ypr_deg": "body_to_vehicle_ypr_rad"}

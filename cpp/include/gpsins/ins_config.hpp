@@ -80,6 +80,9 @@ struct InsConfig {
   double initial_yaw_rad = std::numeric_limits<double>::quiet_NaN();  // NaN: from GNSS course
   double heading_min_speed_mps = 3.0;
   double heading_sigma_rad = 0.05;
+  // Below heading_min_speed_mps a measured velocity gives the heading once its
+  // course sigma (velocity sigma / speed) is at most this; 0 turns that off.
+  double heading_max_course_sigma_rad = 0.0;
 
   // GNSS fix. R from the fix's own sigmas when it states them, else from HDOP/VDOP
   // times the UERE; fixed ECEF sigmas (> 0) override both.

@@ -187,7 +187,11 @@ class InsFilter {
   double correlated_variance(int prn, double t, double el_rad) const;
   void initialise(const FixInput& fix);
   void decouple_yaw();
-  void set_heading(const FixInput& fix, const Vec3& v_ecef, double course_rad);
+  void set_heading(const FixInput& fix, const Vec3& v_ecef, double course_rad, double sigma_rad);
+  // Per-axis sigma of a fix's velocity when it states none.
+  double fix_velocity_sigma(const FixInput& fix) const {
+    return cfg_.fix_velocity_sigma_mps * (cfg_.fix_velocity_sigma_hdop_scaled ? fix.hdop : 1.0);
+  }
   void detect_standstill(const Increment& inc);
   void track_step(double span);
   double out_of_range(const Vec3& dtheta, const Vec3& dv, double dt) const;
@@ -254,6 +258,8 @@ class InsFilter {
   bool standstill_ = false;
   int standstill_blocks_ = 0;
   double gnss_speed_mps_ = -1.0, gnss_speed_t_ = -1e300;  // last GNSS speed and its time
+  double gnss_speed_sigma_mps_ = 0.0;  // that speed's sigma (per horizontal axis)
+  bool moved_ = false;  // the filter or GNSS has shown motion since the start
 
   // Sustained GNSS rejection.
   double rejected_since_ = -1.0;
