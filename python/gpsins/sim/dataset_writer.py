@@ -227,6 +227,11 @@ class DatasetWriter:
                  "[vehicle]", f'kind = "{self.vehicle_kind}"', "",
                  "[scoring]", 'reference = "truth.pos"', "reference_q = [1]", "",
                  "[filter]", 'preset = "default"',
+                 # The unit's calibration (the simulated nominal values), which need not be the preset's unit's.
+                 f"gyro_bias_cal_rad_per_s = {_toml_value([float(x) for x in sc.imu.gyro_bias_rad_per_s])}",
+                 f"accel_bias_cal_mps2 = {_toml_value([float(x) for x in sc.imu.accel_bias_mps2])}",
+                 f"gyro_scale_factor_cal = {_toml_value([float(x) for x in sc.imu.gyro_scale_factor])}",
+                 f"accel_scale_factor_cal = {_toml_value([float(x) for x in sc.imu.accel_scale_factor])}",
                  f"gyro_bias_residual_rad_per_s = {noise['gyro_bias_residual_rad_per_s']!r}",
                  f"accel_bias_residual_mps2 = {noise['accel_bias_residual_mps2']!r}", "",
                  "[filter.imu_noise]"] + [f"{k} = {_toml_value(v)}" for k, v in noise["imu_noise"].items()]
