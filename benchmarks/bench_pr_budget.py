@@ -9,6 +9,7 @@ the signal-in-space part (the preset's sigma; before issue 21 the broadcast URA 
 and the correlated part's stationary variance. Reported as the mean of error^2 / variance (1 for a
 matched model) with the preset's model and with the URA instead, and the mean squared error by
 component (m^2); the simulated orbit/clock error is the pseudorange's change when it is switched off.
+Measured (seeds 0-1): error^2 / model 0.70-0.77 with the preset, 0.31-0.34 with the URA.
 """
 
 import sys
