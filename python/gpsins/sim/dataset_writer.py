@@ -227,6 +227,8 @@ class DatasetWriter:
                  "[vehicle]", f'kind = "{self.vehicle_kind}"', "",
                  "[scoring]", 'reference = "truth.pos"', "reference_q = [1]", "",
                  "[filter]", 'preset = "default"',
+                 # Each fix's error is drawn white at the sigma it states: no correlated parts on top.
+                 "fix_error_gm_sigma_m = [0.0, 0.0, 0.0]",
                  f"gyro_bias_residual_rad_per_s = {noise['gyro_bias_residual_rad_per_s']!r}",
                  f"accel_bias_residual_mps2 = {noise['accel_bias_residual_mps2']!r}", "",
                  "[filter.imu_noise]"] + [f"{k} = {_toml_value(v)}" for k, v in noise["imu_noise"].items()]
