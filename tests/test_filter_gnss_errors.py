@@ -213,3 +213,23 @@ def test_preset_signal_in_space_sigma_is_the_simulated_receivers():
           f"{cfg['pseudorange_sis_sigma_m']}")
     assert not cfg["pseudorange_sis_use_ura"]
     assert 0.75 * rms < cfg["pseudorange_sis_sigma_m"] < 1.33 * rms
+
+
+@pytest.mark.parametrize("index, ura_m", [(0, 2.4), (3, 6.85)])
+def test_signal_in_space_sigma_from_the_broadcast_ura(stop_and_go, index, ura_m):
+    """pseudorange_sis_use_ura takes each satellite's broadcast URA (its index through the ICD's
+    table) for the signal-in-space sigma, in place of the configured figure."""
+    s = stop_and_go
+    imu = sim.imu_table(s)[:64 * 60]
+    base = {**sim.imu_noise_truth(s.scenario.imu), "mode": "tight", "pseudorange_decimation": 10,
+            "pseudorange_sigma_m": 1.0, "pseudorange_error_gm_sigma_m": 0.0, "pseudorange_sis_tau_s": 0.0}
+    inputs = sim.tight_inputs(s)
+    for e in inputs["ephemerides"]:
+        e.ura_index = index  # every satellite broadcasting the same URA
+
+    def run(**over):
+        return flt.run(imu, sim.fix_table(s), flt.load_config(None, {**base, **over}), **inputs).r_ecef
+
+    ura = run(pseudorange_sis_use_ura=True, pseudorange_sis_sigma_m=0.1)
+    np.testing.assert_allclose(ura, run(pseudorange_sis_use_ura=False, pseudorange_sis_sigma_m=ura_m), rtol=0, atol=1e-6)
+    assert np.abs(ura - run(pseudorange_sis_use_ura=False, pseudorange_sis_sigma_m=0.1)).max() > 0.05
