@@ -107,10 +107,12 @@ def test_correlated_pseudorange_variance_makes_the_confidence_independent_of_the
 
 def test_preset_fix_error_figures_are_the_simulated_receivers():
     """The preset's fix-error model measured on the simulator (its truth, not the filter): the error
-    per unit of DOP hardly depends on the DOP (so the correlated part is carried per unit of DOP), and
-    its white + Gauss-Markov fit over three default drives is near the preset's figures (the preset's
-    come from the 43-minute drive: benchmarks/bench_gnss_errors.py)."""
-    from gpsins.gnss_errors import autocovariance_sums, fit_white_gauss_markov, fix_errors_per_dop
+    per unit of DOP hardly depends on the DOP (so the correlated parts are carried per unit of DOP),
+    and its white + fast + slow Gauss-Markov fit over three default drives is near the preset's
+    figures (the preset's come from the 43-minute drive: benchmarks/bench_gnss_errors.py). The fast
+    part is the states' (fix_error_gm_*), the slow one (orbit and clock errors, constant over a
+    drive) the fixes' extra white R (fix_error_fast_* with tau 0)."""
+    from gpsins.gnss_errors import autocovariance_sums, fit_white_two_gauss_markov, fix_errors_per_dop
 
     cfg = flt.load_config(None)
     sums, counts, per_dop, dops = 0.0, 0.0, [], []
@@ -124,15 +126,20 @@ def test_preset_fix_error_figures_are_the_simulated_receivers():
     low, high = [np.sqrt(np.mean(e[m, :2] ** 2)) for m in (hdop <= 2.0, hdop > 2.0)]
     assert high == pytest.approx(low, rel=0.3)
     c = sums / counts[:, None]
-    fits = np.array([fit_white_gauss_markov(c[:, i]) for i in range(3)])  # (white, Gauss-Markov, tau) per axis
-    print("per unit of DOP, N/E/D: white", fits[:, 0].round(2), "Gauss-Markov", fits[:, 1].round(2), "tau",
-          fits[:, 2].round(1), f"; HDOP <= 2: {low:.2f} m, > 2: {high:.2f} m")
-    assert cfg["fix_error_gm_dop_scaled"]
-    np.testing.assert_allclose(cfg["fix_error_gm_sigma_m"], fits[:, 1], rtol=0.3)
-    assert 0.5 < cfg["fix_error_gm_tau_s"] / fits[:, 2].mean() < 2.0
+    fit = fit_white_two_gauss_markov(c[:, :3], 120)
+    print("per unit of DOP, N/E/D: white", fit["white"].round(2), "fast", fit["fast"].round(2),
+          f"tau {fit['tau_fast']:.1f} s, slow", fit["slow"].round(2), f"tau {fit['tau_slow']:.3g} s; "
+          f"HDOP <= 2: {low:.2f} m, > 2: {high:.2f} m")
+    assert cfg["fix_error_gm_dop_scaled"] and cfg["fix_error_fast_tau_s"] == 0.0
+    fast, slow = np.asarray(cfg["fix_error_gm_sigma_m"]), np.asarray(cfg["fix_error_fast_sigma_m"])
+    # Three short drives split the correlated variance between fast and slow loosely: their sum is
+    # checked closely, the slow part's size and the fast part's time loosely.
+    np.testing.assert_allclose(np.hypot(fast, slow), np.hypot(fit["fast"], fit["slow"]), rtol=0.35)
+    assert np.all((slow > 0.5 * fit["slow"]) & (slow < 2.0 * fit["slow"]))
+    assert 0.5 < cfg["fix_error_gm_tau_s"] / fit["tau_fast"] < 2.0 and fit["tau_slow"] > 10 * fit["tau_fast"]
     # One UERE for both horizontal axes: between their pooled white part and the larger one's.
-    pooled = np.hypot(fits[0, 0], fits[1, 0]) / np.sqrt(2)
-    assert 0.9 * pooled <= cfg["fix_uere_m"] <= 1.1 * max(fits[0, 0], fits[1, 0])
+    pooled = np.hypot(fit["white"][0], fit["white"][1]) / np.sqrt(2)
+    assert 0.9 * pooled <= cfg["fix_uere_m"] <= 1.1 * max(fit["white"][:2])
 
 
 @pytest.mark.parametrize("tau_s", [0.0, 4.0])
@@ -151,3 +158,78 @@ def test_fast_fix_error_weighs_like_its_inflated_variance(stop_and_go, tau_s):
     late = fast.t > fast.t[0] + 30.0  # past the first fix, the only one without a predecessor
     np.testing.assert_allclose(fast.r_ecef[late], grown.r_ecef[late], rtol=0, atol=1e-3)
     assert np.abs(fast.r_ecef[late] - plain.r_ecef[late]).max() > 0.05
+
+
+def test_white_signal_in_space_error_adds_its_variance_at_any_elevation(stop_and_go):
+    """With tau 0 the signal-in-space part (pseudorange_sis_*) adds sigma^2 to every pseudorange's
+    variance, whatever its elevation: the same solution as a white sigma grown by it."""
+    s = stop_and_go
+    imu = sim.imu_table(s)[:64 * 120]
+    base = {**sim.imu_noise_truth(s.scenario.imu), "mode": "tight", "pseudorange_decimation": 10,
+            "pseudorange_error_gm_sigma_m": 0.0, "pseudorange_sis_use_ura": False, "pseudorange_sis_tau_s": 0.0}
+    inputs = sim.tight_inputs(s)
+
+    def run(**over):
+        return flt.run(imu, sim.fix_table(s), flt.load_config(None, {**base, **over}), **inputs)
+
+    sis = run(pseudorange_sigma_m=1.0, pseudorange_sis_sigma_m=0.7)
+    grown = run(pseudorange_sigma_m=np.sqrt(1.0 + 0.49), pseudorange_sis_sigma_m=0.0)
+    plain = run(pseudorange_sigma_m=1.0, pseudorange_sis_sigma_m=0.0)
+    np.testing.assert_allclose(sis.r_ecef, grown.r_ecef, rtol=0, atol=1e-6)
+    assert np.abs(sis.r_ecef - plain.r_ecef).max() > 0.05
+
+
+def test_correlated_signal_in_space_variance_makes_the_confidence_independent_of_the_rate():
+    """As the multipath's: with the signal-in-space part correlated (sigma^2 (1 + a) / (1 - a) per
+    update) the position sigma no longer depends on the rate; white, 10 Hz looks far more informative."""
+    s = sim.simulate(sim.load("default"), seed=6)
+
+    def horizontal_sigma(**over):
+        sol = both(s, pseudorange_sigma_m=0.3, pseudorange_error_gm_sigma_m=0.0, pseudorange_sis_use_ura=False,
+                   pseudorange_sis_sigma_m=1.0, **over)["tight"]
+        return float(np.median(np.hypot(sol.sigma[sol.heading_known, 6], sol.sigma[sol.heading_known, 7])))
+
+    ratio = {name: horizontal_sigma(pseudorange_decimation=10, pseudorange_sis_tau_s=tau) /
+             horizontal_sigma(pseudorange_decimation=1, pseudorange_sis_tau_s=tau)
+             for name, tau in (("white", 0.0), ("correlated", 20.0))}
+    print(f"position sigma 1 Hz / 10 Hz: white {ratio['white']:.2f}, correlated {ratio['correlated']:.2f}")
+    assert ratio["white"] > 1.5
+    assert 0.85 < ratio["correlated"] < 1.15
+
+
+def test_preset_signal_in_space_sigma_is_the_simulated_receivers():
+    """The preset's signal-in-space sigma is the simulator's orbit and clock error: per tracked
+    satellite, the pseudorange with it minus the pseudorange without it (all else drawn alike)."""
+    per_sat = []
+    for seed in range(8):
+        sc = sim.load("default")
+        with_sis = sim.simulate(sc, seed=seed).gnss
+        sc.gnss.sis_error_m = 0.0
+        d = with_sis.pseudorange_m - sim.simulate(sc, seed=seed).gnss.pseudorange_m
+        per_sat += [np.nanmean(d[:, j] ** 2) for j in range(d.shape[1]) if np.isfinite(d[:, j]).any()]
+    rms = float(np.sqrt(np.mean(per_sat)))  # each satellite of each drive once, however long tracked
+    cfg = flt.load_config(None)
+    print(f"simulated signal-in-space error RMS {rms:.2f} m over {len(per_sat)} satellites, preset sigma "
+          f"{cfg['pseudorange_sis_sigma_m']}")
+    assert not cfg["pseudorange_sis_use_ura"]
+    assert 0.75 * rms < cfg["pseudorange_sis_sigma_m"] < 1.33 * rms
+
+
+@pytest.mark.parametrize("index, ura_m", [(0, 2.4), (3, 6.85)])
+def test_signal_in_space_sigma_from_the_broadcast_ura(stop_and_go, index, ura_m):
+    """pseudorange_sis_use_ura takes each satellite's broadcast URA (its index through the ICD's
+    table) for the signal-in-space sigma, in place of the configured figure."""
+    s = stop_and_go
+    imu = sim.imu_table(s)[:64 * 60]
+    base = {**sim.imu_noise_truth(s.scenario.imu), "mode": "tight", "pseudorange_decimation": 10,
+            "pseudorange_sigma_m": 1.0, "pseudorange_error_gm_sigma_m": 0.0, "pseudorange_sis_tau_s": 0.0}
+    inputs = sim.tight_inputs(s)
+    for e in inputs["ephemerides"]:
+        e.ura_index = index  # every satellite broadcasting the same URA
+
+    def run(**over):
+        return flt.run(imu, sim.fix_table(s), flt.load_config(None, {**base, **over}), **inputs).r_ecef
+
+    ura = run(pseudorange_sis_use_ura=True, pseudorange_sis_sigma_m=0.1)
+    np.testing.assert_allclose(ura, run(pseudorange_sis_use_ura=False, pseudorange_sis_sigma_m=ura_m), rtol=0, atol=1e-6)
+    assert np.abs(ura - run(pseudorange_sis_use_ura=False, pseudorange_sis_sigma_m=0.1)).max() > 0.05

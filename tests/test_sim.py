@@ -274,13 +274,13 @@ def test_stamp_model_options_are_applied_and_recorded(tmp_path):
     assert side.sidecar["simulation"]["timing"]["clock_step_s"] == 0.3
 
 
-def test_signal_in_space_error_is_per_satellite_slow_and_off_by_default():
+def test_signal_in_space_error_is_per_satellite_slow_and_on_by_default():
     spec = {"segment": [{"label": "a", "duration_s": 60.0, "speed_mps": 5}]}
-    base = sim.simulate(parse(spec), seed=3).gnss
-    assert parse(spec).gnss.sis_error_m == 0.0
+    g = sim.simulate(parse(spec), seed=3).gnss
+    assert parse(spec).gnss.sis_error_m == 0.65
     sc = parse(spec)
-    sc.gnss.sis_error_m = 0.65
-    g = sim.simulate(sc, seed=3).gnss
+    sc.gnss.sis_error_m = 0.0
+    base = sim.simulate(sc, seed=3).gnss
     d = g.pseudorange_m - base.pseudorange_m
     both = np.isfinite(d)
     per_sat = [d[both[:, j], j] for j in range(gnss.MAX_PRN) if both[:, j].sum() > 100]

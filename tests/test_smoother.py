@@ -236,10 +236,14 @@ def test_spilled_tape_gives_the_same_smoothed_run():
 
 
 @pytest.mark.parametrize("start_s", [60.0, 150.0, pytest.param(40.0, marks=pytest.mark.xfail(
-    strict=True, reason="6 s after the first heading: smoothed drift 1.96 m vs forward 4.60 m (1/2.3); the smoothed "
+    strict=True, reason="6 s after the first heading: smoothed drift 1.81 m vs forward 4.96 m (1/2.7); the smoothed "
     "yaw is 1.2 deg off there (3 sigma 5 deg), weakly observable before the first turns"))])
 def test_15_s_outage_smoothed_drift_at_most_a_fifth_of_forward(start_s):
-    s = sim.simulate(sim.load("default"), seed=0)
+    # Without the satellites' orbit and clock errors: their slow bias in the fixes (the smoothed error
+    # with every fix is 2.2 m there with it, 0.9 m without) is no drift, and would hide a fifth of it.
+    sc = sim.load("default")
+    sc.gnss.sis_error_m = 0.0
+    s = sim.simulate(sc, seed=0)
     tr = truth_of(s)
     fixes = sim.fix_table(s)
     t0 = tr.t[0] + start_s

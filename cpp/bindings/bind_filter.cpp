@@ -633,6 +633,9 @@ void bind_filter(py::module_& m) {
   GPSINS_FIELD(pseudorange_decimation);
   GPSINS_FIELD(pseudorange_error_gm_sigma_m);
   GPSINS_FIELD(pseudorange_error_gm_tau_s);
+  GPSINS_FIELD(pseudorange_sis_sigma_m);
+  GPSINS_FIELD(pseudorange_sis_use_ura);
+  GPSINS_FIELD(pseudorange_sis_tau_s);
   GPSINS_FIELD(pseudorange_ionosphere);
   GPSINS_FIELD(pseudorange_troposphere);
   GPSINS_FIELD(gps_time_offset_s);

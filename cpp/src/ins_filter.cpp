@@ -586,19 +586,31 @@ InputStatus InsFilter<NB, NC>::push_pseudoranges(const PseudorangeEpoch& ep) {
   }
 }
 
-// The variance a pseudorange's correlated error adds to this update (see
-// pseudorange_error_gm_sigma_m): sigma(el)^2 (1 + a) / (1 - a), a = exp(-dt / tau),
-// dt since the satellite's previous update (none since acquisition: a = 0).
+// (1 + a) / (1 - a), a = exp(-dt / tau): what a Gauss-Markov error's stationary
+// variance is multiplied by when a satellite's updates dt apart are treated as
+// independent. a = 0 (factor 1) without a previous update or for a white error.
+static double gm_update_factor(double dt, double tau) {
+  if (!(dt > 0.0) || !(tau > 0.0)) return 1.0;  // dt NaN: none since acquisition
+  const double one_minus_a = -std::expm1(-dt / tau);  // accurate for dt << tau
+  return (2.0 - one_minus_a) / one_minus_a;
+}
+
+// The variance a pseudorange's correlated errors add to this update: multipath
+// (pseudorange_error_gm_*, growing as 1 / sin(elevation)) and signal in space
+// (pseudorange_sis_*, the same at any elevation), each sigma^2 (1 + a) / (1 - a)
+// with its own tau, dt since the satellite's previous update.
 template <int NB, int NC>
-double InsFilter<NB, NC>::correlated_variance(int prn, double t, double el_rad) const {
-  if (!(cfg_.pseudorange_error_gm_sigma_m > 0.0) || prn < 1 || prn > 32) return 0.0;
-  const double s = cfg_.pseudorange_error_gm_sigma_m / std::max(std::sin(el_rad), 0.1);
-  const double last = pr_used_t_[static_cast<std::size_t>(prn)];
-  const double dt = t - last;
-  if (!std::isfinite(last) || !(dt > 0.0) || !(cfg_.pseudorange_error_gm_tau_s > 0.0)) return s * s;
-  // (1 + a) / (1 - a) with 1 - a = -expm1(-dt / tau): accurate for dt << tau.
-  const double one_minus_a = -std::expm1(-dt / cfg_.pseudorange_error_gm_tau_s);
-  return s * s * (2.0 - one_minus_a) / one_minus_a;
+double InsFilter<NB, NC>::correlated_variance(int prn, double t, double el_rad, double ura_m) const {
+  const bool known = prn >= 1 && prn <= 32;
+  const double dt = known ? t - pr_used_t_[static_cast<std::size_t>(prn)] : std::numeric_limits<double>::quiet_NaN();
+  double var = 0.0;
+  if (cfg_.pseudorange_error_gm_sigma_m > 0.0 && known) {
+    const double s = cfg_.pseudorange_error_gm_sigma_m / std::max(std::sin(el_rad), 0.1);
+    var += s * s * gm_update_factor(dt, cfg_.pseudorange_error_gm_tau_s);
+  }
+  const double sis = cfg_.pseudorange_sis_use_ura ? ura_m : cfg_.pseudorange_sis_sigma_m;
+  if (sis > 0.0) var += sis * sis * gm_update_factor(dt, cfg_.pseudorange_sis_tau_s);
+  return var;
 }
 
 // The receiver's lock counter grows while a satellite stays locked (saturating);
@@ -717,10 +729,10 @@ void InsFilter<NB, NC>::process_pseudoranges(const PseudorangeEpoch& ep) {
       }
       const double iono = cfg_.pseudorange_ionosphere ? gnss::klobuchar_m(iono_, llh, ae, tow) : 0.0;
       const double trop = cfg_.pseudorange_troposphere ? gnss::saastamoinen_m(llh, ae.el_rad) : 0.0;
-      double var = cfg_.pseudorange_sigma_m > 0.0
-                       ? cfg_.pseudorange_sigma_m * cfg_.pseudorange_sigma_m
-                       : gnss::pseudorange_variance_m2(ae.el_rad, gnss::ura_m(eph->ura_index), iono);
-      var += correlated_variance(ep.prn[k], ep.t_s, ae.el_rad);
+      // The white part without the broadcast URA: orbit and clock errors are slow (correlated_variance).
+      double var = cfg_.pseudorange_sigma_m > 0.0 ? cfg_.pseudorange_sigma_m * cfg_.pseudorange_sigma_m
+                                                  : gnss::pseudorange_variance_m2(ae.el_rad, 0.0, iono);
+      var += correlated_variance(ep.prn[k], ep.t_s, ae.el_rad, gnss::ura_m(eph->ura_index));
       // Everything but geometry and the receiver clock moved to the measurement side.
       const double corr = ep.pr_m[k] + gnss::kSpeedOfLight * (st.clock_s - eph->tgd_s) - iono - trop;
       use[static_cast<std::size_t>(n++)] = PrUse{st.r_ecef_m, corr, gnss::sagnac_m(st.r_ecef_m, r_a), var, ep.prn[k]};

@@ -122,8 +122,9 @@ struct InsConfig {
   // with its own velocity change since. 0: at the fix's time.
   double fix_velocity_lag_s = 0.0;
 
-  // Pseudoranges (tight coupling). Variance from the elevation model when the
-  // sigma is <= 0 (RTKLIB's, as in single-point positioning).
+  // Pseudoranges (tight coupling). White variance from the elevation model when
+  // the sigma is <= 0 (RTKLIB's code, atmosphere and code-bias terms; its broadcast
+  // URA term is the signal-in-space part below, not white noise).
   double pseudorange_sigma_m = 0.0;
   double pseudorange_elevation_mask_rad = 0.2617993877991494;  // 15 deg
   double pseudorange_min_cn0_dbhz = 30.0;
@@ -142,6 +143,16 @@ struct InsConfig {
   // correlated samples do, so the rate no longer decides the confidence. 0: off.
   double pseudorange_error_gm_sigma_m = 0.0;
   double pseudorange_error_gm_tau_s = 60.0;
+  // Signal-in-space error: the broadcast orbit and clock's error along the line of
+  // sight, per satellite, the same at any elevation, changing over hours. Its sigma
+  // is this figure, or the satellite's broadcast URA when pseudorange_sis_use_ura
+  // (which bounds the error rather than measuring it). Added to each update's
+  // variance as the correlated part is, with its own correlation time: the
+  // sigma^2 (1 + a) / (1 - a) of a Gauss-Markov error; tau <= 0: white (as the
+  // elevation model had it, and the default: URA as white noise).
+  double pseudorange_sis_sigma_m = 0.0;
+  bool pseudorange_sis_use_ura = true;
+  double pseudorange_sis_tau_s = 0.0;
   bool pseudorange_ionosphere = true;
   bool pseudorange_troposphere = true;
   double gps_time_offset_s = 0.0;  // filter time + this = GPS seconds since the GPS epoch

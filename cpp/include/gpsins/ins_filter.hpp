@@ -184,7 +184,7 @@ class InsFilter {
   };
   void check_clock(const PrUse* use, int n, double t);
   void track_locks(const PseudorangeEpoch& epoch);
-  double correlated_variance(int prn, double t, double el_rad) const;
+  double correlated_variance(int prn, double t, double el_rad, double ura_m) const;
   void initialise(const FixInput& fix);
   void decouple_yaw();
   void set_heading(const FixInput& fix, const Vec3& v_ecef, double course_rad, double sigma_rad);

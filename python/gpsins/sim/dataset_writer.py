@@ -232,6 +232,8 @@ class DatasetWriter:
                  f"accel_bias_cal_mps2 = {_toml_value([float(x) for x in sc.imu.accel_bias_mps2])}",
                  f"gyro_scale_factor_cal = {_toml_value([float(x) for x in sc.imu.gyro_scale_factor])}",
                  f"accel_scale_factor_cal = {_toml_value([float(x) for x in sc.imu.accel_scale_factor])}",
+                 # Each fix's error is drawn white at the sigma it states: no correlated parts on top.
+                 "fix_error_gm_sigma_m = [0.0, 0.0, 0.0]",
                  f"gyro_bias_residual_rad_per_s = {noise['gyro_bias_residual_rad_per_s']!r}",
                  f"accel_bias_residual_mps2 = {noise['accel_bias_residual_mps2']!r}", "",
                  "[filter.imu_noise]"] + [f"{k} = {_toml_value(v)}" for k, v in noise["imu_noise"].items()]

@@ -141,9 +141,8 @@ class GnssModel:
     # Broadcast orbit and clock error along the line of sight (signal in space), per satellite: a
     # constant plus a term at the orbital period, each drawn with this sigma (about 0.8 m RMS, the
     # size measured for GPS broadcast ephemerides around 2010; the URA the satellites send, 2.4 m,
-    # bounds it): 0.65 gives that. 0 (the default for now): the broadcast ephemeris is exact. With
-    # 0.65 the preset's loose fix-error model (fitted without it) is over-confident: see bench_mismatch.py.
-    sis_error_m: float = 0.0
+    # bounds it): 0.65 gives that. 0: the broadcast ephemeris is exact.
+    sis_error_m: float = 0.65
     sis_period_s: float = 43082.0
     carrier_noise_cycles: float = 0.02
     iono_scale: float = 1.15  # true ionosphere = Klobuchar x scale x (1 + slow variation)
