@@ -118,12 +118,12 @@ def handheld_walk(tmp_path_factory):
     path = dw.write_dataset(s, d, imu_to_body_ypr_deg=(HANDHELD_OFFSET_DEG, 0.0, 0.0), antenna_m=(0.0, 0.0, 0.0),
                             vehicle_kind="none", imu_time_offset_s=0.0)
     text = re.sub(r"imu_to_body_ypr_deg = .*", "imu_to_body_ypr_deg = [0.0, 0.0, 0.0]", path.read_text())
-    # The device's calibration in its own axes (the simulated unit's biases are the preset's, in body axes).
+    # The device's calibration in its own axes (the data set states the unit's, in body axes).
     m = dw.ypr_matrix(HANDHELD_OFFSET_DEG, 0.0, 0.0)
     preset = flt.load_config(None)
-    cal = "".join(f"\n{k} = {(m.T @ np.asarray(preset[k], float)).tolist()}"
-                  for k in ("gyro_bias_cal_rad_per_s", "accel_bias_cal_mps2"))
-    path.write_text(text.replace('preset = "default"', 'preset = "default"' + cal))
+    for k in ("gyro_bias_cal_rad_per_s", "accel_bias_cal_mps2"):
+        text = re.sub(rf"{k} = .*", f"{k} = {(m.T @ np.asarray(preset[k], float)).tolist()}", text)
+    path.write_text(text)
     return s, path
 
 

@@ -123,6 +123,30 @@ def test_a_sample_beyond_the_sensor_range_is_not_integrated(default_drive):
     assert final_error(s, sol) < 5.0 and not sol.counters["diverged"]
 
 
+def test_a_fix_at_saturated_dop_is_not_used(default_drive):
+    """A receiver's DOP of 99.9 means only "at least 99.9": weighted as 99.9, a 3D fix 300 m off
+    passed the gate on the simulated motorway (urban_highway seed 0 at 200 Hz) and pulled the filter
+    onto the 2D fixes 200 m off after it, 200 m off and reset. Beyond fix_max_dop a fix is not used."""
+    s = default_drive
+    fixes = sim.fix_table(s)
+    k = np.flatnonzero((fixes[:, 0] > 150.0) & (fixes[:, 9] == 2) & (fixes[:, 7] < 3.0))[0]  # a good 3D fix
+    fixes[k, 1:4] += 300.0 / np.sqrt(3.0)
+    fixes[k, 7:9] = 99.9
+    cfg = flt.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), "fix_max_dop": 20.0})
+    sol = flt.run(sim.imu_table(s), fixes, cfg)
+    clean = flt.run(sim.imu_table(s), np.delete(fixes, k, axis=0), cfg)  # without that fix
+    assert sol.counters["fixes_dop_masked"] == clean.counters["fixes_dop_masked"] + 1
+    unmasked = flt.run(sim.imu_table(s), fixes, {**cfg, "fix_max_dop": 0.0})
+    def worst_after(r):  # over the 10 s after the fix
+        near = (r.t >= fixes[k, 0]) & (r.t < fixes[k, 0] + 10.0)
+        return np.linalg.norm(evaluate.nav_errors(r, truth_of(s)).r_ned[near], axis=1).max()
+
+    worst = {name: worst_after(r) for name, r in (("masked", sol), ("clean", clean), ("unmasked", unmasked))}
+    print(worst)
+    assert worst["masked"] == pytest.approx(worst["clean"], rel=1e-6)
+    assert worst["unmasked"] > worst["masked"] + 1.0
+
+
 def test_ten_seconds_of_zero_delta_v_recovers_through_a_gnss_reset(default_drive):
     s = default_drive
     imu = sim.imu_table(s)

@@ -104,6 +104,7 @@ py::dict counters_dict(const Counters& c) {
   d["fixes"] = c.fixes;
   d["fixes_accepted"] = c.fixes_accepted;
   d["fixes_rejected"] = c.fixes_rejected;
+  d["fixes_dop_masked"] = c.fixes_dop_masked;
   d["fixes_without_solution"] = c.fixes_without_solution;
   d["fixes_before_alignment"] = c.fixes_before_alignment;
   d["fixes_late"] = c.fixes_late;
@@ -662,6 +663,7 @@ void bind_filter(py::module_& m) {
   GPSINS_FIELD(max_attitude_correction_rad);
   GPSINS_FIELD(gnss_reset_timeout_s);
   GPSINS_FIELD(gnss_reset_max_dop);
+  GPSINS_FIELD(fix_max_dop);
   GPSINS_FIELD(max_position_sigma_m);
 #undef GPSINS_FIELD
 

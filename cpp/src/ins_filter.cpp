@@ -919,6 +919,14 @@ void InsFilter<NB, NC>::process_fix(const FixInput& fix) {
     return;
   }
 
+  if (cfg_.fix_max_dop > 0.0 && (fix.hdop > cfg_.fix_max_dop || (fix.mode == 2 && fix.vdop > cfg_.fix_max_dop))) {
+    // A 3D fix 300 m off at HDOP 99.9 passed the gate on the simulated motorway and pulled
+    // the filter onto the 2D fixes 200 m off that followed.
+    ++counters_.fixes_dop_masked;
+    prev_fix_ = fix;
+    have_prev_fix_ = true;
+    return;
+  }
   Mat3 r_cov;
   if ((cfg_.fix_sigma_ecef_m.array() > 0.0).all()) {
     r_cov = square(cfg_.fix_sigma_ecef_m).asDiagonal();

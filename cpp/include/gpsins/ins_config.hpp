@@ -195,6 +195,9 @@ struct InsConfig {
   // stated sigma stands for). A receiver's saturated DOP (99.9) marks a solution it
   // cannot vouch for: on a simulated day 4-satellite fixes 58 km off were taken.
   double gnss_reset_max_dop = 10.0;
+  // A fix whose HDOP (or, 3D, VDOP) is above this is not used (0: all are): its R
+  // cannot be known when the DOP is the receiver's saturated 99.9.
+  double fix_max_dop = 0.0;
   // Divergence guard: position sigma beyond this marks the filter diverged.
   double max_position_sigma_m = 1e4;
 };

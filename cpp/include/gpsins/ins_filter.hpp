@@ -116,6 +116,7 @@ struct Counters {
   std::int64_t fixes = 0;
   std::int64_t fixes_accepted = 0;
   std::int64_t fixes_rejected = 0;
+  std::int64_t fixes_dop_masked = 0;  // not used: a DOP beyond fix_max_dop (a receiver's 99.9 says only "at least")
   std::int64_t fixes_without_solution = 0;
   std::int64_t fixes_before_alignment = 0;
   std::int64_t fixes_late = 0;
