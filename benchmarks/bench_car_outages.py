@@ -41,17 +41,9 @@ CASES = {"car, with NHC": {}, "car, without NHC": {"nonholonomic_constraint": Fa
 
 def scenario(duration_s: float):
     from gpsins import sim
-    from gpsins.sim.scenario import with_imu_rate
+    from gpsins.sim.scenario import first_seconds, with_imu_rate
 
-    sc = with_imu_rate(sim.load("urban_highway"), 100)
-    keep, t = [], 0.0
-    for seg in sc.segments:
-        if t >= duration_s:
-            break
-        keep.append(seg)
-        t += seg.duration_s
-    sc.segments = keep
-    sc.obstructions = [o for o in sc.obstructions if o.t0_s < t]
+    sc = first_seconds(with_imu_rate(sim.load("urban_highway"), 100), duration_s)
     sc.imu = dataclasses.replace(sc.imu, **CONSUMER_MEMS)
     return sc
 
@@ -63,13 +55,13 @@ def run(seed: int, duration_s: float, smooth: bool, work: Path) -> list[dict]:
     t0 = time.perf_counter()
     s = sim.simulate(scenario(duration_s), seed)
     path = dataset_writer.write_dataset(s, work / f"set{seed}", gnss_rate_hz=4.0, imu_format="rates")
+    speed = np.linalg.norm(s.truth.v_ecef, axis=1)
     rows = []
     for name, over in CASES.items():
         res = replay.replay(path, work / f"run{seed}-{len(rows)}", overrides=over or None, outages=OUTAGES,
                             smooth=smooth)
         sc = res.summary["scoring"]
         sched = np.asarray(res.summary["outages"]["schedule"], float) - s.scenario.start.gps_tow_s  # run time
-        speed = np.linalg.norm(s.truth.v_ecef, axis=1)
         moving = [float(np.mean(speed[(s.truth.t >= a) & (s.truth.t < b)] > 1.0)) for a, b in sched]
         row = {"seed": seed, "case": name, "outages": len(sched), "moving_share": float(np.mean(moving)),
                "drift_rms_h_m": sc["horizontal_m"]["rms"], "drift_max_h_m": sc["horizontal_m"]["worst"],

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from gpsins import _core, evaluate, filter as flt, sim, solution
-from gpsins.sim.scenario import parse, with_imu_rate
+from gpsins.sim.scenario import first_seconds, parse, with_imu_rate
 
 START = {"gps_week": 1590, "gps_tow_s": 419400.0, "lat_deg": 59.37, "lon_deg": 17.95, "height_m": 30.0,
          "heading_deg": 160.0}
@@ -64,20 +64,6 @@ def test_gentle_stop_and_go_converges_at_64_and_200_hz(rate_hz):
     assert sol.counters["fixes_rejected"] <= 10 and sol.counters["gnss_resets"] <= 1
 
 
-def first_seconds(name: str, seconds: float, rate_hz: int):
-    """The segments of a built-in profile that start within its first `seconds`, at an IMU rate."""
-    sc = with_imu_rate(sim.load(name), rate_hz)
-    keep, t = [], 0.0
-    for seg in sc.segments:
-        if t >= seconds:
-            break
-        keep.append(seg)
-        t += seg.duration_s
-    sc.segments = keep
-    sc.obstructions = [o for o in sc.obstructions if o.t0_s < t]
-    return sc
-
-
 @pytest.mark.parametrize("rate_hz, seed", [(64, 1), (200, 2)])
 def test_a_slow_walk_takes_its_heading_from_an_accurate_course(rate_hz, seed):
     """The walk profile (1.0-1.5 m/s, never the 3 m/s the vehicle's course needs): its
@@ -85,7 +71,7 @@ def test_a_slow_walk_takes_its_heading_from_an_accurate_course(rate_hz, seed):
     filter reset onto GNSS 1-3 times. A measured velocity at 0.05 m/s x HDOP gives the
     course to about 3 deg at 1.3 m/s: the heading is set within seconds of setting off
     (at 40 s), within 3 sigma of the truth."""
-    s = sim.simulate(first_seconds("walk", 190.0, rate_hz), seed=seed)
+    s = sim.simulate(first_seconds(with_imu_rate(sim.load("walk"), rate_hz), 190.0), seed=seed)
     sol = flt.run(sim.imu_table(s), sim.fix_table(s), "default", covariance=True)
     set_at = [e["t"] for e in sol.event_list() if e["kind"] == "heading_set"]
     assert len(set_at) == 1 and 40.0 < set_at[0] < 45.0

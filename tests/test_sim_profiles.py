@@ -7,7 +7,7 @@ import pytest
 
 from gpsins import measurements, sim, timing
 from gpsins.sim import earth, messages, trajectory
-from gpsins.sim.scenario import ScenarioError, builtin_names, parse, with_imu_rate
+from gpsins.sim.scenario import ScenarioError, builtin_names, first_seconds, parse, with_imu_rate
 from gpsins.sim.session import write_session
 from gpsins_logger import bp3010
 from simcheck import increment_errors, reintegration_errors
@@ -150,16 +150,7 @@ def test_imu_rate_option_checks_the_line():
 
 def _short(name, seconds, rate):
     """The first `seconds` of a built-in profile at an IMU rate."""
-    sc = with_imu_rate(sim.load(name), rate)
-    keep, t = [], 0.0
-    for s in sc.segments:
-        if t >= seconds:
-            break
-        keep.append(s)
-        t += s.duration_s
-    sc.segments = keep
-    sc.obstructions = [o for o in sc.obstructions if o.t0_s < t]
-    return sc
+    return first_seconds(with_imu_rate(sim.load(name), rate), seconds)
 
 
 @pytest.mark.parametrize("rate", [50, 200, 400])

@@ -884,12 +884,10 @@ void InsFilter<NB, NC>::process_fix(const FixInput& fix) {
   if (!heading_known_) {
     Vec3 v = fix.v_ecef_mps;
     double sigma_v_mps = std::numeric_limits<double>::infinity();  // per horizontal axis
-    if (v.allFinite()) {
-      const Vec3 sv = stated_or(fix.sigma_v_ned_mps, Vec3::Constant(fix_velocity_sigma(fix)));
-      sigma_v_mps = std::max(sv.x(), sv.y());
-    } else if (have_prev_fix_ && fix.t_s - prev_fix_.t_s > 0.0 && fix.t_s - prev_fix_.t_s <= 2.0) {
+    if (v.allFinite())
+      sigma_v_mps = fix_speed_sigma(fix);
+    else if (have_prev_fix_ && fix.t_s - prev_fix_.t_s > 0.0 && fix.t_s - prev_fix_.t_s <= 2.0)
       v = (fix.r_ecef_m - prev_fix_.r_ecef_m) / (fix.t_s - prev_fix_.t_s);
-    }
     const Vec3 v_ned = c_en.transpose() * v;
     const double speed = std::hypot(v_ned.x(), v_ned.y());
     const double course_sigma_rad = speed > 0.0 ? sigma_v_mps / speed : std::numeric_limits<double>::infinity();
@@ -902,8 +900,7 @@ void InsFilter<NB, NC>::process_fix(const FixInput& fix) {
     const Vec3 v_ned = c_en.transpose() * fix.v_ecef_mps;
     gnss_speed_mps_ = std::hypot(v_ned.x(), v_ned.y());
     gnss_speed_t_ = fix.t_s;
-    const Vec3 sv = stated_or(fix.sigma_v_ned_mps, Vec3::Constant(fix_velocity_sigma(fix)));
-    gnss_speed_sigma_mps_ = std::max(sv.x(), sv.y());
+    gnss_speed_sigma_mps_ = fix_speed_sigma(fix);
   }
   // Only a 3D fix may take over the position: a 2D fix's height is the receiver's
   // assumption, and its horizontal position is off with it (on the roller coaster's
@@ -974,6 +971,12 @@ void InsFilter<NB, NC>::process_fix(const FixInput& fix) {
   }
 }
 
+template <int NB, int NC>
+double InsFilter<NB, NC>::fix_speed_sigma(const FixInput& fix) const {
+  const Vec3 sv = stated_or(fix.sigma_v_ned_mps, Vec3::Constant(fix_velocity_sigma(fix)));
+  return std::max(sv.x(), sv.y());
+}
+
 // The variance the fix's fast correlated part adds to its update (ECEF; see
 // fix_error_fast_sigma_m): sigma^2 (1 + a) / (1 - a), a = exp(-dt / tau), dt since the
 // previous fix (none before: a = 0), per axis times its DOP when DOP-scaled.
@@ -1036,13 +1039,13 @@ void InsFilter<NB, NC>::detect_standstill(const Increment& inc) {
   // smooth slow walk its velocity drifted to 0.2 m/s (sigma 0.34) at a true
   // 0.75 m/s, and the IMU, with no vibration, looked at rest. Before that its
   // velocity is the levelling's at-rest assumption, and its sigma the initial one.
+  const bool gnss_moving = gnss_fresh && gnss_speed_mps_ > cfg_.standstill_max_gnss_speed_mps;
   const double speed_mps = core_.nav.v_ecef_mps.norm();
-  if (speed_mps >= cfg_.standstill_max_speed_mps || (gnss_fresh && gnss_speed_mps_ > cfg_.standstill_max_gnss_speed_mps))
-    moved_ = true;
+  if (speed_mps >= cfg_.standstill_max_speed_mps || gnss_moving) moved_ = true;
   const double v_sigma_mps = std::sqrt(core_.P.template block<3, 3>(es::vel, es::vel).trace());
   const bool slow_for_sure = speed_mps + (moved_ ? v_sigma_mps : 0.0) < cfg_.standstill_max_speed_mps;
   const bool zupt_refused = t_last_ - zupt_refused_t_ < cfg_.standstill_holdoff_s;
-  const bool veto = (gnss_fresh && gnss_speed_mps_ > cfg_.standstill_max_gnss_speed_mps) || zupt_refused;
+  const bool veto = gnss_moving || zupt_refused;
   // The detector reads may_begin only when nothing vetoes and it is not standing already: only
   // then is the force test (a 3x3 solve every sample otherwise) worth doing.
   const bool may_begin = !veto && !detector_.standing() &&

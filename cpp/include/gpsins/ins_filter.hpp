@@ -193,6 +193,8 @@ class InsFilter {
   double fix_velocity_sigma(const FixInput& fix) const {
     return cfg_.fix_velocity_sigma_mps * (cfg_.fix_velocity_sigma_hdop_scaled ? fix.hdop : 1.0);
   }
+  // The larger horizontal sigma of a fix's velocity, stated or configured.
+  double fix_speed_sigma(const FixInput& fix) const;
   void detect_standstill(const Increment& inc);
   void track_step(double span);
   double out_of_range(const Vec3& dtheta, const Vec3& dv, double dt) const;

@@ -327,6 +327,21 @@ def with_imu_rate(sc: Scenario, rate_hz: int) -> Scenario:
     return out
 
 
+def first_seconds(sc: Scenario, seconds: float) -> Scenario:
+    """A copy of the scenario cut to the segments that start within its first `seconds` (and the
+    obstructions that begin before its new end): short runs of a long profile for tests."""
+    out = copy.deepcopy(sc)
+    keep, t = [], 0.0
+    for seg in out.segments:
+        if t >= seconds:
+            break
+        keep.append(seg)
+        t += seg.duration_s
+    out.segments = keep
+    out.obstructions = [o for o in out.obstructions if o.t0_s < t]
+    return out
+
+
 def parse(data: dict, source: str = "<scenario>", here: Path | None = None) -> Scenario:
     """A scenario from its TOML data; `here` is the directory relative base paths start from."""
     unknown = set(data) - TOP_KEYS
