@@ -290,6 +290,26 @@ def test_a_wrong_lever_mounting_or_offset_is_visibly_worse(sim_set, right_run, t
     assert rms_wrong > 1.3 * rms_right or in_wrong.min() < 0.8
 
 
+def test_rates_with_every_fifth_row_missing_are_integrated_once(sim_set, right_run, tmp_path):
+    """IMU rates cover each step by the trapezoid, a double one too: such a step is no lost frame
+    to bridge. Bridging it as one (the core's way for frame increments) counted its motion twice."""
+    sim, path = sim_set
+    lines = (path.parent / "imu.csv").read_text().splitlines(keepends=True)
+    (path.parent / "imu_sparse.csv").write_text(lines[0] + "".join(x for i, x in enumerate(lines[1:]) if i % 5 != 4))
+    sparse = lambda s: s.replace('file = "imu.csv"', 'file = "imu_sparse.csv"')  # noqa: E731
+    right, _, rms_right = right_run
+    once, _, rms_once = _run_variant(sim_set, tmp_path, "sparse", sparse)
+    twice, _, rms_twice = _run_variant(sim_set, tmp_path, "sparse_bridged", sparse,
+                                       overrides={"imu_increments_cover_gaps": False})
+    print(f"\nevery fifth IMU row missing: IMU-point H RMS {rms_once:.3f} m (all rows {rms_right:.3f}, the double "
+          f"steps bridged {rms_twice:.3f}); drift RMS {once['scoring']['horizontal_m']['rms']:.2f} m (all rows "
+          f"{right['scoring']['horizontal_m']['rms']:.2f}, bridged {twice['scoring']['horizontal_m']['rms']:.2f})")
+    assert once["counters"]["imu_gaps_bridged"] == 0 < twice["counters"]["imu_gaps_bridged"]
+    assert rms_once < 1.2 * rms_right
+    assert once["scoring"]["horizontal_m"]["rms"] < 1.2 * right["scoring"]["horizontal_m"]["rms"]
+    assert rms_twice > 2 * rms_once
+
+
 def test_zero_standard_deviations_do_not_break_anything(sim_set, tmp_path):
     def zero(text):
         return text.replace('file = "receiver.pos"', 'file = "receiver_zero.pos"')

@@ -302,10 +302,11 @@ def test_replay_smooth_writes_smoothed_results_next_to_the_forward_ones(tmp_path
         assert z["smooth_" + k].shape[0] == (z["t"].shape[0] if k in ("r_ecef", "sigma", "sigma_ned_m")
                                              else z[k].shape[0])
     fwd, sm = res.summary["scoring"], res.summary["smoothed"]["scoring"]
-    # Both outages are bridged far better than by the forward pass, and better than the open peer's
-    # best on this walk (0.42 m RMS of per-outage maxima, back-correcting each outage with the next fix).
-    assert sm["horizontal_m"]["worst"] < 0.5 * fwd["horizontal_m"]["worst"]
-    assert sm["horizontal_m"]["rms"] < 0.42
+    # Both outages are bridged far better than by the forward pass, and within issue 18's goal of 0.3 m
+    # RMS of per-outage maxima (the open peer's best, back-correcting each outage with the next fix: 0.42 m).
+    # Measured 0.206 m (forward 2.82 m); pooled over seven shifted schedules 0.250 m (bench_walk.py).
+    assert sm["horizontal_m"]["worst"] < 0.2 * fwd["horizontal_m"]["worst"]
+    assert sm["horizontal_m"]["rms"] < 0.3
     # Outside the outages the reference is the forward filter's own input (the receiver's RTK fixes), scored at
     # their epochs, where the forward pass has just taken them: the smoothed solution there is within the
     # issue's 0.05 m goal but not closer than the forward one (measured 0.0472 vs 0.0465 m; with the velocity
@@ -333,12 +334,12 @@ def test_tight_smoothed_clock_and_position():
     assert np.all(ss <= sf * (1 + 1e-6) + 1e-12)
 
 
-@pytest.mark.xfail(strict=True, reason="the walk's model, not the smoother: 0.278 m smoothed vs 0.094 m forward, but "
+@pytest.mark.xfail(strict=True, reason="the walk's model, not the smoother: 0.240 m smoothed vs 0.088 m forward, but "
                    "the backward pass equals a textbook RTS with the fix-error states and restarts (test_rts.cpp) and "
                    "every covariance change on the walk is one the smoother is told; the forward pass is overconfident "
-                   "(fix NIS 5.5 per dof): the published accelerometer bias drive 6.86e-5 m/s^2/sqrt(s) allows 0.8 mg "
-                   "in the walk's 134 s, its forward estimate moves 3 mg. At 2e-3: NIS 1.1 per dof, 0.032 vs 0.028 m "
-                   "(1.14x, and forward drift 2.51 m, over that test's 2.3 m goal)")
+                   "(fix NIS 4.0 per dof): the published accelerometer bias drive 6.86e-5 m/s^2/sqrt(s) allows 0.8 mg "
+                   "in the walk's 134 s, its forward estimate moves 3 mg. At 1e-3: 0.047 vs 0.035 m (1.34x), at 2e-3 "
+                   "0.032 vs 0.026 m (1.23x), the smoothed outage drift then 0.30 and 0.32 m pooled (0.26 m now)")
 def test_smoothed_height_stays_on_the_walks_rtk_fixes(tmp_path):
     from pathlib import Path
 

@@ -581,6 +581,7 @@ void bind_filter(py::module_& m) {
 #define GPSINS_FIELD(name) c.def_readwrite(#name, &InsConfig::name)
   GPSINS_FIELD(imu_rate_hz);
   GPSINS_FIELD(max_gap_s);
+  GPSINS_FIELD(imu_increments_cover_gaps);
   GPSINS_FIELD(gap_accel_sigma_mps2);
   GPSINS_FIELD(gyro_range_rad_per_s);
   GPSINS_FIELD(accel_range_mps2);

@@ -202,7 +202,7 @@ InputStatus InsFilter<NB, NC>::push_imu(double t_s, const Vec3& dtheta_rad, cons
 
   // The frame's increments cover its own interval; a longer span means frames
   // were lost: bridged with the previous rates. So is a sample beyond the range.
-  const bool gap = span > 1.5 * dt_nominal_;
+  const bool gap = !cfg_.imu_increments_cover_gaps && span > 1.5 * dt_nominal_;
   const double dt = gap ? dt_nominal_ : span;
   const double over = out_of_range(dtheta_rad, dv_mps, dt);
   const bool bad = over > 1.05;

@@ -331,7 +331,8 @@ def load(path: str | Path) -> Dataset:
         m = _matrix(ti.get("imu_to_body", np.eye(3).tolist()), path, "[imu] imu_to_body")
     offset = float(ti.get("time_offset_s", 0.0))
     raw = _read_imu(ti, base, path)
-    imu = ImuData(raw.t_abs + offset, raw.dtheta_rad @ m.T, raw.dv_mps @ m.T, raw.source, raw.skipped)
+    imu = ImuData(raw.t_abs + offset, raw.dtheta_rad @ m.T, raw.dv_mps @ m.T, raw.source, raw.skipped,
+                  covers_gaps=raw.covers_gaps)
     skipped = Counter(raw.skipped)
 
     fmt = tg.get("format")

@@ -23,7 +23,7 @@ then ``run_mode`` per mode).
 What a data set gives the filter (each only where neither the data set's ``[filter]``
 table nor ``--set`` names the key itself): ``lever_arm_body_m`` from ``[gnss] antenna_m``;
 ``imu_rate_hz`` from the median IMU interval (the core's gap bridging and standstill
-window use it); ``use_fix_velocity`` when the fixes carry velocities and
+window use it); ``imu_increments_cover_gaps`` for IMU rates (their increments cover every step); ``use_fix_velocity`` when the fixes carry velocities and
 ``fix_velocity_sigma_mps`` from their stated sigmas (``dataset.velocity_sigma``, for fixes that
 state none); ``fix_velocity_lag_s`` from ``[gnss] velocity_lag_s`` (``"measured"``: ``dataset.velocity_lag``,
 which run.json reports for any data set whose fixes allow it); ``pseudorange_decimation`` so that the tight
@@ -215,6 +215,8 @@ def _dataset_inputs(path: Path, config, overrides: dict) -> Inputs:
     dt = dt[dt > 0]
     if len(dt):
         derived["imu_rate_hz"] = float(1.0 / np.median(dt))
+    if ds.imu.covers_gaps:
+        derived["imu_increments_cover_gaps"] = True
     uere = float(cfg0["fix_uere_m"])
     measured_lag = None
     if ds.fixes is not None and len(ds.fixes):

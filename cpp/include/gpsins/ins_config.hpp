@@ -29,6 +29,10 @@ struct InsConfig {
   // Gaps up to this are bridged with the previous rates; a longer one restarts
   // the navigation states (attitude and biases carried, covariance inflated).
   double max_gap_s = 0.5;
+  // The increments cover the whole step between stamps however long (rates
+  // integrated over each interval, as an IMU CSV of rates gives): a step up to
+  // max_gap_s is one increment, not a lost frame to bridge.
+  bool imu_increments_cover_gaps = false;
   double gap_accel_sigma_mps2 = 2.0;  // unknown acceleration over a long gap
   // Sensor range: a sample beyond it (x 1.05) is bad, replaced like a lost frame.
   // <= 0: no limit.

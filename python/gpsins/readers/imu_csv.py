@@ -1,7 +1,8 @@
 """IMU text tables (CSV or whitespace) with declared columns, units and time scale.
 
 Rates (g, m/s^2, rad/s, deg/s) become increments over each sampling interval by the
-trapezoid rule, so n rate samples give n - 1 increments ending at samples 1..n-1;
+trapezoid rule, so n rate samples give n - 1 increments ending at samples 1..n-1, and
+together they cover every step, a long one too;
 increments (m/s, rad, deg) are taken as they are, each ending at its own time stamp.
 Samples whose time does not increase are dropped and counted; a value that is not a
 number is an error naming the file, line and column.
@@ -36,6 +37,9 @@ class ImuData:
     dv_mps: np.ndarray  # (n, 3)
     source: str = ""
     skipped: Counter = field(default_factory=Counter)
+    # Each increment covers the whole step from the previous stamp (rates integrated over it), so a
+    # long step is no lost frame for the filter to bridge (its imu_increments_cover_gaps).
+    covers_gaps: bool = False
 
     def __len__(self) -> int:
         return len(self.t_abs)
@@ -143,7 +147,8 @@ def read(path: str | Path, columns, time: str = "gpst_unix", accel_unit: str = "
             dv = dv[1:]
         if not GYRO_UNITS[gyro_unit][1]:
             dth = dth[1:]
-    return ImuData(t, dth, dv, path.name, skipped)
+    covers = ACCEL_UNITS[accel_unit][1] and GYRO_UNITS[gyro_unit][1]
+    return ImuData(t, dth, dv, path.name, skipped, covers_gaps=covers)
 
 
 def _increments(t: np.ndarray, x: np.ndarray, rates: bool) -> np.ndarray:
