@@ -133,6 +133,29 @@ def test_a_fix_at_saturated_dop_is_not_used(default_drive):
     assert worst["unmasked"] > worst["masked"] + 1.0
 
 
+def test_a_fix_at_saturated_dop_sets_no_heading(default_drive):
+    """The fix the heading would come from (the first at heading_min_speed_mps), at HDOP 99.9 with
+    its velocity turned 90 degrees: it set the heading 90 degrees off before the DOP mask was
+    looked at. Masked, it is as if absent."""
+    s = default_drive
+    fixes = sim.fix_table(s)
+    cfg = flt.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), "fix_max_dop": 20.0,
+                                 "heading_max_course_sigma_deg": 0.0})  # a vehicle's course only
+    first = [e["t"] for e in flt.run(sim.imu_table(s), fixes, cfg).event_list() if e["kind"] == "heading_set"][0]
+    k = int(np.argmin(np.abs(fixes[:, 0] - first)))
+    assert np.all(np.isfinite(fixes[k, 4:7]))
+    up = fixes[k, 1:4] / np.linalg.norm(fixes[k, 1:4])
+    fixes[k, 4:7] = np.cross(up, fixes[k, 4:7])  # the same speed, 90 degrees to the left
+    fixes[k, 7:9] = 99.9
+    sol = flt.run(sim.imu_table(s), fixes, cfg)
+    clean = flt.run(sim.imu_table(s), np.delete(fixes, k, axis=0), cfg)
+    set_at = [e["t"] for e in sol.event_list() if e["kind"] == "heading_set"]
+    assert set_at[0] > fixes[k, 0]
+    yaw = lambda r: np.abs(evaluate.nav_errors(r, truth_of(s)).ypr_deg[r.heading_known, 0])  # noqa: E731
+    np.testing.assert_allclose(yaw(sol), yaw(clean), rtol=1e-6, atol=1e-9)
+    assert yaw(sol)[:100].max() < 10.0
+
+
 def test_ten_seconds_of_zero_delta_v_recovers_through_a_gnss_reset(default_drive):
     s = default_drive
     imu = sim.imu_table(s)

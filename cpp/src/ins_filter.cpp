@@ -875,6 +875,13 @@ UpdateResult<M> InsFilter<NB, NC>::apply(const Measurement<M, K>& m, int dof) {
 
 template <int NB, int NC>
 void InsFilter<NB, NC>::process_fix(const FixInput& fix) {
+  if (cfg_.fix_max_dop > 0.0 && (fix.hdop > cfg_.fix_max_dop || (fix.mode == 2 && fix.vdop > cfg_.fix_max_dop))) {
+    // A 3D fix 300 m off at HDOP 99.9 passed the gate on the simulated motorway and pulled
+    // the filter onto the 2D fixes 200 m off that followed. Its velocity is no better: it
+    // sets no heading and no speed, and it is no previous fix to difference with.
+    ++counters_.fixes_dop_masked;
+    return;
+  }
   const Geodetic llh = ecef_to_geodetic(fix.r_ecef_m);
   const Mat3 c_en = rot_ned_to_ecef(llh.lat_rad, llh.lon_rad);
 
@@ -916,14 +923,6 @@ void InsFilter<NB, NC>::process_fix(const FixInput& fix) {
     return;
   }
 
-  if (cfg_.fix_max_dop > 0.0 && (fix.hdop > cfg_.fix_max_dop || (fix.mode == 2 && fix.vdop > cfg_.fix_max_dop))) {
-    // A 3D fix 300 m off at HDOP 99.9 passed the gate on the simulated motorway and pulled
-    // the filter onto the 2D fixes 200 m off that followed.
-    ++counters_.fixes_dop_masked;
-    prev_fix_ = fix;
-    have_prev_fix_ = true;
-    return;
-  }
   Mat3 r_cov;
   if ((cfg_.fix_sigma_ecef_m.array() > 0.0).all()) {
     r_cov = square(cfg_.fix_sigma_ecef_m).asDiagonal();
