@@ -515,3 +515,30 @@ def test_a_declared_imu_offset_leaves_an_estimate_of_zero(sim_set, tmp_path):
 def test_without_the_offset_state_nothing_reports_one(right_run):
     right, _, _ = right_run
     assert "time_offset" not in right
+
+
+@pytest.mark.xfail(strict=True, reason="known: after the restart the estimate leaves the truth. Measured: 44.0 ms "
+                   "(sigma 7.6) before the 2 s gap, 38.4 ms just after, -70 ms 2.5 s later and -41.8 +- 3.1 ms at the "
+                   "end; also without the fix velocities (-21.7 +- 5.6 ms), while bridging the gap instead "
+                   "(max_gap_s = 5) keeps 41.4 +- 5.8 ms. The variance is carried (7.1 ms after), the estimate is "
+                   "then pulled by the updates after the restart; not yet understood")
+def test_an_imu_gap_restart_keeps_the_offset_estimate_and_its_sigma(sim_set, tmp_path):
+    """The offset is a property of the sensors: a restart after an IMU gap (here 2 s cut out at 80 s, where the
+    estimate has settled) resets the navigation but carries dt_imu and its variance over."""
+    sim, path = sim_set
+    lines = (path.parent / "imu.csv").read_text().splitlines(keepends=True)
+    t = np.array([float(x.split(",", 1)[0]) for x in lines[1:]])
+    cut = (t > t[0] + 80.0) & (t < t[0] + 82.0)
+    (path.parent / "imu_gap.csv").write_text(lines[0] + "".join(x for x, c in zip(lines[1:], cut) if not c))
+    gap = lambda s: re.sub(r"time_offset_s = .*", "time_offset_s = 0.0", s).replace(  # noqa: E731
+        'file = "imu.csv"', 'file = "imu_gap.csv"')
+    s, _, _ = _run_variant(sim_set, tmp_path, "gap_estimated", gap, overrides={"estimate_time_offset": True})
+    restarts = [e["t"] for e in s["events"] if e["kind"] == "imu_gap_restart"]
+    assert len(restarts) == 1
+    z = results_mod.load(tmp_path / "gap_estimated")
+    before, after = np.searchsorted(z["t"], restarts[0] - 2.0) - 1, np.searchsorted(z["t"], restarts[0], side="right")
+    print(f"\nIMU gap restart: offset {z['time_offset_s'][before]:.4f} s (sigma {z['sigma'][before, -1]:.4f}) before, "
+          f"{z['time_offset_s'][after]:.4f} s (sigma {z['sigma'][after, -1]:.4f}) after; final {s['time_offset']}")
+    assert z["sigma"][after, -1] <= 1.05 * z["sigma"][before, -1] < 0.02  # not back at its 0.05 s prior
+    assert abs(z["time_offset_s"][after] - z["time_offset_s"][before]) < 0.005
+    assert abs(s["time_offset"]["estimate_s"] - OFFSET_S) < 3 * s["time_offset"]["sigma_s"]
