@@ -468,3 +468,77 @@ def test_outage_table_puts_the_smoothed_drift_beside_the_forward(tmp_path):
     buf = io.StringIO()
     report.print_outage_table(summary, buf)
     assert "smooth" not in buf.getvalue()
+
+
+# --- the IMU time offset as a state (estimate_time_offset) -----------------------------------------------------
+
+def test_a_missing_imu_offset_is_estimated_and_the_solution_recovers(sim_set, right_run, tmp_path):
+    """The sim's IMU stamps are OFFSET_S early; declared 0, the state must find OFFSET_S (the simulator's
+    truth, not anything the filter printed) and the IMU point's error must come back near the declared run's."""
+    no_offset = lambda s: re.sub(r"time_offset_s = .*", "time_offset_s = 0.0", s)  # noqa: E731
+    _, _, rms_right = right_run
+    _, _, rms_off = _run_variant(sim_set, tmp_path, "undeclared", no_offset)
+    on, _, rms_on = _run_variant(sim_set, tmp_path, "undeclared_estimated", no_offset,
+                                 overrides={"estimate_time_offset": True}, smooth=True)
+    to = on["time_offset"]
+    z = results_mod.load(tmp_path / "undeclared_estimated")
+    first = int(np.argmin(z["smooth_t"]))  # the smoothed solution's first epoch
+    sm_offset, sm_sigma = z["smooth_time_offset_s"][first], z["smooth_sigma"][first, -1]
+    print(f"\nundeclared {OFFSET_S} s IMU offset estimated: {to['estimate_s']:.4f} s (sigma {to['sigma_s']:.4f}); "
+          f"IMU-point H RMS {rms_on:.3f} m (state off {rms_off:.3f}, declared right {rms_right:.3f}); smoothed "
+          f"{sm_offset:.4f} s at the start (sigma {sm_sigma:.4f})")
+    assert to["applied_s"] == 0.0
+    assert abs(to["estimate_s"] - OFFSET_S) < 3 * to["sigma_s"]
+    assert abs(to["estimate_s"] - OFFSET_S) < 0.01
+    assert to["sigma_s"] < 0.01
+    # (measured: 0.767 m against 0.941 off and 0.707 declared; most of what remains is the first 35 s, before the
+    # estimate has settled. Its positions are at GNSS time: the nominal's moved back by v dt_imu.)
+    assert rms_off > 1.2 * rms_right
+    assert rms_on < rms_right + 0.4 * (rms_off - rms_right)
+    # Per epoch: the column and its sigma (the last state), the sigma shrinking from its prior.
+    assert z["time_offset_s"][-1] == to["estimate_s"] and z["sigma"][-1, -1] == to["sigma_s"]
+    assert z["sigma"][0, -1] == pytest.approx(0.05, rel=0.05)
+    # The smoother carries the offset back to the start.
+    assert abs(sm_offset - OFFSET_S) < 3 * sm_sigma
+    assert sm_sigma < 0.5 * z["sigma"][0, -1]
+
+
+def test_a_declared_imu_offset_leaves_an_estimate_of_zero(sim_set, tmp_path):
+    s, _, _ = _run_variant(sim_set, tmp_path, "declared_estimated", overrides={"estimate_time_offset": True})
+    to = s["time_offset"]
+    print(f"\ndeclared {OFFSET_S} s IMU offset: residual estimate {to['estimate_s']:.4f} s (sigma {to['sigma_s']:.4f})")
+    assert to["applied_s"] == OFFSET_S
+    assert abs(to["estimate_s"]) < 3 * to["sigma_s"]
+    assert to["sigma_s"] < 0.01
+
+
+def test_without_the_offset_state_nothing_reports_one(right_run):
+    right, _, _ = right_run
+    assert "time_offset" not in right
+
+
+@pytest.mark.xfail(strict=True, reason="known: after the restart the estimate leaves the truth. Measured: 44.0 ms "
+                   "(sigma 7.6) before the 2 s gap, 38.4 ms just after, -70 ms 2.5 s later and -41.8 +- 3.1 ms at the "
+                   "end; also without the fix velocities (-21.7 +- 5.6 ms), while bridging the gap instead "
+                   "(max_gap_s = 5) keeps 41.4 +- 5.8 ms. The variance is carried (7.1 ms after), the estimate is "
+                   "then pulled by the updates after the restart; not yet understood")
+def test_an_imu_gap_restart_keeps_the_offset_estimate_and_its_sigma(sim_set, tmp_path):
+    """The offset is a property of the sensors: a restart after an IMU gap (here 2 s cut out at 80 s, where the
+    estimate has settled) resets the navigation but carries dt_imu and its variance over."""
+    sim, path = sim_set
+    lines = (path.parent / "imu.csv").read_text().splitlines(keepends=True)
+    t = np.array([float(x.split(",", 1)[0]) for x in lines[1:]])
+    cut = (t > t[0] + 80.0) & (t < t[0] + 82.0)
+    (path.parent / "imu_gap.csv").write_text(lines[0] + "".join(x for x, c in zip(lines[1:], cut) if not c))
+    gap = lambda s: re.sub(r"time_offset_s = .*", "time_offset_s = 0.0", s).replace(  # noqa: E731
+        'file = "imu.csv"', 'file = "imu_gap.csv"')
+    s, _, _ = _run_variant(sim_set, tmp_path, "gap_estimated", gap, overrides={"estimate_time_offset": True})
+    restarts = [e["t"] for e in s["events"] if e["kind"] == "imu_gap_restart"]
+    assert len(restarts) == 1
+    z = results_mod.load(tmp_path / "gap_estimated")
+    before, after = np.searchsorted(z["t"], restarts[0] - 2.0) - 1, np.searchsorted(z["t"], restarts[0], side="right")
+    print(f"\nIMU gap restart: offset {z['time_offset_s'][before]:.4f} s (sigma {z['sigma'][before, -1]:.4f}) before, "
+          f"{z['time_offset_s'][after]:.4f} s (sigma {z['sigma'][after, -1]:.4f}) after; final {s['time_offset']}")
+    assert z["sigma"][after, -1] <= 1.05 * z["sigma"][before, -1] < 0.02  # not back at its 0.05 s prior
+    assert abs(z["time_offset_s"][after] - z["time_offset_s"][before]) < 0.005
+    assert abs(s["time_offset"]["estimate_s"] - OFFSET_S) < 3 * s["time_offset"]["sigma_s"]

@@ -40,20 +40,26 @@ namespace {
 
 using Array = py::array_t<double, py::array::c_style | py::array::forcecast>;
 using AnyFilter = std::variant<InsFilter<5, 0>, InsFilter<7, 0>, InsFilter<5, 2>, InsFilter<7, 2>, InsFilter<5, 3>,
-                               InsFilter<7, 3>>;
+                               InsFilter<7, 3>, InsFilter<5, 0, 1>, InsFilter<7, 0, 1>, InsFilter<5, 2, 1>,
+                               InsFilter<7, 2, 1>, InsFilter<5, 3, 1>, InsFilter<7, 3, 1>>;
 
 // Tight: clock states (NC = 2). Loose: fix-error states (NC = 3) when configured.
-AnyFilter make_filter(const InsConfig& cfg, bool tight) {
+// NT = 1: the IMU time offset state.
+template <int NT>
+AnyFilter make_filter_nt(const InsConfig& cfg, bool tight) {
   if (tight) {
-    if (cfg.scale_factor_states) return InsFilter<7, 2>(cfg);
-    return InsFilter<5, 2>(cfg);
+    if (cfg.scale_factor_states) return InsFilter<7, 2, NT>(cfg);
+    return InsFilter<5, 2, NT>(cfg);
   }
   if ((cfg.fix_error_gm_sigma_m.array() > 0.0).any()) {
-    if (cfg.scale_factor_states) return InsFilter<7, 3>(cfg);
-    return InsFilter<5, 3>(cfg);
+    if (cfg.scale_factor_states) return InsFilter<7, 3, NT>(cfg);
+    return InsFilter<5, 3, NT>(cfg);
   }
-  if (cfg.scale_factor_states) return InsFilter<7, 0>(cfg);
-  return InsFilter<5, 0>(cfg);
+  if (cfg.scale_factor_states) return InsFilter<7, 0, NT>(cfg);
+  return InsFilter<5, 0, NT>(cfg);
+}
+AnyFilter make_filter(const InsConfig& cfg, bool tight) {
+  return cfg.estimate_time_offset ? make_filter_nt<1>(cfg, tight) : make_filter_nt<0>(cfg, tight);
 }
 
 constexpr int kImuCols = 7;   // t, dtheta xyz, dv xyz
@@ -141,12 +147,12 @@ py::dict update_dict(const UpdateRecord& u) {
 }
 
 // Row layout of a batch's state output: t, r, v, q, bg, ba, [sg, sa], the NC
-// augmented states (clock bias and drift, or the fix error), sigmas, flags.
-template <int NB, int NC>
+// augmented states (clock bias and drift, or the fix error), [the time offset], sigmas, flags.
+template <int NB, int NC, int NT>
 struct StateRow {
-  static constexpr int N = 3 * NB + NC;
-  static constexpr int kCols = 1 + 3 + 3 + 4 + 3 + 3 + (NB == 7 ? 6 : 0) + NC + N + 1;
-  static void write(const InsFilter<NB, NC>& f, double* o) {
+  static constexpr int N = 3 * NB + NC + NT;
+  static constexpr int kCols = 1 + 3 + 3 + 4 + 3 + 3 + (NB == 7 ? 6 : 0) + NC + NT + N + 1;
+  static void write(const InsFilter<NB, NC, NT>& f, double* o) {
     const auto& e = f.core();
     int k = 0;
     o[k++] = e.nav.t_s;
@@ -168,6 +174,7 @@ struct StateRow {
     }
     if constexpr (NC == 3)
       for (int i = 0; i < 3; ++i) o[k++] = e.fix_error(i);
+    if constexpr (NT == 1) o[k++] = e.time_offset_s;
     const auto s = e.sigma();
     for (int i = 0; i < N; ++i) o[k++] = s(i);
     o[k++] = (f.standstill() ? 1.0 : 0.0) + (f.heading_known() ? 2.0 : 0.0);  // flags
@@ -201,9 +208,9 @@ PseudorangeEpoch pr_epoch(const double* p, py::ssize_t start, py::ssize_t end) {
 // sink(dict(state=..., covariance=..., first=index of its first row)) as soon
 // as it is complete, so the caller can write it out. With no sink the whole
 // smoothed run is returned as smooth_state / smooth_covariance.
-template <int NB, int NC>
-py::dict smooth_recorded(EskfRecorder<NB, NC>& rec, bool with_cov, py::object sink, long block_rows) {
-  using Rec = EskfRecorder<NB, NC>;
+template <int NB, int NC, int NT>
+py::dict smooth_recorded(EskfRecorder<NB, NC, NT>& rec, bool with_cov, py::object sink, long block_rows) {
+  using Rec = EskfRecorder<NB, NC, NT>;
   constexpr int N = Rec::N, kNom = Rec::kNominal;
   constexpr int kCols = kNom + N;  // nominal without flags, sigma, flags
   const long n = rec.outputs();
@@ -273,9 +280,9 @@ struct BatchCarry {
 };
 
 // The recorder run_batch made for this filter type.
-template <int NB, int NC>
-EskfRecorder<NB, NC>* recorder_of(const InsFilter<NB, NC>&, void* p) {
-  return static_cast<EskfRecorder<NB, NC>*>(p);
+template <int NB, int NC, int NT>
+EskfRecorder<NB, NC, NT>* recorder_of(const InsFilter<NB, NC, NT>&, void* p) {
+  return static_cast<EskfRecorder<NB, NC, NT>*>(p);
 }
 
 // Input rows of this call within the whole run, for output decimation and messages.
@@ -288,11 +295,11 @@ struct RowOffsets {
 // of each call those up to its last IMU time); the result is then the same as
 // one call over the whole arrays. record: keep (or go on keeping) the
 // smoother's record of the forward pass in carry.
-template <int NB, int NC>
-py::dict run_batch(InsFilter<NB, NC>& f, const Array& imu, const Array& fixes, const Array& prs, const Array& att,
+template <int NB, int NC, int NT>
+py::dict run_batch(InsFilter<NB, NC, NT>& f, const Array& imu, const Array& fixes, const Array& prs, const Array& att,
                    int output_every, bool with_cov, bool record, double smooth_chunk_mb, BatchCarry& carry,
                    const RowOffsets& offset) {
-  using Row = StateRow<NB, NC>;
+  using Row = StateRow<NB, NC, NT>;
   const py::ssize_t n = imu.shape(0), m = fixes.shape(0);
   const int fc = static_cast<int>(fixes.shape(1));
   std::vector<double> rows;
@@ -315,7 +322,7 @@ py::dict run_batch(InsFilter<NB, NC>& f, const Array& imu, const Array& fixes, c
   const char* bad_what = nullptr;
   double bad_t = 0.0;
   InputStatus bad = InputStatus::Ok;
-  using Recorder = EskfRecorder<NB, NC>;
+  using Recorder = EskfRecorder<NB, NC, NT>;
   if (record && !carry.recorder)
     carry.recorder = std::make_shared<Recorder>(static_cast<std::size_t>(smooth_chunk_mb * 1048576.0));
   // The filter's type never changes, so the recorder is the one made above for it.
@@ -438,7 +445,7 @@ py::dict run_batch(InsFilter<NB, NC>& f, const Array& imu, const Array& fixes, c
   out["events"] = evd;
   out["counters"] = counters_dict(f.counters());
   out["fixes_after_end"] = m - j;
-  out["n_states"] = NB * 3 + NC;
+  out["n_states"] = NB * 3 + NC + NT;
   return out;
 }
 
@@ -641,6 +648,9 @@ void bind_filter(py::module_& m) {
   GPSINS_FIELD(pseudorange_ionosphere);
   GPSINS_FIELD(pseudorange_troposphere);
   GPSINS_FIELD(gps_time_offset_s);
+  GPSINS_FIELD(estimate_time_offset);
+  GPSINS_FIELD(time_offset_sigma_s);
+  GPSINS_FIELD(time_offset_rw_s_per_sqrt_s);
   GPSINS_FIELD(zero_velocity_updates);
   GPSINS_FIELD(standstill_window_s);
   GPSINS_FIELD(standstill_block_s);
@@ -714,6 +724,8 @@ void bind_filter(py::module_& m) {
       .def_property_readonly("accel_bias", [](const PyFilter& p) { return p.with([](const auto& f) { return Vec3(f.core().imu.accel_bias_mps2); }); })
       .def_property_readonly("clock", [](const PyFilter& p) { return p.with([](const auto& f) { return Eigen::Vector2d(f.core().clock); }); })
       .def_property_readonly("fix_error", [](const PyFilter& p) { return p.with([](const auto& f) { return Vec3(f.core().fix_error); }); })
+      .def_property_readonly("time_offset", [](const PyFilter& p) { return p.with([](const auto& f) { return f.core().time_offset_s; }); },
+                             "The IMU time offset estimate (s; 0 without estimate_time_offset): add it to the declared one.")
       .def_property_readonly("covariance", [](const PyFilter& p) {
         return p.with([](const auto& f) { return Eigen::MatrixXd(f.core().P); }); })
       .def_property_readonly("counters", [](const PyFilter& p) { return p.with([](const auto& f) { return counters_dict(f.counters()); }); })

@@ -8,6 +8,7 @@
 #include "gpsins/aiding/nonholonomic.hpp"
 #include "gpsins/aiding/position_fix.hpp"
 #include "gpsins/aiding/pseudorange.hpp"
+#include "gpsins/aiding/time_offset.hpp"
 #include "gpsins/gnss/spp.hpp"
 #include "gpsins/aiding/velocity.hpp"
 #include "gpsins/aiding/zero_rate.hpp"
@@ -16,6 +17,9 @@
 
 namespace gpsins {
 
+// ins_filter_time_offset.cpp compiles this file again for the instantiations with
+// the time offset state (NT = 1), so that the two halves build in parallel.
+#ifndef GPSINS_INS_FILTER_TIME_OFFSET
 const char* input_status_text(InputStatus s) {
   switch (s) {
     case InputStatus::Ok: return "ok";
@@ -25,6 +29,7 @@ const char* input_status_text(InputStatus s) {
   }
   return "unknown";
 }
+#endif
 
 namespace {
 
@@ -57,6 +62,7 @@ ProcessNoise noise_of(const InsConfig& c) {
   q.clock_drift_var = c.clock_drift_noise_mps_per_sqrt_s * c.clock_drift_noise_mps_per_sqrt_s;
   q.fix_error_var_ned = square(c.fix_error_gm_sigma_m);
   q.fix_error_inv_tau = c.fix_error_gm_tau_s > 0.0 ? 1.0 / c.fix_error_gm_tau_s : 0.0;
+  q.time_offset_var = c.time_offset_rw_s_per_sqrt_s * c.time_offset_rw_s_per_sqrt_s;
   return q;
 }
 
@@ -117,8 +123,8 @@ bool force_at_rest(const Core& core, const StandstillDetector& det, const InsCon
 
 }  // namespace
 
-template <int NB, int NC>
-InsFilter<NB, NC>::InsFilter(const InsConfig& cfg) : cfg_(cfg), detector_(thresholds_of(cfg)) {
+template <int NB, int NC, int NT>
+InsFilter<NB, NC, NT>::InsFilter(const InsConfig& cfg) : cfg_(cfg), detector_(thresholds_of(cfg)) {
   core_.noise = noise_of(cfg);
   dt_nominal_ = cfg.imu_rate_hz > 0.0 ? 1.0 / cfg.imu_rate_hz : 1.0 / 64.0;
   const bool chi2 = cfg.update_check == UpdateCheck::ChiSquare || cfg.update_check == UpdateCheck::Both;
@@ -134,8 +140,8 @@ InsFilter<NB, NC>::InsFilter(const InsConfig& cfg) : cfg_(cfg), detector_(thresh
   pr_used_t_.fill(std::numeric_limits<double>::quiet_NaN());
 }
 
-template <int NB, int NC>
-Increment InsFilter<NB, NC>::calibrated(double dt, const Vec3& dtheta, const Vec3& dv) const {
+template <int NB, int NC, int NT>
+Increment InsFilter<NB, NC, NT>::calibrated(double dt, const Vec3& dtheta, const Vec3& dv) const {
   Increment inc;
   inc.dt_s = dt;
   inc.dtheta_rad = (dtheta - cfg_.gyro_bias_cal_rad_per_s * dt).cwiseQuotient(Vec3::Ones() + cfg_.gyro_scale_factor_cal);
@@ -143,8 +149,8 @@ Increment InsFilter<NB, NC>::calibrated(double dt, const Vec3& dtheta, const Vec
   return inc;
 }
 
-template <int NB, int NC>
-InputStatus InsFilter<NB, NC>::push_fix(const FixInput& given) {
+template <int NB, int NC, int NT>
+InputStatus InsFilter<NB, NC, NT>::push_fix(const FixInput& given) {
   FixInput fix = given;
   if (!std::isfinite(fix.t_s)) return InputStatus::NonFinite;
   const bool solution = fix.mode == 2 || fix.mode == 3;
@@ -184,8 +190,8 @@ InputStatus InsFilter<NB, NC>::push_fix(const FixInput& given) {
   return InputStatus::Ok;
 }
 
-template <int NB, int NC>
-InputStatus InsFilter<NB, NC>::push_imu(double t_s, const Vec3& dtheta_rad, const Vec3& dv_mps) {
+template <int NB, int NC, int NT>
+InputStatus InsFilter<NB, NC, NT>::push_imu(double t_s, const Vec3& dtheta_rad, const Vec3& dv_mps) {
   if (!std::isfinite(t_s) || !dtheta_rad.allFinite() || !dv_mps.allFinite()) return InputStatus::NonFinite;
   if (have_time_ && !(t_s > t_last_)) return InputStatus::TimeNotIncreasing;
   double span = have_time_ ? t_s - t_last_ : dt_nominal_;
@@ -242,8 +248,8 @@ InputStatus InsFilter<NB, NC>::push_imu(double t_s, const Vec3& dtheta_rad, cons
   return InputStatus::Ok;
 }
 
-template <int NB, int NC>
-InputStatus InsFilter<NB, NC>::push_attitude(const AttitudeInput& a) {
+template <int NB, int NC, int NT>
+InputStatus InsFilter<NB, NC, NT>::push_attitude(const AttitudeInput& a) {
   if (!std::isfinite(a.t_s) || !std::isfinite(a.yaw_rad) || !std::isfinite(a.sigma_yaw_rad))
     return InputStatus::NonFinite;
   if (!(a.sigma_yaw_rad > 0.0) || (std::isfinite(a.pitch_rad) && !(a.sigma_pitch_rad > 0.0)))
@@ -268,8 +274,8 @@ InputStatus InsFilter<NB, NC>::push_attitude(const AttitudeInput& a) {
 // heading measurement sets it through the ordinary update: the yaw row is
 // linear in the attitude error about the vertical, so one update moves the
 // yaw by the whole (wrapped) innovation.
-template <int NB, int NC>
-void InsFilter<NB, NC>::process_attitude(const AttitudeInput& a, const Increment& inc) {
+template <int NB, int NC, int NT>
+void InsFilter<NB, NC, NT>::process_attitude(const AttitudeInput& a, const Increment& inc) {
   if (!initialised_) return;
   ++counters_.baseline_attitude_updates;
   const Vec3 b = cfg_.antenna_baseline_body.normalized();
@@ -301,8 +307,8 @@ void InsFilter<NB, NC>::process_attitude(const AttitudeInput& a, const Increment
 }
 
 // The nominal step: the median of the last kSteps steps of the time stamps.
-template <int NB, int NC>
-void InsFilter<NB, NC>::track_step(double span) {
+template <int NB, int NC, int NT>
+void InsFilter<NB, NC, NT>::track_step(double span) {
   steps_[static_cast<std::size_t>(steps_head_)] = span;
   steps_head_ = (steps_head_ + 1) % kSteps;
   steps_count_ = std::min(steps_count_ + 1, kSteps);
@@ -313,16 +319,16 @@ void InsFilter<NB, NC>::track_step(double span) {
 }
 
 // The sample's largest rate or specific force as a fraction of its range (0: no range set).
-template <int NB, int NC>
-double InsFilter<NB, NC>::out_of_range(const Vec3& dtheta, const Vec3& dv, double dt) const {
+template <int NB, int NC, int NT>
+double InsFilter<NB, NC, NT>::out_of_range(const Vec3& dtheta, const Vec3& dv, double dt) const {
   double r = 0.0;
   if (cfg_.gyro_range_rad_per_s > 0.0) r = std::max(r, dtheta.cwiseAbs().maxCoeff() / dt / cfg_.gyro_range_rad_per_s);
   if (cfg_.accel_range_mps2 > 0.0) r = std::max(r, dv.cwiseAbs().maxCoeff() / dt / cfg_.accel_range_mps2);
   return r;
 }
 
-template <int NB, int NC>
-void InsFilter<NB, NC>::event(int kind, double value) {
+template <int NB, int NC, int NT>
+void InsFilter<NB, NC, NT>::event(int kind, double value) {
   if (events_) events_->push_back(FilterEvent{t_last_, kind, value});
 }
 
@@ -332,8 +338,8 @@ void InsFilter<NB, NC>::event(int kind, double value) {
 // spread of an unknown acceleration over the gap. Fixes inside the gap are used
 // at their times on a constant-velocity coast. Before initialisation the
 // levelling starts over.
-template <int NB, int NC>
-void InsFilter<NB, NC>::restart_after_gap(double gap_s, double t_end) {
+template <int NB, int NC, int NT>
+void InsFilter<NB, NC, NT>::restart_after_gap(double gap_s, double t_end) {
   ++counters_.imu_gap_restarts;
   event(kImuGapRestart, gap_s);
   detector_.reset();
@@ -375,7 +381,8 @@ void InsFilter<NB, NC>::restart_after_gap(double gap_s, double t_end) {
     pending_pr_count_ = 0;  // the clock restarts from the next epoch after the gap
     core_.note_restart(Core::kClock, 2);
   }
-  core_.note_restart(0, 9);
+  core_.note_restart(0, 9);  // the time offset is kept: a property of the sensors
+  if constexpr (NT == 1) accel_ecef_.setZero();  // the coast below has none
   heading_known_ = false;
   rejecting_ = false;
   auto coast = [&](double dt) {
@@ -404,8 +411,8 @@ void InsFilter<NB, NC>::restart_after_gap(double gap_s, double t_end) {
 }
 
 // Sustained rejection while the receiver reports solutions: true when a reset is due.
-template <int NB, int NC>
-void InsFilter<NB, NC>::note_gnss(bool accepted, double t) {
+template <int NB, int NC, int NT>
+void InsFilter<NB, NC, NT>::note_gnss(bool accepted, double t) {
   if (accepted) {
     rejecting_ = false;
   } else if (!rejecting_) {
@@ -416,8 +423,8 @@ void InsFilter<NB, NC>::note_gnss(bool accepted, double t) {
 
 // Position and velocity from GNSS with their initial spread (PX4 EKF2's reset
 // after its fusion timeout); cross terms with the other states dropped.
-template <int NB, int NC>
-void InsFilter<NB, NC>::reset_to_fix(const FixInput& fix) {
+template <int NB, int NC, int NT>
+void InsFilter<NB, NC, NT>::reset_to_fix(const FixInput& fix) {
   ++counters_.gnss_resets;
   counters_.diverged = true;
   event(kGnssReset, fix.t_s - rejected_since_);
@@ -434,6 +441,8 @@ void InsFilter<NB, NC>::reset_to_fix(const FixInput& fix) {
   } else {
     var_v += core_.nav.v_ecef_mps.squaredNorm() + 100.0;
   }
+  // The nominal stands for the fix's time plus the IMU time offset.
+  if constexpr (NT == 1) core_.nav.r_ecef_m += core_.nav.v_ecef_mps * core_.time_offset_s;
   P.template middleRows<6>(es::vel).setZero();
   P.template middleCols<6>(es::vel).setZero();
   P.template block<3, 3>(es::vel, es::vel) = Mat3::Identity() * var_v;
@@ -450,8 +459,8 @@ void InsFilter<NB, NC>::reset_to_fix(const FixInput& fix) {
 // variance grows accordingly (as a random walk over one second). The part of
 // the horizontal specific force a tilt error explains (0.1 m/s^2, about half a
 // degree) is left to the attitude states; standing still there is none.
-template <int NB, int NC>
-void InsFilter<NB, NC>::inflate_unknown_heading(const Increment& inc) {
+template <int NB, int NC, int NT>
+void InsFilter<NB, NC, NT>::inflate_unknown_heading(const Increment& inc) {
   if (!(inc.dt_s > 0.0)) return;
   const Vec3 u = core_.nav.r_ecef_m.normalized();
   const Vec3 f = core_.nav.q_eb * (inc.dv_mps / inc.dt_s - core_.imu.accel_bias_mps2);
@@ -462,14 +471,14 @@ void InsFilter<NB, NC>::inflate_unknown_heading(const Increment& inc) {
 
 // The core's propagation over `inc` (which ends at t_end), keeping its velocity
 // change when fix velocities lag.
-template <int NB, int NC>
-void InsFilter<NB, NC>::propagate_nav(const Increment& inc, double t_end) {
-  if (!(cfg_.fix_velocity_lag_s > 0.0)) {
-    core_.propagate(inc);
-    return;
-  }
+template <int NB, int NC, int NT>
+void InsFilter<NB, NC, NT>::propagate_nav(const Increment& inc, double t_end) {
   const Vec3 v0 = core_.nav.v_ecef_mps;
   core_.propagate(inc);
+  // The acceleration the mechanisation applied: the velocity fix's offset column.
+  if constexpr (NT == 1)
+    if (inc.dt_s > 0.0) accel_ecef_ = (core_.nav.v_ecef_mps - v0) / inc.dt_s;
+  if (!(cfg_.fix_velocity_lag_s > 0.0)) return;
   if (velocity_steps_.empty()) velocity_steps_.resize(kVelocitySteps);
   velocity_steps_[static_cast<std::size_t>(velocity_steps_head_)] = {t_end, inc.dt_s, core_.nav.v_ecef_mps - v0};
   velocity_steps_head_ = (velocity_steps_head_ + 1) % kVelocitySteps;
@@ -478,8 +487,8 @@ void InsFilter<NB, NC>::propagate_nav(const Increment& inc, double t_end) {
 
 // The navigation velocity's change by propagation from t0 to now (a step across t0
 // counts in proportion).
-template <int NB, int NC>
-Vec3 InsFilter<NB, NC>::velocity_change_since(double t0) const {
+template <int NB, int NC, int NT>
+Vec3 InsFilter<NB, NC, NT>::velocity_change_since(double t0) const {
   Vec3 sum = Vec3::Zero();
   for (int i = 1; i <= velocity_steps_count_; ++i) {
     const int at = (velocity_steps_head_ - i + kVelocitySteps) % kVelocitySteps;
@@ -493,8 +502,8 @@ Vec3 InsFilter<NB, NC>::velocity_change_since(double t0) const {
 
 // Propagate across `inc`, which starts at t_last_, stopping at every pending
 // fix inside it; t_last_ ends at its end.
-template <int NB, int NC>
-void InsFilter<NB, NC>::propagate_to(const Increment& inc) {
+template <int NB, int NC, int NT>
+void InsFilter<NB, NC, NT>::propagate_to(const Increment& inc) {
   Increment rest = inc;
   for (;;) {
     // The earliest held measurement inside this increment, fixes first on a tie.
@@ -547,8 +556,8 @@ void InsFilter<NB, NC>::propagate_to(const Increment& inc) {
 
 // The land-vehicle constraint while moving (standing, the zero-velocity update
 // says more); at most every nhc_interval_s.
-template <int NB, int NC>
-void InsFilter<NB, NC>::constrain_vehicle(const Increment& inc) {
+template <int NB, int NC, int NT>
+void InsFilter<NB, NC, NT>::constrain_vehicle(const Increment& inc) {
   if (!(inc.dt_s > 0.0) || standstill_ || t_last_ - last_nhc_t_ < cfg_.nhc_interval_s - 1e-9) return;
   if (core_.nav.v_ecef_mps.norm() < cfg_.nhc_min_speed_mps) return;
   last_nhc_t_ = t_last_;
@@ -557,8 +566,8 @@ void InsFilter<NB, NC>::constrain_vehicle(const Increment& inc) {
   ++counters_.nonholonomic_updates;
 }
 
-template <int NB, int NC>
-InputStatus InsFilter<NB, NC>::push_pseudoranges(const PseudorangeEpoch& ep) {
+template <int NB, int NC, int NT>
+InputStatus InsFilter<NB, NC, NT>::push_pseudoranges(const PseudorangeEpoch& ep) {
   if constexpr (NC == 0) {
     return InputStatus::BadValue;
   } else {
@@ -599,8 +608,8 @@ static double gm_update_factor(double dt, double tau) {
 // (pseudorange_error_gm_*, growing as 1 / sin(elevation)) and signal in space
 // (pseudorange_sis_*, the same at any elevation), each sigma^2 (1 + a) / (1 - a)
 // with its own tau, dt since the satellite's previous update.
-template <int NB, int NC>
-double InsFilter<NB, NC>::correlated_variance(int prn, double t, double el_rad, double ura_m) const {
+template <int NB, int NC, int NT>
+double InsFilter<NB, NC, NT>::correlated_variance(int prn, double t, double el_rad, double ura_m) const {
   const bool known = prn >= 1 && prn <= 32;
   const double dt = known ? t - pr_used_t_[static_cast<std::size_t>(prn)] : std::numeric_limits<double>::quiet_NaN();
   double var = 0.0;
@@ -615,8 +624,8 @@ double InsFilter<NB, NC>::correlated_variance(int prn, double t, double el_rad, 
 
 // The receiver's lock counter grows while a satellite stays locked (saturating);
 // a drop, or a satellite missing from an epoch, means the lock was lost.
-template <int NB, int NC>
-void InsFilter<NB, NC>::track_locks(const PseudorangeEpoch& ep) {
+template <int NB, int NC, int NT>
+void InsFilter<NB, NC, NT>::track_locks(const PseudorangeEpoch& ep) {
   std::array<bool, 33> seen{};
   for (int i = 0; i < ep.n; ++i) {
     const int prn = ep.prn[static_cast<std::size_t>(i)];
@@ -643,8 +652,8 @@ void InsFilter<NB, NC>::track_locks(const PseudorangeEpoch& ep) {
 // median when it lies beyond the gate on two epochs in a row (one is a tail
 // event) or far beyond it once; the drift too, from the last two medians,
 // unless the step is a whole number of milliseconds.
-template <int NB, int NC>
-void InsFilter<NB, NC>::check_clock(const PrUse* use, int n, double t) {
+template <int NB, int NC, int NT>
+void InsFilter<NB, NC, NT>::check_clock(const PrUse* use, int n, double t) {
   if constexpr (NC == 2) {
     std::array<double, PseudorangeEpoch::kMaxSats> res{}, var{};
     const Vec3 r_a = core_.nav.r_ecef_m + core_.nav.q_eb * cfg_.lever_arm_body_m;
@@ -695,8 +704,8 @@ void InsFilter<NB, NC>::check_clock(const PrUse* use, int n, double t) {
   }
 }
 
-template <int NB, int NC>
-void InsFilter<NB, NC>::process_pseudoranges(const PseudorangeEpoch& ep) {
+template <int NB, int NC, int NT>
+void InsFilter<NB, NC, NT>::process_pseudoranges(const PseudorangeEpoch& ep) {
   if constexpr (NC == 2) {
     // A satellite settles for a while after (re)acquisition (see track_locks).
     std::array<bool, PseudorangeEpoch::kMaxSats> settled{};
@@ -740,9 +749,13 @@ void InsFilter<NB, NC>::process_pseudoranges(const PseudorangeEpoch& ep) {
     if (n == 0) return;
     check_clock(use.data(), n, ep.t_s);
     bool any = false;
+    const Vec3 v_a = NT == 1 ? antenna_velocity_now() : Vec3::Zero();
     for (int i = 0; i < n; ++i) {
       const auto& u = use[static_cast<std::size_t>(i)];
-      const auto m = pseudorange(core_, cfg_.lever_arm_body_m, u.sat, u.pr_corr, u.sagnac, u.var);
+      auto m = pseudorange(core_, cfg_.lever_arm_body_m, u.sat, u.pr_corr, u.sagnac, u.var);
+      add_time_offset(m, core_, es::pos, v_a);  // the range rate the receiver's motion gives
+      if constexpr (NT == 1)
+        if (!heading_known_) m.H.col(Core::kTimeOffset).setZero();  // see process_fix
       const auto r = apply(m, 1);
       record(kPseudorange, r, 1, u.prn);
       ++(r.accepted ? counters_.pseudoranges_used : counters_.pseudoranges_rejected);
@@ -755,8 +768,8 @@ void InsFilter<NB, NC>::process_pseudoranges(const PseudorangeEpoch& ep) {
   }
 }
 
-template <int NB, int NC>
-void InsFilter<NB, NC>::initialise(const FixInput& fix) {
+template <int NB, int NC, int NT>
+void InsFilter<NB, NC, NT>::initialise(const FixInput& fix) {
   const Vec3 f_mean = level_f_sum_ / level_time_;
   Euler e = levelled(f_mean);
   e.yaw_rad = heading_known_ ? cfg_.initial_yaw_rad : 0.0;
@@ -789,6 +802,10 @@ void InsFilter<NB, NC>::initialise(const FixInput& fix) {
     core_.fix_error.setZero();
     P.template block<3, 3>(Core::kFixError, Core::kFixError) = core_.fix_error_stationary_cov();
   }
+  if constexpr (NT == 1) {  // the residual offset starts at zero: the data set's declared one is applied
+    core_.time_offset_s = 0.0;
+    P(Core::kTimeOffset, Core::kTimeOffset) = cfg_.time_offset_sigma_s * cfg_.time_offset_sigma_s;
+  }
   core_.note_restart(0, N);
   initialised_ = true;
   have_prev_fix_ = true;
@@ -799,8 +816,8 @@ void InsFilter<NB, NC>::initialise(const FixInput& fix) {
 // Until a heading is known its error is anything but small, so the linear
 // model must not couple it to the other states: keep the attitude error about
 // the local vertical uncorrelated and at its initial spread.
-template <int NB, int NC>
-void InsFilter<NB, NC>::decouple_yaw() {
+template <int NB, int NC, int NT>
+void InsFilter<NB, NC, NT>::decouple_yaw() {
   const Vec3 up_b = core_.nav.q_eb.conjugate() * core_.nav.r_ecef_m.normalized();
   const Mat3 keep = Mat3::Identity() - up_b * up_b.transpose();
   auto& P = core_.P;
@@ -813,8 +830,8 @@ void InsFilter<NB, NC>::decouple_yaw() {
 // First heading from the course over ground: velocity and position restart at
 // the fix (what the filter did before, without a heading, is not trustworthy
 // once moving); the tilt and the IMU error estimates learnt so far are kept.
-template <int NB, int NC>
-void InsFilter<NB, NC>::set_heading(const FixInput& fix, const Vec3& v_ecef, double course_rad, double sigma_rad) {
+template <int NB, int NC, int NT>
+void InsFilter<NB, NC, NT>::set_heading(const FixInput& fix, const Vec3& v_ecef, double course_rad, double sigma_rad) {
   const Geodetic llh = ecef_to_geodetic(fix.r_ecef_m);
   Euler e = euler_from_body_to_ecef(core_.nav.q_eb, llh.lat_rad, llh.lon_rad);
   e.yaw_rad = course_rad;
@@ -827,6 +844,7 @@ void InsFilter<NB, NC>::set_heading(const FixInput& fix, const Vec3& v_ecef, dou
   core_.nav.q_eb = quat_body_to_ecef(e, llh.lat_rad, llh.lon_rad);
   core_.nav.r_ecef_m = fix.r_ecef_m - core_.nav.q_eb * cfg_.lever_arm_body_m - fix_error_estimate(fix);
   core_.nav.v_ecef_mps = v_ecef;
+  if constexpr (NT == 1) core_.nav.r_ecef_m += v_ecef * core_.time_offset_s;  // as in reset_to_fix
   event(kHeadingSet, course_rad);
   auto& P = core_.P;
   P.template middleRows<3>(es::att) = (keep * P.template middleRows<3>(es::att)).eval();
@@ -841,9 +859,9 @@ void InsFilter<NB, NC>::set_heading(const FixInput& fix, const Vec3& v_ecef, dou
   heading_known_ = true;
 }
 
-template <int NB, int NC>
+template <int NB, int NC, int NT>
 template <int M>
-void InsFilter<NB, NC>::record(int kind, const UpdateResult<M>& r, int dof, int id) {
+void InsFilter<NB, NC, NT>::record(int kind, const UpdateResult<M>& r, int dof, int id) {
   UpdateRecord u;
   u.t_s = core_.nav.t_s;
   u.kind = kind;
@@ -867,14 +885,14 @@ void InsFilter<NB, NC>::record(int kind, const UpdateResult<M>& r, int dof, int 
   if (log_) log_->push_back(u);
 }
 
-template <int NB, int NC>
+template <int NB, int NC, int NT>
 template <int M, int K>
-UpdateResult<M> InsFilter<NB, NC>::apply(const Measurement<M, K>& m, int dof) {
+UpdateResult<M> InsFilter<NB, NC, NT>::apply(const Measurement<M, K>& m, int dof) {
   return core_.update(m.y, m.H, m.R, gate(dof), attitude_limit());
 }
 
-template <int NB, int NC>
-void InsFilter<NB, NC>::process_fix(const FixInput& fix) {
+template <int NB, int NC, int NT>
+void InsFilter<NB, NC, NT>::process_fix(const FixInput& fix) {
   if (cfg_.fix_max_dop > 0.0 && (fix.hdop > cfg_.fix_max_dop || (fix.mode == 2 && fix.vdop > cfg_.fix_max_dop))) {
     // A 3D fix 300 m off at HDOP 99.9 passed the gate on the simulated motorway and pulled
     // the filter onto the 2D fixes 200 m off that followed. Its velocity is no better: it
@@ -933,7 +951,13 @@ void InsFilter<NB, NC>::process_fix(const FixInput& fix) {
     r_cov = c_en * square(s).asDiagonal() * c_en.transpose();
   }
   r_cov += fast_fix_error_cov(fix, c_en);
-  const auto m = position_fix(core_, fix.r_ecef_m, r_cov, cfg_.lever_arm_body_m, fix_error_map(fix));
+  auto m = position_fix(core_, fix.r_ecef_m, r_cov, cfg_.lever_arm_body_m, fix_error_map(fix));
+  if constexpr (NT == 1) {
+    add_time_offset(m, core_, es::pos, antenna_velocity_now());
+    // Until the heading is known the motion the column stands for is not (the first seconds, a gap
+    // restart's coast): the prediction is moved, but the offset is not learnt from it.
+    if (!heading_known_) m.H.col(Core::kTimeOffset).setZero();
+  }
   bool accepted;
   if (fix.mode == 3) {
     const Eigen::Matrix<double, 2, 3> ne = c_en.transpose().template topRows<2>();
@@ -965,13 +989,23 @@ void InsFilter<NB, NC>::process_fix(const FixInput& fix) {
     const Vec3 v_meas = cfg_.fix_velocity_lag_s > 0.0
                             ? Vec3(fix.v_ecef_mps + velocity_change_since(fix.t_s - cfg_.fix_velocity_lag_s))
                             : fix.v_ecef_mps;
-    const auto mv = gnss_velocity(core_, v_meas, r_v, cfg_.lever_arm_body_m, rate);
+    auto mv = gnss_velocity(core_, v_meas, r_v, cfg_.lever_arm_body_m, rate);
+    if constexpr (NT == 1)
+      add_time_offset(mv, core_, es::vel,
+                      antenna_acceleration(accel_ecef_, core_.nav.q_eb.toRotationMatrix(),
+                                           body_rate_wrt_earth(core_, rate), cfg_.lever_arm_body_m));
     record(kFixVelocity, apply(mv, 3), 3);
   }
 }
 
-template <int NB, int NC>
-double InsFilter<NB, NC>::fix_speed_sigma(const FixInput& fix) const {
+template <int NB, int NC, int NT>
+Vec3 InsFilter<NB, NC, NT>::antenna_velocity_now() const {
+  const Vec3 rate = last_inc_.dt_s > 0.0 ? Vec3(last_inc_.dtheta_rad / last_inc_.dt_s) : Vec3::Zero();
+  return antenna_velocity(core_, cfg_.lever_arm_body_m, rate);
+}
+
+template <int NB, int NC, int NT>
+double InsFilter<NB, NC, NT>::fix_speed_sigma(const FixInput& fix) const {
   const Vec3 sv = stated_or(fix.sigma_v_ned_mps, Vec3::Constant(fix_velocity_sigma(fix)));
   return std::max(sv.x(), sv.y());
 }
@@ -979,8 +1013,8 @@ double InsFilter<NB, NC>::fix_speed_sigma(const FixInput& fix) const {
 // The variance the fix's fast correlated part adds to its update (ECEF; see
 // fix_error_fast_sigma_m): sigma^2 (1 + a) / (1 - a), a = exp(-dt / tau), dt since the
 // previous fix (none before: a = 0), per axis times its DOP when DOP-scaled.
-template <int NB, int NC>
-Mat3 InsFilter<NB, NC>::fast_fix_error_cov(const FixInput& fix, const Mat3& c_en) const {
+template <int NB, int NC, int NT>
+Mat3 InsFilter<NB, NC, NT>::fast_fix_error_cov(const FixInput& fix, const Mat3& c_en) const {
   if (!(cfg_.fix_error_fast_sigma_m.array() > 0.0).any()) return Mat3::Zero();
   Vec3 s = cfg_.fix_error_fast_sigma_m;
   if (cfg_.fix_error_gm_dop_scaled) s = s.cwiseProduct(fix_error_dops(fix));
@@ -995,24 +1029,24 @@ Mat3 InsFilter<NB, NC>::fast_fix_error_cov(const FixInput& fix, const Mat3& c_en
 
 // The DOP per local axis (north, east, down) that scales a fix's correlated errors.
 // A 2D fix's vertical row is projected out by its update, so its VDOP does not matter.
-template <int NB, int NC>
-Vec3 InsFilter<NB, NC>::fix_error_dops(const FixInput& fix) {
+template <int NB, int NC, int NT>
+Vec3 InsFilter<NB, NC, NT>::fix_error_dops(const FixInput& fix) {
   const double h = fix.hdop / std::sqrt(2.0);
   return Vec3(h, h, fix.mode == 3 ? 1.0 : fix.vdop);
 }
 
 // How the fix-error states reach this fix (metres per state unit, ECEF): identity,
 // or its DOP per local axis (fix_error_gm_dop_scaled).
-template <int NB, int NC>
-Mat3 InsFilter<NB, NC>::fix_error_map(const FixInput& fix) const {
+template <int NB, int NC, int NT>
+Mat3 InsFilter<NB, NC, NT>::fix_error_map(const FixInput& fix) const {
   if (!cfg_.fix_error_gm_dop_scaled) return Mat3::Identity();
   const Geodetic llh = ecef_to_geodetic(fix.r_ecef_m);
   const Mat3 c_en = rot_ned_to_ecef(llh.lat_rad, llh.lon_rad);
   return c_en * fix_error_dops(fix).asDiagonal() * c_en.transpose();
 }
 
-template <int NB, int NC>
-void InsFilter<NB, NC>::detect_standstill(const Increment& inc) {
+template <int NB, int NC, int NT>
+void InsFilter<NB, NC, NT>::detect_standstill(const Increment& inc) {
   const bool fresh = detector_.add(inc.dv_mps / inc.dt_s, inc.dtheta_rad / inc.dt_s, inc.dt_s);
   if (!initialised_ || !cfg_.zero_velocity_updates) {
     standstill_ = false;
@@ -1081,11 +1115,20 @@ void InsFilter<NB, NC>::detect_standstill(const Increment& inc) {
   }
 }
 
+#ifndef GPSINS_INS_FILTER_TIME_OFFSET
 template class InsFilter<5, 0>;
 template class InsFilter<7, 0>;
 template class InsFilter<5, 2>;
 template class InsFilter<7, 2>;
 template class InsFilter<5, 3>;
 template class InsFilter<7, 3>;
+#else
+template class InsFilter<5, 0, 1>;
+template class InsFilter<7, 0, 1>;
+template class InsFilter<5, 2, 1>;
+template class InsFilter<7, 2, 1>;
+template class InsFilter<5, 3, 1>;
+template class InsFilter<7, 3, 1>;
+#endif
 
 }  // namespace gpsins

@@ -104,6 +104,10 @@ def _cmd_replay(args: argparse.Namespace) -> int:
         e = res.summary["errors"]
         if e:
             print(f"  vs truth: horizontal RMS {e['horizontal_rms_m']:.2f} m, vertical RMS {e['vertical_rms_m']:.2f} m")
+        to = res.summary.get("time_offset")
+        if to:
+            applied = f" to add to the applied {to['applied_s'] * 1e3:.1f} ms" if to["applied_s"] is not None else ""
+            print(f"  IMU time offset: {to['estimate_s'] * 1e3:+.1f} ms (sigma {to['sigma_s'] * 1e3:.1f} ms){applied}")
         from . import report
 
         if report.shows_outage_table(res.summary):

@@ -523,6 +523,24 @@ def _imu_table(imu) -> np.ndarray:
     return imu.table() if isinstance(imu, ImuColumns) else np.ascontiguousarray(imu, dtype=float)
 
 
+def _at_gnss_time(r, v, dt, sigma, cov):
+    """With the IMU time offset state the nominal at filter time t is the vehicle at GNSS time t + dt:
+    its position moved back to t, r - v dt, so that every row is at its stamped (GNSS) time as without
+    the state (velocity and attitude as they are: the acceleration over dt is left out). The position's
+    error then gains -v ddt: with the covariance exactly (J P J^T, J = I but -v in the position rows'
+    offset column), without it the two as if independent."""
+    r = r - v * dt[:, None]
+    sigma = sigma.copy()
+    if cov is not None:
+        cov = np.array(cov)  # a copy
+        cov[:, 6:9, :] -= v[:, :, None] * cov[:, -1, None, :]  # J P, then (J P) J^T
+        cov[:, :, 6:9] -= cov[:, :, -1, None] * v[:, None, :]
+        sigma[:, 6:9] = np.sqrt(np.maximum(np.einsum("nii->ni", cov[:, 6:9, 6:9]), 0.0))
+    else:
+        sigma[:, 6:9] = np.hypot(sigma[:, 6:9], v * sigma[:, -1:])
+    return r, sigma, cov
+
+
 @dataclass
 class Solution:
     """A batch run's output: states at IMU epochs, every update, and the counters."""
@@ -546,6 +564,9 @@ class Solution:
     extra: dict = field(default_factory=dict)
     events: dict = field(default_factory=dict)  # t, kind (EVENT_KINDS), value: restarts, resets, rejected samples
     fix_error: np.ndarray | None = None  # (n, 3) loose with fix-error states: the fix's correlated error, ECEF m
+    # (n,) with estimate_time_offset: dt_imu (s), by which the IMU stamps lag GNSS time after the data
+    # set's declared offset (the value to add to [imu] time_offset_s)
+    time_offset: np.ndarray | None = None
 
     @classmethod
     def from_batch(cls, out: dict, mode: str, scale_factors: bool) -> "Solution":
@@ -555,18 +576,32 @@ class Solution:
         sf = None
         if scale_factors:
             sf, k = s[:, k:k + 6], k + 6
-        # After them the augmented states: the clock (tight) or the fix error (loose, fix_error_gm_sigma_m).
-        clock = fix_error = None
+        # After them the augmented states: the clock (tight) or the fix error (loose, fix_error_gm_sigma_m),
+        # then the IMU time offset (estimate_time_offset): the counts 2, 3 (tight) and 0, 1, 3, 4 (loose)
+        # tell which are there.
+        clock = fix_error = time_offset = None
         augmented = n - 15 - (6 if scale_factors else 0)
         if mode == "tight":
             clock, k = s[:, k:k + 2], k + 2
-        elif augmented == 3:
+            augmented -= 2
+        elif augmented >= 3:
             fix_error, k = s[:, k:k + 3], k + 3
+            augmented -= 3
+        if augmented == 1:
+            time_offset, k = s[:, k], k + 1
         flags = s[:, k + n].astype(int)
-        return cls(mode, n, s[:, 0], s[:, 1:4], s[:, 4:7], s[:, 7:11], s[:, 11:14], s[:, 14:17],
-                   s[:, k:k + n], (flags & 1) > 0, (flags & 2) > 0, out["updates"], out["counters"], sf, clock,
-                   out.get("covariance"), {"fixes_after_end": out["fixes_after_end"]}, out["events"],
-                   fix_error=fix_error)
+        r, sigma, cov = s[:, 1:4], s[:, k:k + n], out.get("covariance")
+        if time_offset is not None:
+            r, sigma, cov = _at_gnss_time(r, s[:, 4:7], time_offset, sigma, cov)
+        return cls(mode, n, s[:, 0], r, s[:, 4:7], s[:, 7:11], s[:, 11:14], s[:, 14:17],
+                   sigma, (flags & 1) > 0, (flags & 2) > 0, out["updates"], out["counters"], sf, clock,
+                   cov, {"fixes_after_end": out["fixes_after_end"]}, out["events"],
+                   fix_error=fix_error, time_offset=time_offset)
+
+    @property
+    def time_offset_sigma(self) -> np.ndarray | None:
+        """(n,) the IMU time offset's sigma (s), with estimate_time_offset (its state is the last)."""
+        return None if self.time_offset is None else self.sigma[:, -1]
 
     def event_list(self) -> list[dict]:
         """The filter's events in time order as {t, kind, value} with kind named (EVENT_KINDS)."""

@@ -72,8 +72,11 @@ RESULT_ARRAYS = {
     "err_v_ned_mps": "velocity error NED", "nees9": "NEES of the 9 navigation states",
     "seg_labels": "truth segment labels", "seg_t": "truth segments' start and end times",
     "sigma_v_ned_mps": "velocity sigma north, east, down",
-    "clock": "tight mode: receiver clock bias (m) and drift (m/s); their sigmas are the last two of `sigma`",
-    "fix_error": "loose mode with fix_error_gm_sigma_m: the fixes' correlated error state (ECEF; m, or m per unit of DOP with fix_error_gm_dop_scaled); sigmas last of `sigma`",
+    "clock": "tight mode: receiver clock bias (m) and drift (m/s); their sigmas are the last two of `sigma` "
+             "(before the time offset's with estimate_time_offset)",
+    "time_offset_s": "with estimate_time_offset: the IMU time offset state dt_imu (s), to add to the data set's "
+                     "[imu] time_offset_s; its sigma is the last of `sigma`",
+    "fix_error": "loose mode with fix_error_gm_sigma_m: the fixes' correlated error state (ECEF; m, or m per unit of DOP with fix_error_gm_dop_scaled); sigmas last of `sigma` (before the time offset's)",
     "r_point_ecef": "position of the scored point (antenna unless --point imu; a session's truth: IMU), m",
     "lever_arm_body_m": "antenna relative to the IMU, body axes (the configuration's lever arm)",
     "outages": "outage schedule [start, end), same time base as t",
@@ -528,7 +531,10 @@ def run_mode(inp: Inputs, out: str | Path, *, mode: str = "loose", overrides: di
     events: dict[str, list] = {"t": [], "kind": [], "value": []}
     update_kinds: dict[int, int] = {}
     write_s = 0.0
+    time_offset = None  # the last epoch's estimate and sigma (s), with estimate_time_offset
     for sol in run.chunks():
+        if sol.time_offset is not None and len(sol.t):
+            time_offset = (float(sol.time_offset[-1]), float(sol.time_offset_sigma[-1]))
         w0 = time.perf_counter()
         forward.add(sol, forward.epochs)
         updates.append(sol.updates)
@@ -617,6 +623,12 @@ def run_mode(inp: Inputs, out: str | Path, *, mode: str = "loose", overrides: di
         summary["ins"] = {"aiding_until_t": free_from, "fixes_used": int(len(fixes)),
                           "how": "loose filter fed the fixes up to the one that completed the initialisation "
                                  "(heading known); zero-velocity and zero-rate updates off"}
+    if time_offset is not None:
+        # The residual the filter found on top of the declared offset (a data set's [imu] time_offset_s).
+        summary["time_offset"] = {"estimate_s": time_offset[0], "sigma_s": time_offset[1],
+                                  "applied_s": info.get("imu_time_offset_s"),  # None: not a data set
+                                  "how": "the IMU stamps lag GNSS time by estimate_s after applied_s: add it to "
+                                         "[imu] time_offset_s (final epoch of the forward pass)"}
     if smoothed_summary is not None:
         summary["smoothed"] = smoothed_summary
     if info:

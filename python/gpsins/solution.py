@@ -56,6 +56,8 @@ def epoch_arrays(sol: flt.Solution) -> dict:
         a["clock"] = sol.clock
     if getattr(sol, "fix_error", None) is not None:
         a["fix_error"] = sol.fix_error
+    if getattr(sol, "time_offset", None) is not None:
+        a["time_offset_s"] = sol.time_offset
     return a
 
 

@@ -10,6 +10,12 @@
 //   then NC augmented states, by sensor:
 //   [clock bias c*dt (m), clock drift (m/s)]       NC = 2 (tight: pseudoranges)
 //   [fix error db (3), ECEF (m)]                   NC = 3 (loose: Gauss-Markov fix errors)
+//   then NT = 0 or 1 time-offset state (estimate_time_offset):
+//   [dt_imu (s)]  the IMU stamps' offset from GNSS time: at filter time t the
+//                 nominal state describes the vehicle at true (GNSS) time t + dt_imu,
+//                 so dt_imu is what the data set's declared IMU time offset lacks.
+//                 A measurement h of the vehicle at GNSS time t is then
+//                 h(t) = h(nominal) - h_dot dt_imu (aiding/time_offset.hpp).
 // The fix error is the time-correlated part of the receiver's position error
 // (multipath, atmosphere residuals: correlated over tens of seconds); the fix is
 // then z = r_antenna + b + white (aiding/position_fix.hpp).
@@ -49,6 +55,7 @@ struct ProcessNoise {
   double gyro_misalignment_var = 0.0;
   double clock_bias_var = 0.0;   // m^2/s
   double clock_drift_var = 0.0;  // m^2/s^3
+  double time_offset_var = 0.0;  // s^2/s: the IMU time offset's random walk (NT = 1)
   // Fix error (NC = 3): first-order Gauss-Markov per local north, east, down axis,
   // stationary variance (m^2) and 1/tau (1/s), one tau for all axes.
   Vec3 fix_error_var_ned = Vec3::Zero();
@@ -116,15 +123,17 @@ void block_mul(const BlockMat<NB>& a, const BlockMat<NB>& c, BlockMat<NB>& out) 
     }
 }
 
-template <int NB, int NC>
+template <int NB, int NC, int NT = 0>
 class Eskf {
  public:
   static_assert(NB == 5 || NB == 7, "5 blocks (15 states) or 7 (with scale factors)");
   static_assert(NC == 0 || NC == 2 || NC == 3, "none, clock bias + drift, or the fix error");
+  static_assert(NT == 0 || NT == 1, "no time offset state, or one");
   static constexpr int kNav = 3 * NB;
-  static constexpr int N = kNav + NC;
+  static constexpr int N = kNav + NC + NT;
   static constexpr int kClock = kNav;     // NC == 2
   static constexpr int kFixError = kNav;  // NC == 3
+  static constexpr int kTimeOffset = kNav + NC;  // NT == 1
   using VecN = Eigen::Matrix<double, N, 1>;
   using MatN = Eigen::Matrix<double, N, N>;
   using MatNav = Eigen::Matrix<double, kNav, kNav>;
@@ -133,6 +142,7 @@ class Eskf {
   ImuErrorEstimate imu;
   Eigen::Vector2d clock = Eigen::Vector2d::Zero();  // receiver clock bias (m), drift (m/s)
   Vec3 fix_error = Vec3::Zero();  // NC == 3: the fix's correlated error estimate, ECEF (m)
+  double time_offset_s = 0.0;     // NT == 1: dt_imu (see the layout above)
   MatN P = MatN::Zero();
   ProcessNoise noise;
   EskfObserver<N>* observer = nullptr;  // a smoother recording the forward pass (rts.hpp)
@@ -319,6 +329,8 @@ class Eskf {
       gm = gauss_markov_step(noise.fix_error_inv_tau, dt);
       m.template middleRows<3>(kFixError) = gm.phi * P.template middleRows<3>(kFixError);
     }
+    // Time offset: constant (Phi = 1) plus its random walk.
+    if constexpr (NT == 1) m.row(kTimeOffset) = P.row(kTimeOffset);
     for (int j = 0; j < NB; ++j) {
       auto cols = P.template middleCols<3>(3 * j);
       cols.setZero();
@@ -338,6 +350,10 @@ class Eskf {
       P.template middleCols<3>(kFixError) = gm.phi * m.template middleCols<3>(kFixError);
       P.template block<3, 3>(kFixError, kFixError) += gm.qd_per_var * fix_error_stationary_cov();
     }
+    if constexpr (NT == 1) {
+      P.col(kTimeOffset) = m.col(kTimeOffset);
+      P(kTimeOffset, kTimeOffset) += noise.time_offset_var * dt;
+    }
     P.template topLeftCorner<kNav, kNav>() += qd;
     symmetrise();
     if (observer) {
@@ -345,8 +361,9 @@ class Eskf {
       for (int i = 0; i < NB; ++i)
         for (int k = 0; k < NB; ++k)
           if (phi.has(i, k)) full.template block<3, 3>(3 * i, 3 * k) = phi.at(i, k);
-      if constexpr (NC == 2) full.template bottomRightCorner<2, 2>() << 1.0, dt, 0.0, 1.0;
-      if constexpr (NC == 3) full.template bottomRightCorner<3, 3>() = gm.phi * Mat3::Identity();
+      if constexpr (NC == 2) full.template block<2, 2>(kClock, kClock) << 1.0, dt, 0.0, 1.0;
+      if constexpr (NC == 3) full.template block<3, 3>(kFixError, kFixError) = gm.phi * Mat3::Identity();
+      if constexpr (NT == 1) full(kTimeOffset, kTimeOffset) = 1.0;
       observer->on_propagate(full);
     }
   }
@@ -431,6 +448,7 @@ class Eskf {
     }
     if constexpr (NC == 2) clock += dx.template segment<2>(kClock);
     if constexpr (NC == 3) fix_error += dx.template segment<3>(kFixError);
+    if constexpr (NT == 1) time_offset_s += dx(kTimeOffset);
     // Reset: the attitude error is now relative to the corrected q (seed 003).
     const Mat3 g = Mat3::Identity() - skew(0.5 * dth);
     P.template middleRows<3>(att) = (g * P.template middleRows<3>(att)).eval();

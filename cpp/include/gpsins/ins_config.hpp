@@ -161,6 +161,13 @@ struct InsConfig {
   bool pseudorange_troposphere = true;
   double gps_time_offset_s = 0.0;  // filter time + this = GPS seconds since the GPS epoch
 
+  // IMU time offset state (eskf.hpp, NT = 1): the residual dt_imu by which the IMU's
+  // stamps (after the data set's declared offset) lag GNSS time, i.e. what should be
+  // added to the declared offset. Constant plus a slow random walk.
+  bool estimate_time_offset = false;
+  double time_offset_sigma_s = 0.05;         // initial sigma
+  double time_offset_rw_s_per_sqrt_s = 1e-5;  // random walk
+
   // Standstill (see standstill.hpp): spreads of block means over the window,
   // the mean's shift from its value when standing began, the mean rate. It
   // begins only below standstill_max_speed_mps (filter) and ends or is barred

@@ -138,10 +138,11 @@ struct Counters {
   bool diverged = false;
 };
 
-template <int NB, int NC>
+// NT = 1: the IMU time offset state (estimate_time_offset; eskf.hpp).
+template <int NB, int NC, int NT = 0>
 class InsFilter {
  public:
-  using Core = Eskf<NB, NC>;
+  using Core = Eskf<NB, NC, NT>;
   static constexpr int N = Core::N;
 
   explicit InsFilter(const InsConfig& cfg);
@@ -210,6 +211,7 @@ class InsFilter {
     return Vec3::Zero();
   }
   void event(int kind, double value);
+  Vec3 antenna_velocity_now() const;
   void inflate_unknown_heading(const Increment& inc);
   void constrain_vehicle(const Increment& inc);
   void process_attitude(const AttitudeInput& a, const Increment& inc);
@@ -252,6 +254,7 @@ class InsFilter {
   int velocity_steps_count_ = 0, velocity_steps_head_ = 0;
   void propagate_nav(const Increment& inc, double t_end);
   Vec3 velocity_change_since(double t0) const;
+  Vec3 accel_ecef_ = Vec3::Zero();  // NT == 1: the last propagation step's kinematic acceleration (m/s^2)
 
   // Levelling sums before initialisation.
   Vec3 level_f_sum_ = Vec3::Zero();
@@ -303,5 +306,11 @@ extern template class InsFilter<5, 2>;
 extern template class InsFilter<7, 2>;
 extern template class InsFilter<5, 3>;
 extern template class InsFilter<7, 3>;
+extern template class InsFilter<5, 0, 1>;
+extern template class InsFilter<7, 0, 1>;
+extern template class InsFilter<5, 2, 1>;
+extern template class InsFilter<7, 2, 1>;
+extern template class InsFilter<5, 3, 1>;
+extern template class InsFilter<7, 3, 1>;
 
 }  // namespace gpsins

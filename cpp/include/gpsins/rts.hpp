@@ -227,15 +227,15 @@ class BackwardPass {
 // Records the forward pass of an InsFilter's core. Propagation steps between
 // two other records are multiplied into one transition (so with output every
 // k IMU samples the tape holds one Phi per output or update, not per sample).
-template <int NB, int NC>
-class EskfRecorder final : public EskfObserver<3 * NB + NC> {
+template <int NB, int NC, int NT = 0>
+class EskfRecorder final : public EskfObserver<3 * NB + NC + NT> {
  public:
-  static constexpr int N = 3 * NB + NC;
-  using Core = Eskf<NB, NC>;
+  static constexpr int N = 3 * NB + NC + NT;
+  using Core = Eskf<NB, NC, NT>;
   using MatN = Eigen::Matrix<double, N, N>;
   using Base = EskfObserver<N>;
-  // Nominal payload: t, r, v, q (w x y z), bg, ba, [sg, sa], [clock or fix error], flags.
-  static constexpr int kNominal = 1 + 3 + 3 + 4 + 6 + (NB == 7 ? 6 : 0) + NC + 1;
+  // Nominal payload: t, r, v, q (w x y z), bg, ba, [sg, sa], [clock or fix error], [time offset], flags.
+  static constexpr int kNominal = 1 + 3 + 3 + 4 + 6 + (NB == 7 ? 6 : 0) + NC + NT + 1;
   using Pass = BackwardPass<N>;
 
   explicit EskfRecorder(std::size_t chunk_bytes) : tape_(chunk_bytes) {}
@@ -278,6 +278,7 @@ class EskfRecorder final : public EskfObserver<3 * NB + NC> {
     if constexpr (NC == 2) { *o++ = e.clock(0); *o++ = e.clock(1); }
     if constexpr (NC == 3)
       for (int i = 0; i < 3; ++i) *o++ = e.fix_error(i);
+    if constexpr (NT == 1) *o++ = e.time_offset_s;
     *o++ = flags;
     Pass::pack(e.P, o);
     ++outputs_;
@@ -298,7 +299,7 @@ class EskfRecorder final : public EskfObserver<3 * NB + NC> {
         row[static_cast<std::size_t>(4 + i)] += dx(es::vel + i);
       }
       row[7] = q.w(); row[8] = q.x(); row[9] = q.y(); row[10] = q.z();
-      for (int i = 0; i < 3 * (NB - 3) + NC; ++i) row[static_cast<std::size_t>(11 + i)] += dx(es::bg + i);
+      for (int i = 0; i < 3 * (NB - 3) + NC + NT; ++i) row[static_cast<std::size_t>(11 + i)] += dx(es::bg + i);
       // The smoothed covariance in the error definition of the smoothed nominal.
       const Mat3 g = Mat3::Identity() - skew(0.5 * dth);
       MatN p = ps;

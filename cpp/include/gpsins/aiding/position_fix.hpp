@@ -12,18 +12,18 @@
 
 namespace gpsins {
 
-template <int NB, int NC>
-Measurement<3, Eskf<NB, NC>::N> position_fix(const Eskf<NB, NC>& f, const Vec3& r_antenna_ecef_m,
+template <int NB, int NC, int NT>
+Measurement<3, Eskf<NB, NC, NT>::N> position_fix(const Eskf<NB, NC, NT>& f, const Vec3& r_antenna_ecef_m,
                                               const Mat3& cov_ecef_m2, const Vec3& lever_body_m,
                                               const Mat3& fix_error_map = Mat3::Identity()) {
-  Measurement<3, Eskf<NB, NC>::N> m;
+  Measurement<3, Eskf<NB, NC, NT>::N> m;
   const Mat3 c = f.nav.q_eb.toRotationMatrix();
   m.y = r_antenna_ecef_m - (f.nav.r_ecef_m + c * lever_body_m);
   m.H.template block<3, 3>(0, es::pos).setIdentity();
   m.H.template block<3, 3>(0, es::att) = -c * skew(lever_body_m);
   if constexpr (NC == 3) {
     m.y -= fix_error_map * f.fix_error;
-    m.H.template block<3, 3>(0, Eskf<NB, NC>::kFixError) = fix_error_map;
+    m.H.template block<3, 3>(0, Eskf<NB, NC, NT>::kFixError) = fix_error_map;
   } else {
     (void)fix_error_map;
   }

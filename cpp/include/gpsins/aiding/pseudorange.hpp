@@ -9,11 +9,11 @@
 
 namespace gpsins {
 
-template <int NB, int NC>
-Measurement<1, Eskf<NB, NC>::N> pseudorange(const Eskf<NB, NC>& f, const Vec3& lever_body_m, const Vec3& sat_ecef,
+template <int NB, int NC, int NT>
+Measurement<1, Eskf<NB, NC, NT>::N> pseudorange(const Eskf<NB, NC, NT>& f, const Vec3& lever_body_m, const Vec3& sat_ecef,
                                              double corrected_pr_m, double sagnac_m, double variance_m2) {
   static_assert(NC == 2, "pseudoranges need the receiver clock states");
-  Measurement<1, Eskf<NB, NC>::N> m;
+  Measurement<1, Eskf<NB, NC, NT>::N> m;
   const Mat3 c = f.nav.q_eb.toRotationMatrix();
   const Vec3 r_a = f.nav.r_ecef_m + c * lever_body_m;
   const Vec3 d = sat_ecef - r_a;
@@ -22,7 +22,7 @@ Measurement<1, Eskf<NB, NC>::N> pseudorange(const Eskf<NB, NC>& f, const Vec3& l
   m.y(0) = corrected_pr_m - (range + sagnac_m + f.clock(0));
   m.H.template block<1, 3>(0, es::pos) = -u.transpose();
   m.H.template block<1, 3>(0, es::att) = u.transpose() * c * skew(lever_body_m);
-  m.H(0, Eskf<NB, NC>::kClock) = 1.0;
+  m.H(0, Eskf<NB, NC, NT>::kClock) = 1.0;
   m.R(0, 0) = variance_m2;
   return m;
 }

@@ -13,11 +13,11 @@
 
 namespace gpsins {
 
-template <int NB, int NC>
-Measurement<3, Eskf<NB, NC>::N> gnss_velocity(const Eskf<NB, NC>& f, const Vec3& v_antenna_ecef_mps,
+template <int NB, int NC, int NT>
+Measurement<3, Eskf<NB, NC, NT>::N> gnss_velocity(const Eskf<NB, NC, NT>& f, const Vec3& v_antenna_ecef_mps,
                                                const Mat3& cov, const Vec3& lever_body_m,
                                                const Vec3& gyro_rate_rad_per_s) {
-  Measurement<3, Eskf<NB, NC>::N> m;
+  Measurement<3, Eskf<NB, NC, NT>::N> m;
   const Mat3 c = f.nav.q_eb.toRotationMatrix();
   const Vec3 inv_1s = (Vec3::Ones() + f.imu.gyro_scale_factor).cwiseInverse();
   const Vec3 w_ib = (gyro_rate_rad_per_s - f.imu.gyro_bias_rad_per_s).cwiseProduct(inv_1s);
@@ -31,6 +31,19 @@ Measurement<3, Eskf<NB, NC>::N> gnss_velocity(const Eskf<NB, NC>& f, const Vec3&
   if constexpr (NB == 7) m.H.template block<3, 3>(0, es::sg) = c_l * w_ib.cwiseProduct(inv_1s).asDiagonal();
   m.R = cov;
   return m;
+}
+
+// The body's rate relative to the Earth as the nominal state has it (body axes),
+// and the antenna's velocity v + C (w x l) it gives (ECEF).
+template <int NB, int NC, int NT>
+Vec3 body_rate_wrt_earth(const Eskf<NB, NC, NT>& f, const Vec3& gyro_rate_rad_per_s) {
+  const Vec3 inv_1s = (Vec3::Ones() + f.imu.gyro_scale_factor).cwiseInverse();
+  const Vec3 w_ib = (gyro_rate_rad_per_s - f.imu.gyro_bias_rad_per_s).cwiseProduct(inv_1s);
+  return w_ib - f.nav.q_eb.conjugate() * earth_rate_ecef();
+}
+template <int NB, int NC, int NT>
+Vec3 antenna_velocity(const Eskf<NB, NC, NT>& f, const Vec3& lever_body_m, const Vec3& gyro_rate_rad_per_s) {
+  return f.nav.v_ecef_mps + f.nav.q_eb * body_rate_wrt_earth(f, gyro_rate_rad_per_s).cross(lever_body_m);
 }
 
 }  // namespace gpsins

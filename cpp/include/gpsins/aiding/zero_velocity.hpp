@@ -6,9 +6,9 @@
 
 namespace gpsins {
 
-template <int NB, int NC>
-Measurement<3, Eskf<NB, NC>::N> zero_velocity(const Eskf<NB, NC>& f, double sigma_mps) {
-  Measurement<3, Eskf<NB, NC>::N> m;
+template <int NB, int NC, int NT>
+Measurement<3, Eskf<NB, NC, NT>::N> zero_velocity(const Eskf<NB, NC, NT>& f, double sigma_mps) {
+  Measurement<3, Eskf<NB, NC, NT>::N> m;
   m.y = -f.nav.v_ecef_mps;
   m.H.template block<3, 3>(0, es::vel).setIdentity();
   m.R = Mat3::Identity() * sigma_mps * sigma_mps;
