@@ -162,20 +162,31 @@ def fixes_from_the_filter_model(s, cfg: dict, rng: np.random.Generator) -> np.nd
     return fx
 
 
-def nees(seeds: int, matched_imu: bool = False, matched_fixes: bool = False) -> None:
+def smoothed_runs(seeds: int, matched_imu: bool, matched_fixes: bool, covariance: bool):
+    """(seed, simulation, forward solution with its smoothed one, truth) of the default drive per seed,
+    the unit's unmodelled terms off with matched_imu, the fixes from the filter's model with matched_fixes."""
     sc = sim.load("default")
     if matched_imu:
         for term in UNMODELLED_IMU_TERMS:
             sc.imu.terms[term] = False
-    runs = {"forward": [], "smoothed": []}
-    blocks = {"forward": [], "smoothed": []}
     for seed in range(seeds):
         s = sim.simulate(sc, seed)
         cfg = flt.load_config(None, sim.imu_noise_truth(sc.imu))
         fixes = fixes_from_the_filter_model(s, cfg, np.random.default_rng([seed, 18])) if matched_fixes \
             else sim.fix_table(s)
-        sol = flt.run(sim.imu_table(s), fixes, cfg, covariance=True, smooth=True)
-        tr = evaluate.Truth(s.truth.t, s.truth.r_ecef, s.truth.v_ecef, s.truth.q_eb)
+        sol = flt.run(sim.imu_table(s), fixes, cfg, covariance=covariance, smooth=True)
+        yield seed, s, sol, evaluate.Truth(s.truth.t, s.truth.r_ecef, s.truth.v_ecef, s.truth.q_eb)
+
+
+def experiment(matched_imu: bool, matched_fixes: bool) -> str:
+    return (("the unit's unmodelled terms off" if matched_imu else "the simulated unit") + ", "
+            + ("fixes drawn from the filter's model" if matched_fixes else "the simulated receiver's fixes"))
+
+
+def nees(seeds: int, matched_imu: bool = False, matched_fixes: bool = False) -> None:
+    runs = {"forward": [], "smoothed": []}
+    blocks = {"forward": [], "smoothed": []}
+    for seed, _, sol, tr in smoothed_runs(seeds, matched_imu, matched_fixes, covariance=True):
         t0 = sol.t[np.argmax(sol.heading_known)]
         line = f"seed {seed:2d}:"
         for name, x in (("forward", sol), ("smoothed", sol.extra["smoothed"])):
@@ -192,8 +203,7 @@ def nees(seeds: int, matched_imu: bool = False, matched_fixes: bool = False) -> 
                      f"H RMS {np.sqrt(np.mean(h ** 2)):.2f} m")
         print(line, flush=True)
     lo, hi = evaluate.nees_band(9, seeds)
-    print(("the unit's unmodelled terms off" if matched_imu else "the simulated unit") + ", "
-          + ("fixes drawn from the filter's model" if matched_fixes else "the simulated receiver's fixes"))
+    print(experiment(matched_imu, matched_fixes))
     for name, r in runs.items():
         n = min(len(x) for x in r)
         avg = np.mean([x[:n] for x in r], axis=0)
@@ -207,18 +217,8 @@ def nees(seeds: int, matched_imu: bool = False, matched_fixes: bool = False) -> 
 
 
 def segments(seeds: int, matched_imu: bool = False, matched_fixes: bool = False) -> None:
-    sc = sim.load("default")
-    if matched_imu:
-        for term in UNMODELLED_IMU_TERMS:
-            sc.imu.terms[term] = False
     sums, worse_h, worse_v, labels = None, None, None, None
-    for seed in range(seeds):
-        s = sim.simulate(sc, seed)
-        cfg = flt.load_config(None, sim.imu_noise_truth(sc.imu))
-        fixes = fixes_from_the_filter_model(s, cfg, np.random.default_rng([seed, 18])) if matched_fixes \
-            else sim.fix_table(s)
-        sol = flt.run(sim.imu_table(s), fixes, cfg, covariance=False, smooth=True)
-        tr = evaluate.Truth(s.truth.t, s.truth.r_ecef, s.truth.v_ecef, s.truth.q_eb)
+    for seed, s, sol, tr in smoothed_runs(seeds, matched_imu, matched_fixes, covariance=False):
         rows = {}
         for name, x in (("forward", sol), ("smoothed", sol.extra["smoothed"])):
             known = x.heading_known & (x.t >= tr.t[0]) & (x.t <= tr.t[-1])
@@ -237,8 +237,7 @@ def segments(seeds: int, matched_imu: bool = False, matched_fixes: bool = False)
         worse_v += ms[:, 3] > ms[:, 1]
         print(f"seed {seed:2d}: smoothed worse than forward in {int((ms[:, 2] > ms[:, 0]).sum())} of {len(labels)} "
               f"segments horizontally, {int((ms[:, 3] > ms[:, 1]).sum())} vertically", flush=True)
-    print(("the unit's unmodelled terms off" if matched_imu else "the simulated unit") + ", "
-          + ("fixes drawn from the filter's model" if matched_fixes else "the simulated receiver's fixes")
+    print(experiment(matched_imu, matched_fixes)
           + f", {seeds} seeds; RMS over the seeds (m), forward / smoothed, and in how many seeds smoothed was worse:")
     rms = np.sqrt(sums / seeds)
     for k, label in enumerate(labels):

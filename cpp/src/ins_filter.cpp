@@ -753,9 +753,7 @@ void InsFilter<NB, NC, NT>::process_pseudoranges(const PseudorangeEpoch& ep) {
     for (int i = 0; i < n; ++i) {
       const auto& u = use[static_cast<std::size_t>(i)];
       auto m = pseudorange(core_, cfg_.lever_arm_body_m, u.sat, u.pr_corr, u.sagnac, u.var);
-      add_time_offset(m, core_, es::pos, v_a);  // the range rate the receiver's motion gives
-      if constexpr (NT == 1)
-        if (!heading_known_) m.H.col(Core::kTimeOffset).setZero();  // see process_fix
+      add_time_offset(m, core_, es::pos, v_a, heading_known_);  // the range rate the receiver's motion gives
       const auto r = apply(m, 1);
       record(kPseudorange, r, 1, u.prn);
       ++(r.accepted ? counters_.pseudoranges_used : counters_.pseudoranges_rejected);
@@ -952,12 +950,9 @@ void InsFilter<NB, NC, NT>::process_fix(const FixInput& fix) {
   }
   r_cov += fast_fix_error_cov(fix, c_en);
   auto m = position_fix(core_, fix.r_ecef_m, r_cov, cfg_.lever_arm_body_m, fix_error_map(fix));
-  if constexpr (NT == 1) {
-    add_time_offset(m, core_, es::pos, antenna_velocity_now());
-    // Until the heading is known the motion the column stands for is not (the first seconds, a gap
-    // restart's coast): the prediction is moved, but the offset is not learnt from it.
-    if (!heading_known_) m.H.col(Core::kTimeOffset).setZero();
-  }
+  // Until the heading is known the motion the offset's column stands for is not (the first seconds,
+  // a gap restart's coast): the prediction is moved, but the offset is not learnt from it.
+  if constexpr (NT == 1) add_time_offset(m, core_, es::pos, antenna_velocity_now(), heading_known_);
   bool accepted;
   if (fix.mode == 3) {
     const Eigen::Matrix<double, 2, 3> ne = c_en.transpose().template topRows<2>();

@@ -139,16 +139,16 @@ def read(path: str | Path, columns, time: str = "gpst_unix", accel_unit: str = "
     if bad.any():
         skipped["IMU samples with NaN"] = int(bad.sum())
         t, acc, gyr = t[~bad], acc[~bad], gyr[~bad]
-    dv = _increments(t, acc, ACCEL_UNITS[accel_unit][1])
-    dth = _increments(t, gyr, GYRO_UNITS[gyro_unit][1])
-    if ACCEL_UNITS[accel_unit][1] or GYRO_UNITS[gyro_unit][1]:
+    accel_rates, gyro_rates = ACCEL_UNITS[accel_unit][1], GYRO_UNITS[gyro_unit][1]
+    dv = _increments(t, acc, accel_rates)
+    dth = _increments(t, gyr, gyro_rates)
+    if accel_rates or gyro_rates:
         t = t[1:]
-        if not ACCEL_UNITS[accel_unit][1]:
+        if not accel_rates:
             dv = dv[1:]
-        if not GYRO_UNITS[gyro_unit][1]:
+        if not gyro_rates:
             dth = dth[1:]
-    covers = ACCEL_UNITS[accel_unit][1] and GYRO_UNITS[gyro_unit][1]
-    return ImuData(t, dth, dv, path.name, skipped, covers_gaps=covers)
+    return ImuData(t, dth, dv, path.name, skipped, covers_gaps=accel_rates and gyro_rates)
 
 
 def _increments(t: np.ndarray, x: np.ndarray, rates: bool) -> np.ndarray:

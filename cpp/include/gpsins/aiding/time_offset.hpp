@@ -15,14 +15,17 @@
 namespace gpsins {
 
 // block: es::pos with rate v_a, or es::vel with rate a_a. Nothing without the state.
+// learn = false moves the prediction but leaves the column zero: the offset is not
+// learnt while the motion the column stands for is unknown (heading not yet known).
 template <int M, int NB, int NC, int NT>
-void add_time_offset(Measurement<M, Eskf<NB, NC, NT>::N>& m, const Eskf<NB, NC, NT>& f, int block, const Vec3& rate) {
+void add_time_offset(Measurement<M, Eskf<NB, NC, NT>::N>& m, const Eskf<NB, NC, NT>& f, int block, const Vec3& rate,
+                     bool learn = true) {
   if constexpr (NT == 1) {
     const Eigen::Matrix<double, M, 1> h_dot = m.H.template middleCols<3>(block) * rate;
     m.y += h_dot * f.time_offset_s;
-    m.H.col(Eskf<NB, NC, NT>::kTimeOffset) = -h_dot;
+    if (learn) m.H.col(Eskf<NB, NC, NT>::kTimeOffset) = -h_dot;
   } else {
-    (void)m, (void)f, (void)block, (void)rate;
+    (void)m, (void)f, (void)block, (void)rate, (void)learn;
   }
 }
 

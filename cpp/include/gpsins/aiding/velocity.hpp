@@ -13,6 +13,13 @@
 
 namespace gpsins {
 
+// w_ib: the gyro rate corrected by the bias and scale-factor states.
+template <int NB, int NC, int NT>
+Vec3 corrected_gyro_rate(const Eskf<NB, NC, NT>& f, const Vec3& gyro_rate_rad_per_s) {
+  return (gyro_rate_rad_per_s - f.imu.gyro_bias_rad_per_s)
+      .cwiseProduct((Vec3::Ones() + f.imu.gyro_scale_factor).cwiseInverse());
+}
+
 template <int NB, int NC, int NT>
 Measurement<3, Eskf<NB, NC, NT>::N> gnss_velocity(const Eskf<NB, NC, NT>& f, const Vec3& v_antenna_ecef_mps,
                                                const Mat3& cov, const Vec3& lever_body_m,
@@ -20,7 +27,7 @@ Measurement<3, Eskf<NB, NC, NT>::N> gnss_velocity(const Eskf<NB, NC, NT>& f, con
   Measurement<3, Eskf<NB, NC, NT>::N> m;
   const Mat3 c = f.nav.q_eb.toRotationMatrix();
   const Vec3 inv_1s = (Vec3::Ones() + f.imu.gyro_scale_factor).cwiseInverse();
-  const Vec3 w_ib = (gyro_rate_rad_per_s - f.imu.gyro_bias_rad_per_s).cwiseProduct(inv_1s);
+  const Vec3 w_ib = corrected_gyro_rate(f, gyro_rate_rad_per_s);
   const Vec3 w_ie_b = c.transpose() * earth_rate_ecef();
   const Vec3 wl = (w_ib - w_ie_b).cross(lever_body_m);
   const Mat3 c_l = c * skew(lever_body_m);
@@ -37,9 +44,7 @@ Measurement<3, Eskf<NB, NC, NT>::N> gnss_velocity(const Eskf<NB, NC, NT>& f, con
 // and the antenna's velocity v + C (w x l) it gives (ECEF).
 template <int NB, int NC, int NT>
 Vec3 body_rate_wrt_earth(const Eskf<NB, NC, NT>& f, const Vec3& gyro_rate_rad_per_s) {
-  const Vec3 inv_1s = (Vec3::Ones() + f.imu.gyro_scale_factor).cwiseInverse();
-  const Vec3 w_ib = (gyro_rate_rad_per_s - f.imu.gyro_bias_rad_per_s).cwiseProduct(inv_1s);
-  return w_ib - f.nav.q_eb.conjugate() * earth_rate_ecef();
+  return corrected_gyro_rate(f, gyro_rate_rad_per_s) - f.nav.q_eb.conjugate() * earth_rate_ecef();
 }
 template <int NB, int NC, int NT>
 Vec3 antenna_velocity(const Eskf<NB, NC, NT>& f, const Vec3& lever_body_m, const Vec3& gyro_rate_rad_per_s) {
