@@ -9,6 +9,7 @@ import pytest
 
 from gpsins import _core, dataset, outages
 from gpsins.dataset import DatasetError
+from gpsins.readers import ubx
 
 WALK = Path(__file__).parent / "data" / "walk_0827"
 
@@ -38,11 +39,28 @@ def test_walk_dataset_loads_with_mounting_reference_and_schedule():
 
 def test_walk_ubx_dataset_has_pseudoranges_ephemerides_and_fixes():
     ds = dataset.load(WALK / "walk_0827_ubx.toml")
-    assert len(ds.pseudoranges) == 3842 and len(ds.fixes) == 536
-    assert ds.navigation.prns() == [10, 23, 27, 32]
-    assert any("PRN 10, 23, 27, 32" in n for n in ds.notes)
+    n_gps = 3842
+    n = len(ds.pseudoranges)
+    assert n > n_gps and (ds.pseudoranges.prn <= 32).sum() == n_gps and len(ds.fixes) == 536
+    assert ds.navigation.prns() == [10, 23, 27, 32, 39, 40, 45, 46, 58, 61, 65]
+    assert any("(G10, G23, G27, G32, E07, E08, E13, E14, E26, E29, E33)" in x for x in ds.notes)
     assert not ds.skipped
-    assert ds.pseudoranges.table(ds.gnss_span()[0]).shape == (3842, 5)
+    assert ds.pseudoranges.table(ds.gnss_span()[0]).shape == (n, 5)
+
+
+def test_gnss_systems_pick_what_a_ubx_stream_gives(tmp_path):
+    text = (WALK / "walk_0827_ubx.toml").read_text()
+    for systems, ids in ((["gps"], [10, 23, 27, 32]), (["galileo"], [39, 40, 45, 46, 58, 61, 65])):
+        p = tmp_path / "walk_0827_ubx.toml"
+        p.write_text(text.replace('format = "ubx"', f'format = "ubx"\nsystems = {systems!r}'.replace("'", '"')))
+        for f in ("gnss_1730.ubx", "imu_1730_sf.csv", "gnss_1730_sf.pos"):
+            (tmp_path / f).unlink(missing_ok=True)
+            (tmp_path / f).symlink_to((WALK / f).resolve())
+        ds = dataset.load(p)
+        assert ds.navigation.prns() == ids and set(ubx.system_of(ds.pseudoranges.prn)) == set(systems)
+    p.write_text(text.replace('format = "ubx"', 'format = "ubx"\nsystems = ["glonass"]'))
+    with pytest.raises(DatasetError, match=r"\[gnss\] systems"):
+        dataset.load(p)
 
 
 # --- synthetic sets: mounting, time offset, formats -----------------------------------------------------------

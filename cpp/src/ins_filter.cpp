@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <cmath>
 
+#include <Eigen/Cholesky>
+
 #include "gpsins/aiding/baseline_attitude.hpp"
 #include "gpsins/aiding/measurement.hpp"
 #include "gpsins/aiding/nonholonomic.hpp"
@@ -610,7 +612,7 @@ static double gm_update_factor(double dt, double tau) {
 // with its own tau, dt since the satellite's previous update.
 template <int NB, int NC, int NT>
 double InsFilter<NB, NC, NT>::correlated_variance(int prn, double t, double el_rad, double ura_m) const {
-  const bool known = prn >= 1 && prn <= 32;
+  const bool known = gnss::is_sat_id(prn);
   const double dt = known ? t - pr_used_t_[static_cast<std::size_t>(prn)] : std::numeric_limits<double>::quiet_NaN();
   double var = 0.0;
   if (cfg_.pseudorange_error_gm_sigma_m > 0.0 && known) {
@@ -626,10 +628,10 @@ double InsFilter<NB, NC, NT>::correlated_variance(int prn, double t, double el_r
 // a drop, or a satellite missing from an epoch, means the lock was lost.
 template <int NB, int NC, int NT>
 void InsFilter<NB, NC, NT>::track_locks(const PseudorangeEpoch& ep) {
-  std::array<bool, 33> seen{};
+  std::array<bool, gnss::kMaxSatId + 1> seen{};
   for (int i = 0; i < ep.n; ++i) {
     const int prn = ep.prn[static_cast<std::size_t>(i)];
-    if (prn < 1 || prn > 32) continue;
+    if (!gnss::is_sat_id(prn)) continue;
     const auto p = static_cast<std::size_t>(prn);
     const int lock = ep.lock_count[static_cast<std::size_t>(i)];
     if (!tracked_[p] || lock < last_lock_[p]) {
@@ -704,6 +706,65 @@ void InsFilter<NB, NC, NT>::check_clock(const PrUse* use, int n, double t) {
   }
 }
 
+// Galileo pseudoranges see the receiver clock plus the GPS-Galileo time offset
+// and the receiver's own inter-system bias, neither known here. The epoch's
+// differences from one Galileo satellite (the one with the smallest variance)
+// carry neither: the unknown is eliminated, as a state with no prior and no
+// memory would be, and Galileo adds geometry without touching the clock
+// states. The differences share the reference satellite's noise, so they are
+// whitened (R_d = L L^T, rows of L^-1 D) into independent scalar updates. Each
+// row is formed again from the state the previous rows left (the innovations
+// move with every injection; L does not depend on the state).
+template <int NB, int NC, int NT>
+bool InsFilter<NB, NC, NT>::update_galileo(const PrUse* use, int n, const Vec3& v_a, double t) {
+  if constexpr (NC == 2) {
+    constexpr int kMax = PseudorangeEpoch::kMaxSats;
+    using MatD = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, 0, kMax, kMax>;
+    int ref = 0;
+    for (int i = 1; i < n; ++i)
+      if (use[i].var < use[ref].var) ref = i;
+    std::array<int, kMax> other{};
+    for (int i = 0, k = 0; i < n; ++i)
+      if (i != ref) other[static_cast<std::size_t>(k++)] = i;
+    const int nd = n - 1;
+    MatD r_d = MatD::Constant(nd, nd, use[ref].var);
+    for (int k = 0; k < nd; ++k) r_d(k, k) += use[other[static_cast<std::size_t>(k)]].var;
+    const Eigen::LLT<MatD> llt(r_d);
+    if (llt.info() != Eigen::Success) return false;
+    const MatD l_inv = llt.matrixL().solve(MatD::Identity(nd, nd));
+    bool any = false;
+    for (int k = 0; k < nd; ++k) {
+      const auto single = [&](int i) {
+        const PrUse& u = use[i];
+        auto m = pseudorange(core_, cfg_.lever_arm_body_m, u.sat, u.pr_corr, u.sagnac, u.var);
+        add_time_offset(m, core_, es::pos, v_a, heading_known_);
+        return m;
+      };
+      const auto m_ref = single(ref);
+      Measurement<1, N> m;
+      for (int j = 0; j <= k; ++j) {  // L^-1 is lower triangular
+        const auto m_j = single(other[static_cast<std::size_t>(j)]);
+        m.y += l_inv(k, j) * (m_j.y - m_ref.y);
+        m.H += l_inv(k, j) * (m_j.H - m_ref.H);
+      }
+      m.R(0, 0) = 1.0;
+      const int prn = use[other[static_cast<std::size_t>(k)]].prn;
+      const auto r = apply(m, 1);
+      record(kPseudorange, r, 1, prn);
+      ++(r.accepted ? counters_.pseudoranges_used : counters_.pseudoranges_rejected);
+      if (r.accepted) {
+        pr_used_t_[static_cast<std::size_t>(prn)] = t;
+        pr_used_t_[static_cast<std::size_t>(use[ref].prn)] = t;
+      }
+      any = any || r.accepted;
+    }
+    return any;
+  } else {
+    (void)use, (void)n, (void)v_a, (void)t;
+    return false;
+  }
+}
+
 template <int NB, int NC, int NT>
 void InsFilter<NB, NC, NT>::process_pseudoranges(const PseudorangeEpoch& ep) {
   if constexpr (NC == 2) {
@@ -712,7 +773,7 @@ void InsFilter<NB, NC, NT>::process_pseudoranges(const PseudorangeEpoch& ep) {
     for (int i = 0; i < ep.n; ++i) {
       const int prn = ep.prn[static_cast<std::size_t>(i)];
       settled[static_cast<std::size_t>(i)] =
-          prn >= 1 && prn <= 32 && ep.t_s - locked_since_[static_cast<std::size_t>(prn)] >= cfg_.pseudorange_settle_s;
+          gnss::is_sat_id(prn) && ep.t_s - locked_since_[static_cast<std::size_t>(prn)] >= cfg_.pseudorange_settle_s;
     }
 
     const double t_abs = ep.t_s + cfg_.gps_time_offset_s;
@@ -747,10 +808,14 @@ void InsFilter<NB, NC, NT>::process_pseudoranges(const PseudorangeEpoch& ep) {
       use[static_cast<std::size_t>(n++)] = PrUse{st.r_ecef_m, corr, gnss::sagnac_m(st.r_ecef_m, r_a), var, ep.prn[k]};
     }
     if (n == 0) return;
-    check_clock(use.data(), n, ep.t_s);
+    // GPS first, Galileo after it (see update_galileo): the clock states are GPS's.
+    const auto galileo_first = std::stable_partition(use.begin(), use.begin() + n,
+                                                     [](const PrUse& u) { return !gnss::is_galileo(u.prn); });
+    const int n_gps = static_cast<int>(galileo_first - use.begin());
+    if (n_gps > 0) check_clock(use.data(), n_gps, ep.t_s);
     bool any = false;
     const Vec3 v_a = NT == 1 ? antenna_velocity_now() : Vec3::Zero();
-    for (int i = 0; i < n; ++i) {
+    for (int i = 0; i < n_gps; ++i) {
       const auto& u = use[static_cast<std::size_t>(i)];
       auto m = pseudorange(core_, cfg_.lever_arm_body_m, u.sat, u.pr_corr, u.sagnac, u.var);
       add_time_offset(m, core_, es::pos, v_a, heading_known_);  // the range rate the receiver's motion gives
@@ -760,6 +825,7 @@ void InsFilter<NB, NC, NT>::process_pseudoranges(const PseudorangeEpoch& ep) {
       if (r.accepted) pr_used_t_[static_cast<std::size_t>(u.prn)] = ep.t_s;
       any = any || r.accepted;
     }
+    if (n - n_gps >= 2) any = update_galileo(use.data() + n_gps, n - n_gps, v_a, ep.t_s) || any;
     note_gnss(any, ep.t_s);
   } else {
     (void)ep;

@@ -21,6 +21,8 @@ Extensions (all optional):
 - ``[gnss] week``: the GPS week of a kf-gins GNSS file (default: ``[imu] week``).
 - ``[gnss] geoid_height_m``, ``[scoring] reference_geoid_height_m``: for .pos (and kf-gins)
   heights above the geoid, the geoid's height above the ellipsoid (added to them).
+- ``[gnss] systems = ["gps", "galileo"]`` (the default): the systems a UBX stream's pseudoranges and
+  ephemerides are taken from (GPS L1 C/A, Galileo E1).
 - ``[gnss] nav`` may be a list of RINEX navigation files; with ``format = "ubx"`` they add to
   the ephemerides decoded from the stream's SFRBX.
 - ``[gnss.sigma_floor_m]`` ``fix``, ``float``, ``sbas``, ``dgps``, ``single``, ``ppp``, ``unknown`` =
@@ -61,7 +63,7 @@ _KNOWN = {
     "imu": {"file", "format", "columns", "time", "week", "accel_unit", "gyro_unit", "time_offset_s", "imu_to_body",
             "imu_to_body_ypr_deg", "delimiter", "skip_rows"},
     "gnss": {"file", "format", "nav", "antenna_m", "week", "geoid_height_m", "sigma_floor_m", "sigma_default_m",
-             "velocity_sigma_floor_mps", "velocity_lag_s"},
+             "velocity_sigma_floor_mps", "velocity_lag_s", "systems"},
     "vehicle": {"kind"},
     "scoring": {"reference", "reference_q", "reference_geoid_height_m", "outages"},
 }
@@ -277,6 +279,16 @@ def _read_imu(t: dict, base: Path, path: Path) -> ImuData:
     raise DatasetError(path, f"unknown format {fmt!r} ({', '.join(IMU_FORMATS)})", field="[imu] format")
 
 
+def _systems(tg: dict, path: Path) -> list[str]:
+    systems = tg.get("systems", list(ubx.SYSTEMS))
+    if isinstance(systems, str):
+        systems = [systems]
+    bad = [x for x in systems if x not in ubx.SYSTEMS]
+    if bad or not systems:
+        raise DatasetError(path, f"unknown system(s) {bad} (of {', '.join(ubx.SYSTEMS)})", field="[gnss] systems")
+    return list(systems)
+
+
 def _nav_files(t: dict, base: Path, path: Path) -> list[Path]:
     nav = t.get("nav", [])
     return [_file(base, n, path, "[gnss] nav") for n in ([nav] if isinstance(nav, str) else nav)]
@@ -357,14 +369,19 @@ def load(path: str | Path) -> Dataset:
         ds.pseudoranges = rinex.read_obs(gfile).gps_l1()
         ds.navigation = _merge_nav(navs)
     else:
+        systems = _systems(tg, path)
         u = ubx.read(gfile)
-        ds.fixes, ds.pseudoranges = u.fixes, u.pseudoranges
-        ds.navigation = _merge_nav([u.navigation] + navs)
+        pr = u.pseudoranges
+        ds.fixes, ds.pseudoranges = u.fixes, pr.select(np.isin(ubx.system_of(pr.prn), systems))
+        nav = u.navigation
+        nav.ephemerides = [e for e in nav.ephemerides if ubx.system_of(e.prn) in systems]
+        ds.navigation = _merge_nav([nav] + navs)
         for k, v in u.subframes.items():
             if "dropped" in k or "inconsistent" in k:
-                skipped[f"ubx: GPS {k}"] = v
-        ds.notes.append(f"{gfile.name}: {len(u.navigation.ephemerides)} GPS ephemerides from SFRBX "
-                        f"(PRN {', '.join(map(str, u.navigation.prns())) or 'none'})")
+                skipped[f"ubx: {k}"] = v
+        ids = nav.prns()
+        ds.notes.append(f"{gfile.name}: {len(nav.ephemerides)} ephemerides from SFRBX "
+                        f"({', '.join(ubx.sat_name(i) for i in ids) or 'none'})")
         if u.damage:
             skipped["ubx: damaged stretches"] = len(u.damage)
             ds.notes.append(u.damage_summary())

@@ -190,6 +190,7 @@ def _spp_fixes(pr, nav, t0: float) -> tuple[np.ndarray, np.ndarray]:
     filter and aid the loose one; hdop/vdop are the solution's DOPs."""
     from . import _core
     store = nav.store()
+    pr = pr.select(pr.prn <= 32)  # the single-point solver has one clock: GPS's
     rows, sats = [], []
     guess = np.zeros(3)
     for t, prns, prs in pr.epochs():

@@ -48,7 +48,7 @@ struct FixInput {
 // One measurement epoch of the receiver: pseudoranges at receiver time t_s (the
 // filter's time base). n <= kMaxSats.
 struct PseudorangeEpoch {
-  static constexpr int kMaxSats = 16;
+  static constexpr int kMaxSats = 32;  // GPS and Galileo in view together
   double t_s = 0.0;
   int n = 0;
   std::array<int, kMaxSats> prn{};
@@ -185,6 +185,7 @@ class InsFilter {
     int prn;
   };
   void check_clock(const PrUse* use, int n, double t);
+  bool update_galileo(const PrUse* use, int n, const Vec3& v_a, double t);
   void track_locks(const PseudorangeEpoch& epoch);
   double correlated_variance(int prn, double t, double el_rad, double ura_m) const;
   void initialise(const FixInput& fix);
@@ -280,10 +281,10 @@ class InsFilter {
   double last_pr_t_ = -1e300;
   gnss::EphemerisStore store_;
   gnss::Klobuchar iono_;
-  std::array<int, 33> last_lock_{};
-  std::array<double, 33> locked_since_{};
-  std::array<bool, 33> tracked_{};
-  std::array<double, 33> pr_used_t_{};  // time of each satellite's last update (NaN: none since acquisition)
+  std::array<int, gnss::kMaxSatId + 1> last_lock_{};
+  std::array<double, gnss::kMaxSatId + 1> locked_since_{};
+  std::array<bool, gnss::kMaxSatId + 1> tracked_{};
+  std::array<double, gnss::kMaxSatId + 1> pr_used_t_{};  // time of each satellite's last update (NaN: none since acquisition)
   bool clock_set_ = false;
   bool clock_suspect_ = false;  // the last epoch's median residual lay beyond the gate
   double last_clock_median_m_ = 0.0;

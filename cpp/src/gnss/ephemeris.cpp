@@ -71,7 +71,8 @@ SatState sat_state(const Ephemeris& eph, double t_abs) {
   SatState s;
   const double a = eph.sqrt_a * eph.sqrt_a;
   double tk = t_abs - eph.toe_abs();
-  const double n = std::sqrt(kGm / (a * a * a)) + eph.delta_n;
+  const bool galileo = is_galileo(eph.prn);
+  const double n = std::sqrt((galileo ? kGmGalileo : kGm) / (a * a * a)) + eph.delta_n;
   const double m = eph.m0 + n * tk;
   double ecc_anomaly = m;
   for (int i = 0; i < 30; ++i) {  // Newton on Kepler's equation
@@ -91,7 +92,8 @@ SatState sat_state(const Ephemeris& eph, double t_abs) {
   const double so = std::sin(om), co = std::cos(om), ci = std::cos(i);
   s.r_ecef_m = Vec3(xp * co - yp * ci * so, xp * so + yp * ci * co, yp * std::sin(i));
   double dt = t_abs - (eph.week * kSecondsPerWeek + eph.toc_s);
-  s.clock_s = eph.af0 + eph.af1 * dt + eph.af2 * dt * dt + kRelativityF * eph.e * eph.sqrt_a * se;
+  s.clock_s = eph.af0 + eph.af1 * dt + eph.af2 * dt * dt +
+              (galileo ? kRelativityFGalileo : kRelativityF) * eph.e * eph.sqrt_a * se;
   return s;
 }
 
@@ -117,7 +119,7 @@ bool EphemerisStore::add(const Ephemeris& e) {
 }
 
 const Ephemeris* EphemerisStore::select(int prn, double t_abs, double max_age_s) const {
-  if (prn < 1 || prn > 32) return nullptr;
+  if (!is_sat_id(prn)) return nullptr;
   const Ephemeris* best = nullptr;
   double best_age = max_age_s;
   for (const auto& s : eph_[static_cast<std::size_t>(prn)]) {

@@ -112,7 +112,8 @@ class Fixes:
 
 @dataclass
 class Pseudoranges:
-    """GPS L1 C/A observations: one row per satellite and epoch, an epoch's rows together, epochs in time order."""
+    """GPS L1 C/A (and Galileo E1: ids above 32, the core's) observations: one row per satellite and epoch, an
+    epoch's rows together, epochs in time order."""
 
     t_abs: np.ndarray  # (k,) receiver time of the epoch, GPS s since the GPS epoch
     prn: np.ndarray  # (k,) int
@@ -131,6 +132,10 @@ class Pseudoranges:
             return np.zeros(1, int)
         cut = np.flatnonzero(np.diff(self.t_abs) != 0) + 1
         return np.concatenate([[0], cut, [len(self.t_abs)]])
+
+    def select(self, keep: np.ndarray) -> "Pseudoranges":
+        return Pseudoranges(self.t_abs[keep], self.prn[keep], self.pr_m[keep], self.doppler_hz[keep],
+                            self.cn0_dbhz[keep], self.lock_s[keep], self.source)
 
     def epochs(self):
         """(t_abs, prns, pseudoranges) per epoch, for ``spp`` and the like."""

@@ -1,4 +1,4 @@
-"""u-blox UBX streams: RXM-RAWX measurements, RXM-SFRBX GPS LNAV subframes and NAV-PVT fixes.
+"""u-blox UBX streams: RXM-RAWX measurements, RXM-SFRBX GPS LNAV subframes and Galileo I/NAV pages, NAV-PVT fixes.
 
 A lean parser of our own rather than pyubx2: pyubx2 builds a Python object with
 named attributes per frame and took 3.1 s for the walk's 134 s capture (about
@@ -18,7 +18,8 @@ bits, data bits already un-inverted by the receiver) are parity-checked
 (IS-GPS-200 20.3.5.2), sorted by subframe ID and, once subframes 1-3 of one
 IODE are in, decoded by the core's IS-GPS-200 decoder from their words 3-10
 (24 data bits each: the form the Superstar II's ID 22 has). Subframe 4 page 18
-gives the Klobuchar coefficients.
+gives the Klobuchar coefficients. Galileo E1-B I/NAV pages go to galileo_inav.py; its satellites
+take the core's ids 33-68 in ``pseudoranges`` and ``navigation``.
 """
 
 from __future__ import annotations
@@ -32,12 +33,26 @@ from pathlib import Path
 import numpy as np
 
 from .. import _core
+from .galileo_inav import GALILEO_ID_OFFSET, InavCollector
 from .common import SECONDS_PER_WEEK, Fixes, Navigation, Pseudoranges, ReaderError, read_bytes
 
 SYNC = b"\xb5\x62"
 MAX_PAYLOAD = 8192  # longer "lengths" are taken as a false sync
 NAMES = {(0x02, 0x15): "RXM-RAWX", (0x02, 0x13): "RXM-SFRBX", (0x01, 0x07): "NAV-PVT"}
 GNSS_GPS, GNSS_SBAS, GNSS_GALILEO, GNSS_BEIDOU, GNSS_QZSS, GNSS_GLONASS = 0, 1, 2, 3, 5, 6
+
+SYSTEMS = ("gps", "galileo")  # what the core's satellite ids cover
+
+
+def system_of(sat_id):
+    """"gps" or "galileo" of the core's satellite ids (vectorised)."""
+    return np.where(np.asarray(sat_id) > GALILEO_ID_OFFSET, "galileo", "gps")
+
+
+def sat_name(sat_id: int) -> str:
+    """G05, E07: the RINEX name of a core satellite id."""
+    return f"E{sat_id - GALILEO_ID_OFFSET:02d}" if sat_id > GALILEO_ID_OFFSET else f"G{sat_id:02d}"
+
 
 RAWX_HEAD = struct.Struct("<dHbBBB2x")
 RAWX_MEAS = np.dtype([("pr_m", "<f8"), ("cp_cycles", "<f8"), ("doppler_hz", "<f4"), ("gnss", "u1"), ("sv", "u1"),
@@ -67,14 +82,14 @@ class UbxFile:
 
     rawx_t_abs: np.ndarray  # (k,) receiver time of each measurement's epoch, GPS s since the GPS epoch
     rawx: np.ndarray  # (k,) RAWX_MEAS records of all systems and signals
-    pseudoranges: Pseudoranges  # GPS L1 C/A, pseudorange valid
+    pseudoranges: Pseudoranges  # GPS L1 C/A and Galileo E1 (ids 33-68), pseudorange valid
     fixes: Fixes  # NAV-PVT with a valid fix
     pvt: np.ndarray  # (m,) NAV_PVT records, all of them
     pvt_t_abs: np.ndarray  # (m,)
-    navigation: Navigation  # GPS ephemerides decoded from SFRBX, Klobuchar
+    navigation: Navigation  # GPS and Galileo ephemerides decoded from SFRBX, Klobuchar
     counts: Counter  # frames by message name ("CLS-ID" hex when not decoded here)
     damage: list[Damage] = field(default_factory=list)
-    subframes: Counter = field(default_factory=Counter)  # GPS LNAV subframe statistics
+    subframes: Counter = field(default_factory=Counter)  # GPS LNAV subframe and Galileo I/NAV page statistics
     source: str = ""
 
     def signal(self, gnss: int = GNSS_GPS, sig: int = 0) -> Pseudoranges:
@@ -337,21 +352,38 @@ def parse(data: bytes, source: str = "<bytes>", path=None) -> UbxFile:
     week_hint = int(np.median(weeks)) if weeks else (int(np.nanmedian(t_pvt) // SECONDS_PER_WEEK)
                                                       if np.isfinite(t_pvt).any() else None)
 
-    lnav = LnavCollector()
+    lnav, inav = LnavCollector(), InavCollector()
     for start, length in by_type.get((0x02, 0x13), []):
         if length < 8:
             continue
         gnss, sv, sig, _freq, n_words = data[start:start + 5]
-        if gnss != GNSS_GPS or sig != 0 or n_words != 10 or length < 8 + 40 or not 1 <= sv <= 32:
-            continue
-        words = struct.unpack_from("<10I", data, start + 8)
-        lnav.add(sv, [w & 0x3FFFFFFF for w in words])
+        if gnss == GNSS_GPS and sig == 0 and n_words == 10 and length >= 8 + 40 and 1 <= sv <= 32:
+            words = struct.unpack_from("<10I", data, start + 8)
+            lnav.add(sv, [w & 0x3FFFFFFF for w in words])
+        elif gnss == GNSS_GALILEO and sig in (0, 1) and n_words == 8 and length >= 8 + 32 and 1 <= sv <= 36:
+            inav.add(sv, list(struct.unpack_from("<8I", data, start + 8)))  # E1-B (M8 receivers give sigId 0)
     ephs = lnav.ephemerides(week_hint) if week_hint is not None else []
     if week_hint is None and lnav.sets:
         lnav.stats["sets without a GPS week (no RAWX/NAV-PVT)"] = len(lnav.sets)
+    ephs += inav.ephemerides()
     nav = Navigation(ephs, lnav.alpha, lnav.beta, int(np.median(leaps)) if leaps else None)
 
     out = UbxFile(t_meas, meas, Pseudoranges.empty(source), pvt_fixes(pvt, t_pvt, source), pvt, t_pvt, nav, counts,
-                  damage, lnav.stats, source)
-    out.pseudoranges = out.signal(GNSS_GPS, 0)
+                  damage, lnav.stats + inav.stats, source)
+    out.pseudoranges = _with_galileo(out.signal(GNSS_GPS, 0), out.signal(GNSS_GALILEO, 0), out.signal(GNSS_GALILEO, 1))
     return out
+
+
+def _with_galileo(gps: Pseudoranges, e1c: Pseudoranges, e1b: Pseudoranges) -> Pseudoranges:
+    """GPS L1 C/A and Galileo E1 (the pilot E1 C where tracked, else E1 B) in one table, Galileo with the core's
+    ids; each epoch's GPS rows first (the filter takes at most 32 a epoch)."""
+    gal = e1c if len(e1c) else e1b
+    if not len(gal):
+        return gps
+    t = np.concatenate([gps.t_abs, gal.t_abs])
+    system = np.concatenate([np.zeros(len(gps), int), np.ones(len(gal), int)])
+    order = np.lexsort((system, t))
+    cat = (lambda a, b: np.concatenate([a, b])[order])
+    return Pseudoranges(t[order], cat(gps.prn, gal.prn + GALILEO_ID_OFFSET), cat(gps.pr_m, gal.pr_m),
+                        cat(gps.doppler_hz, gal.doppler_hz), cat(gps.cn0_dbhz, gal.cn0_dbhz),
+                        cat(gps.lock_s, gal.lock_s), gps.source)

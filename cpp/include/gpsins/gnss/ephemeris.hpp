@@ -1,7 +1,9 @@
 // GPS broadcast ephemeris (IS-GPS-200): the subframe decoding of the Superstar
 // II's ID 22, satellite position and clock at transmission time, and a store
 // that picks the ephemeris for a time (nearest toe within its validity,
-// healthy). Fixed-size: no allocation.
+// healthy). Galileo's broadcast orbit (OS SIS ICD 5.1.1) has the same form
+// with its own mu; its satellites share the id space: 33..68 are E01..E36.
+// Fixed-size: no allocation.
 #pragma once
 
 #include <array>
@@ -17,18 +19,26 @@ inline constexpr double kOmegaEarth = 7.2921151467e-5;  // IS-GPS-200 Earth rate
 inline constexpr double kGpsPi = 3.1415926535898;       // the semicircle of IS-GPS-200
 inline constexpr double kRelativityF = -4.442807633e-10;  // s/sqrt(m)
 inline constexpr double kSecondsPerWeek = 604800.0;
+inline constexpr double kGmGalileo = 3.986004418e14;           // OS SIS ICD value of mu, m^3/s^2
+inline constexpr double kRelativityFGalileo = -4.442807309e-10;  // -2 sqrt(mu) / c^2 with Galileo's mu
+
+// Satellite ids: GPS PRN 1..32 as they are, Galileo E01..E36 as 33..68.
+inline constexpr int kGalileoIdOffset = 32;
+inline constexpr int kMaxSatId = kGalileoIdOffset + 36;
+inline constexpr bool is_sat_id(int id) { return id >= 1 && id <= kMaxSatId; }
+inline constexpr bool is_galileo(int id) { return id > kGalileoIdOffset && id <= kMaxSatId; }
 
 struct Ephemeris {
-  int prn = 0;
-  int week = 0;  // full GPS week of toe
+  int prn = 0;   // satellite id (is_sat_id): Galileo's are offset by kGalileoIdOffset
+  int week = 0;  // full GPS week of toe (Galileo: its GST week + 1024, GST keeping GPS seconds)
   double toe_s = 0.0, toc_s = 0.0;  // seconds of week
   double sqrt_a = 0.0, e = 0.0, i0 = 0.0, omega0 = 0.0, omega = 0.0, m0 = 0.0;  // m^1/2, -, rad
   double delta_n = 0.0, idot = 0.0, omega_dot = 0.0;                             // rad/s
   double cuc = 0.0, cus = 0.0, crc = 0.0, crs = 0.0, cic = 0.0, cis = 0.0;       // rad, m
-  double af0 = 0.0, af1 = 0.0, af2 = 0.0, tgd_s = 0.0;
+  double af0 = 0.0, af1 = 0.0, af2 = 0.0, tgd_s = 0.0;  // Galileo: tgd_s is BGD(E1, E5b) of I/NAV
   int iode = 0, iodc = 0, health = 0, ura_index = 0;
   bool fit_interval_long = false;
-  bool valid() const { return prn >= 1 && prn <= 32 && sqrt_a > 0.0; }
+  bool valid() const { return is_sat_id(prn) && sqrt_a > 0.0; }
   double toe_abs() const { return week * kSecondsPerWeek + toe_s; }  // seconds since the GPS epoch
 };
 
@@ -59,8 +69,8 @@ class EphemerisStore {
   int count() const;
 
  private:
-  std::array<std::array<Ephemeris, kPerSat>, 33> eph_{};
-  std::array<int, 33> next_{};
+  std::array<std::array<Ephemeris, kPerSat>, kMaxSatId + 1> eph_{};
+  std::array<int, kMaxSatId + 1> next_{};
 };
 
 }  // namespace gpsins::gnss
