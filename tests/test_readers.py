@@ -111,6 +111,23 @@ def test_gps_l1_pseudoranges_are_the_valid_l1_ca_rows(walk_ubx):
     assert tab.shape == (3842, 5) and np.all(np.diff(tab[:, 0]) >= 0)
 
 
+def range_residual(store, prn: int, t: float, pr: float, r_rx, llh) -> float | None:
+    """A pseudorange minus its model at a known receiver position: range + Sagnac - satellite clock + group delay +
+    troposphere, the satellite at its transmission time. Left: the receiver clock and the ionosphere (metres)."""
+    eph = store.select(prn, t)
+    if eph is None:
+        return None
+    tx = t - pr / 299792458.0
+    for _ in range(2):
+        r_sat, clk = _core.gnss.sat_state(eph, tx)
+        tx = t - pr / 299792458.0 - clk
+    r_sat, clk = _core.gnss.sat_state(eph, tx)
+    _, el = _core.gnss.az_el(r_rx, r_sat)
+    model = np.linalg.norm(r_sat - r_rx) + _core.gnss.sagnac_m(r_sat, r_rx) \
+        - 299792458.0 * (clk - eph.tgd_s) + _core.gnss.saastamoinen_m(llh, el)
+    return pr - model
+
+
 def test_sfrbx_ephemerides_give_spp_within_metres_of_the_rtk_reference(walk_ubx):
     """End-to-end check of RAWX + SFRBX: ephemerides from the subframes through the core's decoder, SPP on the
     L1 C/A pseudoranges, against RTKLIB's RTK solution."""
@@ -140,20 +157,8 @@ def test_sfrbx_ephemerides_give_spp_within_metres_of_the_rtk_reference(walk_ubx)
     r_rx = ref.r_ecef[0]
     llh0 = ref.llh()[0]
     store = nav.store()
-    res = {}
-    for prn, pr in zip(prns, prs):
-        eph = store.select(prn, t)
-        if eph is None:
-            continue
-        tx = t - pr / 299792458.0
-        for _ in range(2):
-            r_sat, clk = _core.gnss.sat_state(eph, tx)
-            tx = t - pr / 299792458.0 - clk
-        r_sat, clk = _core.gnss.sat_state(eph, tx)
-        _, el = _core.gnss.az_el(r_rx, r_sat)
-        model = np.linalg.norm(r_sat - r_rx) + _core.gnss.sagnac_m(r_sat, r_rx) \
-            - 299792458.0 * (clk - eph.tgd_s) + _core.gnss.saastamoinen_m(llh0, el)
-        res[prn] = pr - model
+    res = {prn: range_residual(store, prn, t, pr, r_rx, llh0) for prn, pr in zip(prns, prs)}
+    res = {prn: v for prn, v in res.items() if v is not None}
     assert sorted(res) == [10, 23, 27, 32]
     spread = np.ptp(list(res.values()))
     print("per-satellite residuals minus their mean (m):", {p: round(v - np.mean(list(res.values())), 2)
@@ -185,7 +190,7 @@ def test_galileo_inav_pages_give_ephemerides_whose_ranges_fit_the_rtk_reference(
             # GSAT0201, left in an eccentric orbit by its launcher in 2014 (about 17 200 x 26 000 km at 50 deg);
             # it broadcasts signal health 1: not to be used.
             assert e.e == pytest.approx(0.16, abs=0.01) and np.degrees(e.i0) == pytest.approx(49.5, abs=1.0)
-            assert e.health == 2 and store_select_none(nav, e)
+            assert e.health == 2 and nav.store().select(e.prn, e.week * 604800.0 + e.toe_s) is None
         else:  # 29 600 km circular orbits at 56 deg, healthy
             assert 5438.0 < e.sqrt_a < 5442.0 and e.e < 0.01 and e.health == 0
             assert np.degrees(e.i0) == pytest.approx(56.0, abs=2.0)
@@ -198,19 +203,9 @@ def test_galileo_inav_pages_give_ephemerides_whose_ranges_fit_the_rtk_reference(
         if k >= len(ref.t_abs) or abs(ref.t_abs[k] - t) > 0.01:
             continue
         r_rx, llh = ref.r_ecef[k], ref.llh()[k]
-        row = {}
-        for prn, p in zip(prns, prs):
-            eph = store.select(prn, t)
-            if eph is None:
-                continue
-            t_tx = t - p / 299792458.0
-            r_sat, clk = _core.gnss.sat_state(eph, t_tx - _core.gnss.sat_state(eph, t_tx)[1])
-            _, el = _core.gnss.az_el(r_rx, r_sat)
-            model = np.linalg.norm(r_sat - r_rx) + _core.gnss.sagnac_m(r_sat, r_rx) \
-                - 299792458.0 * (clk - eph.tgd_s) + _core.gnss.saastamoinen_m(llh, el)
-            row[prn] = p - model
-        g = [v for i, v in row.items() if i <= 32]
-        e = [v for i, v in row.items() if i > 32]
+        row = {prn: range_residual(store, prn, t, p, r_rx, llh) for prn, p in zip(prns, prs)}
+        g = [v for i, v in row.items() if i <= 32 and v is not None]
+        e = [v for i, v in row.items() if i > 32 and v is not None]
         if len(g) >= 3 and len(e) >= 3:
             res[t] = (np.array(g) - np.median(g), np.array(e) - np.median(e), np.median(e) - np.median(g))
     assert len(res) >= 10
@@ -218,15 +213,10 @@ def test_galileo_inav_pages_give_ephemerides_whose_ranges_fit_the_rtk_reference(
     isb = np.array([x[2] for x in res.values()])
     print(f"Galileo residuals about their epoch's median: RMS {np.sqrt(np.mean(spread_e ** 2)):.2f} m; "
           f"Galileo minus GPS median {isb.mean():.2f} +- {isb.std():.2f} m")
-    # Metres (ionosphere, multipath), as GPS's own; a wrong field would put a satellite kilometres off.
     # Metres (no Klobuchar in 134 s, multipath at 16-26 deg on E08 and E13), as GPS's own; a wrong field would put
     # a satellite kilometres off. The offset itself: about -1.5 m (GGTO and the receiver's bias).
     assert np.sqrt(np.mean(spread_e ** 2)) < 8.0 and np.percentile(np.abs(spread_e), 95) < 15.0
     assert isb.std() < 5.0  # the receiver's Galileo offset is a constant, not noise
-
-
-def store_select_none(nav, e) -> bool:
-    return nav.store().select(e.prn, e.week * 604800.0 + e.toe_s) is None
 
 
 def test_lnav_parity_detects_every_single_bit_error(walk_ubx):

@@ -17,7 +17,6 @@ the filter eliminates the receiver's Galileo time offset with its own).
 
 from __future__ import annotations
 
-import math
 from collections import Counter
 
 from .. import _core
@@ -48,9 +47,9 @@ def crc24q(data: bytes) -> int:
     return c
 
 
-def _bits(x: int, width: int, pos: int, n: int) -> int:
-    """Bits pos..pos+n-1 (0 = MSB) of a width-bit integer."""
-    return (x >> (width - pos - n)) & ((1 << n) - 1)
+def _bits(x: int, pos: int, n: int) -> int:
+    """Bits pos..pos+n-1 (0 = MSB) of a 128-bit integer (a page part, a data word)."""
+    return (x >> (128 - pos - n)) & ((1 << n) - 1)
 
 
 def _signed(v: int, n: int) -> int:
@@ -61,14 +60,14 @@ def page_word(words32: list[int]) -> tuple[int | None, str]:
     """The 128-bit data word of one SFRBX I/NAV page, or None and why it was dropped."""
     even = (words32[0] << 96) | (words32[1] << 64) | (words32[2] << 32) | words32[3]
     odd = (words32[4] << 96) | (words32[5] << 64) | (words32[6] << 32) | words32[7]
-    if _bits(even, 128, 0, 1) != 0 or _bits(odd, 128, 0, 1) != 1:
+    if _bits(even, 0, 1) != 0 or _bits(odd, 0, 1) != 1:
         return None, "even/odd parts out of order"
-    if _bits(even, 128, 1, 1) or _bits(odd, 128, 1, 1):
+    if _bits(even, 1, 1) or _bits(odd, 1, 1):
         return None, "alert pages"
-    covered = (_bits(even, 128, 0, 114) << 82) | _bits(odd, 128, 0, 82)  # 196 bits; 4 leading zeros pad to 25 bytes
-    if crc24q(covered.to_bytes(25, "big")) != _bits(odd, 128, 82, 24):
+    covered = (_bits(even, 0, 114) << 82) | _bits(odd, 0, 82)  # 196 bits; 4 leading zeros pad to 25 bytes
+    if crc24q(covered.to_bytes(25, "big")) != _bits(odd, 82, 24):
         return None, "CRC failures"
-    return (_bits(even, 128, 2, 112) << 16) | _bits(odd, 128, 2, 16), ""
+    return (_bits(even, 2, 112) << 16) | _bits(odd, 2, 16), ""
 
 
 def sisa_to_ura_index(sisa: int) -> int:
@@ -84,8 +83,7 @@ def sisa_to_ura_index(sisa: int) -> int:
         m = 2.0 + (sisa - 100) * 0.16
     else:
         return 15
-    table = (2.4, 3.4, 4.85, 6.85, 9.65, 13.65, 24.0, 48.0, 96.0, 192.0, 384.0, 768.0, 1536.0, 3072.0, 6144.0)
-    return next(i for i, u in enumerate(table) if u >= m)
+    return next(i for i in range(15) if _core.gnss.ura_m(i) >= m)
 
 
 class InavCollector:
@@ -108,8 +106,8 @@ class InavCollector:
             return
         got = self.words.setdefault(svid, {})
         got[wtype] = word
-        iods = {_bits(got[k], 128, 6, 10) for k in (1, 2, 3, 4) if k in got}
-        if len(got.keys() & {1, 2, 3, 4, 5}) == 5 and len(iods) == 1:
+        iods = {_bits(got[k], 6, 10) for k in (1, 2, 3, 4) if k in got}
+        if len(got) == 5 and len(iods) == 1:  # word types 1-5, the first four of one IODnav
             self.sets[(svid, iods.pop())] = dict(got)
 
     def ephemerides(self) -> list:
@@ -126,7 +124,7 @@ class InavCollector:
 
 def decode(svid: int, w: dict[int, int]):
     """An ``_core.gnss.Ephemeris`` from word types 1-5 of one IODnav (OS SIS ICD tables 60-63, 67), or None."""
-    b = (lambda k, pos, n: _bits(w[k], 128, pos, n))
+    b = (lambda k, pos, n: _bits(w[k], pos, n))
     s = (lambda k, pos, n: _signed(b(k, pos, n), n))
     if b(4, 16, 6) != svid:
         return None
@@ -155,6 +153,4 @@ def decode(svid: int, w: dict[int, int]):
     week, tow = b(5, 73, 12) + GST_WEEK_TO_GPS_WEEK, b(5, 85, 20)
     # toe and toc are of the week they fall in: within half a week of the time of word type 5.
     e.week = week + round((tow - e.toe_s) / 604800.0)
-    if not (e.sqrt_a > 0 and math.isfinite(e.e)):
-        return None
-    return e
+    return e if e.sqrt_a > 0 else None

@@ -370,14 +370,14 @@ def parse(data: bytes, source: str = "<bytes>", path=None) -> UbxFile:
 
     out = UbxFile(t_meas, meas, Pseudoranges.empty(source), pvt_fixes(pvt, t_pvt, source), pvt, t_pvt, nav, counts,
                   damage, lnav.stats + inav.stats, source)
-    out.pseudoranges = _with_galileo(out.signal(GNSS_GPS, 0), out.signal(GNSS_GALILEO, 0), out.signal(GNSS_GALILEO, 1))
+    e1 = out.signal(GNSS_GALILEO, 0)  # the pilot E1 C where tracked, else E1 B
+    out.pseudoranges = _with_galileo(out.signal(GNSS_GPS, 0), e1 if len(e1) else out.signal(GNSS_GALILEO, 1))
     return out
 
 
-def _with_galileo(gps: Pseudoranges, e1c: Pseudoranges, e1b: Pseudoranges) -> Pseudoranges:
-    """GPS L1 C/A and Galileo E1 (the pilot E1 C where tracked, else E1 B) in one table, Galileo with the core's
-    ids; each epoch's GPS rows first (the filter takes at most 32 a epoch)."""
-    gal = e1c if len(e1c) else e1b
+def _with_galileo(gps: Pseudoranges, gal: Pseudoranges) -> Pseudoranges:
+    """GPS L1 C/A and Galileo E1 in one table, Galileo with the core's ids; each epoch's GPS rows first (the
+    filter takes at most 32 a epoch)."""
     if not len(gal):
         return gps
     t = np.concatenate([gps.t_abs, gal.t_abs])
