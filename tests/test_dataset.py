@@ -45,7 +45,7 @@ def test_walk_ubx_dataset_has_pseudoranges_ephemerides_and_fixes():
     assert ds.navigation.prns() == [10, 23, 27, 32, 39, 40, 45, 46, 58, 61, 65]
     assert any("(G10, G23, G27, G32, E07, E08, E13, E14, E26, E29, E33)" in x for x in ds.notes)
     assert not ds.skipped
-    assert ds.pseudoranges.table(ds.gnss_span()[0]).shape == (n, 5)
+    assert ds.pseudoranges.table(ds.gnss_span()[0]).shape == (n, 6)
 
 
 def test_gnss_systems_pick_what_a_ubx_stream_gives(tmp_path):

@@ -66,6 +66,7 @@ constexpr int kImuCols = 7;   // t, dtheta xyz, dv xyz
 constexpr int kFixCols = 10;  // t, r xyz, v xyz, hdop, vdop, mode
 constexpr int kFixColsSigma = 16;  // then sigma n, e, d (m) and sigma vn, ve, vd (m/s): NaN or <= 0 none
 constexpr int kPrCols = 5;    // t, prn, pseudorange, C/N0, lock count
+constexpr int kPrColsDoppler = 6;  // then Doppler (Hz, positive approaching; NaN: none)
 constexpr int kAttCols = 5;   // t, yaw, pitch (NaN: none), sigma yaw, sigma pitch (rad)
 
 FixInput fix_of(const double* p, int cols) {
@@ -126,6 +127,8 @@ py::dict counters_dict(const Counters& c) {
   d["pseudoranges_rejected"] = c.pseudoranges_rejected;
   d["pseudoranges_no_ephemeris"] = c.pseudoranges_no_ephemeris;
   d["pseudoranges_masked"] = c.pseudoranges_masked;
+  d["range_rates_used"] = c.range_rates_used;
+  d["range_rates_rejected"] = c.range_rates_rejected;
   d["clock_reseeds"] = c.clock_reseeds;
   d["diverged"] = c.diverged;
   return d;
@@ -189,16 +192,17 @@ Array from_rows(const std::vector<double>& v, py::ssize_t cols) {
 }
 
 // Rows [start, end) of a pseudorange table with the same time, as one epoch.
-PseudorangeEpoch pr_epoch(const double* p, py::ssize_t start, py::ssize_t end) {
+PseudorangeEpoch pr_epoch(const double* p, py::ssize_t start, py::ssize_t end, int cols) {
   PseudorangeEpoch ep;
-  ep.t_s = p[start * kPrCols];
+  ep.t_s = p[start * cols];
   for (py::ssize_t r = start; r < end && ep.n < PseudorangeEpoch::kMaxSats; ++r) {
-    const double* row = p + r * kPrCols;
+    const double* row = p + r * cols;
     const auto k = static_cast<std::size_t>(ep.n++);
     ep.prn[k] = static_cast<int>(row[1]);
     ep.pr_m[k] = row[2];
     ep.cn0_dbhz[k] = row[3];
     ep.lock_count[k] = static_cast<int>(row[4]);
+    if (cols == kPrColsDoppler) ep.doppler_hz[k] = row[5];
   }
   return ep;
 }
@@ -316,6 +320,7 @@ py::dict run_batch(InsFilter<NB, NC, NT>& f, const Array& imu, const Array& fixe
   const double* pf = fixes.data();
   const double* pp = prs.data();
   const py::ssize_t np_rows = prs.shape(0);
+  const int pc = static_cast<int>(prs.shape(1));
   const double* pa = att.data();
   const py::ssize_t na_rows = att.shape(0);
   py::ssize_t j = 0, q = 0, g = 0, bad_row = -1;
@@ -345,12 +350,12 @@ py::dict run_batch(InsFilter<NB, NC, NT>& f, const Array& imu, const Array& fixe
         ++j;
       }
       if (bad != InputStatus::Ok) break;
-      while (q < np_rows && pp[q * kPrCols] <= r[0]) {
+      while (q < np_rows && pp[q * pc] <= r[0]) {
         py::ssize_t e = q + 1;
-        while (e < np_rows && pp[e * kPrCols] == pp[q * kPrCols]) ++e;
-        const InputStatus s = f.push_pseudoranges(pr_epoch(pp, q, e));
+        while (e < np_rows && pp[e * pc] == pp[q * pc]) ++e;
+        const InputStatus s = f.push_pseudoranges(pr_epoch(pp, q, e, pc));
         if (s != InputStatus::Ok) {
-          bad = s; bad_row = offset.prs + q; bad_what = "pseudoranges"; bad_t = pp[q * kPrCols];
+          bad = s; bad_row = offset.prs + q; bad_what = "pseudoranges"; bad_t = pp[q * pc];
           break;
         }
         q = e;
@@ -488,7 +493,7 @@ class PyFilter {
     if (imu_row0 < 0 || fix_row0 < 0 || pr_row0 < 0 || att_row0 < 0) throw py::value_error("row offsets must be >= 0");
     const Array a = table(imu, kImuCols, "imu"), b = table(fixes, kFixCols, "fixes", kFixColsSigma);
     const Array c = table(prs.is_none() ? py::handle(Array(std::vector<py::ssize_t>{0, kPrCols})) : prs, kPrCols,
-                          "pseudoranges");
+                          "pseudoranges", kPrColsDoppler);
     if (c.shape(0) > 0 && !tight_)
       throw py::value_error("pseudoranges given to a loosely coupled filter (mode = 'tight' uses them)");
     const Array d = table(attitude.is_none() ? py::handle(Array(std::vector<py::ssize_t>{0, kAttCols})) : attitude,
@@ -517,10 +522,12 @@ class PyFilter {
     return out;
   }
   void push_pseudoranges(double t, const std::vector<int>& prn, const std::vector<double>& pr,
-                         const std::vector<double>& cn0, const std::vector<int>& lock) {
+                         const std::vector<double>& cn0, const std::vector<int>& lock,
+                         const std::vector<double>& doppler) {
     if (!tight_) throw py::value_error("pseudoranges need mode = 'tight'");
-    if (prn.size() != pr.size() || cn0.size() != pr.size() || lock.size() != pr.size())
-      throw py::value_error("push_pseudoranges: prn, pr, cn0 and lock must have equal lengths");
+    if (prn.size() != pr.size() || cn0.size() != pr.size() || lock.size() != pr.size() ||
+        !(doppler.empty() || doppler.size() == pr.size()))
+      throw py::value_error("push_pseudoranges: prn, pr, cn0, lock (and doppler if given) must have equal lengths");
     PseudorangeEpoch ep;
     ep.t_s = t;
     for (std::size_t i = 0; i < pr.size() && ep.n < PseudorangeEpoch::kMaxSats; ++i) {
@@ -529,6 +536,7 @@ class PyFilter {
       ep.pr_m[k] = pr[i];
       ep.cn0_dbhz[k] = cn0[i];
       ep.lock_count[k] = lock[i];
+      if (!doppler.empty()) ep.doppler_hz[k] = doppler[i];
     }
     const InputStatus s = std::visit([&](auto& f) { return f.push_pseudoranges(ep); }, f_);
     if (s != InputStatus::Ok) input_error("pseudorange epoch", pr_count_, t, s);
@@ -647,6 +655,7 @@ void bind_filter(py::module_& m) {
   GPSINS_FIELD(pseudorange_sis_tau_s);
   GPSINS_FIELD(pseudorange_ionosphere);
   GPSINS_FIELD(pseudorange_troposphere);
+  GPSINS_FIELD(doppler_sigma_mps);
   GPSINS_FIELD(gps_time_offset_s);
   GPSINS_FIELD(estimate_time_offset);
   GPSINS_FIELD(time_offset_sigma_s);
@@ -690,7 +699,7 @@ void bind_filter(py::module_& m) {
            py::arg("smooth_chunk_mb") = 256.0, py::arg("record") = false, py::arg("imu_row0") = 0,
            py::arg("fix_row0") = 0, py::arg("pr_row0") = 0, py::arg("attitude") = py::none(), py::arg("att_row0") = 0,
            "Batch: imu (n, 7) [t, dtheta xyz, dv xyz], fixes (m, 10) [t, r xyz, v xyz, hdop, vdop, mode], "
-           "pseudoranges (k, 5) [t, prn, pr, cn0, lock] (tight), rows of one epoch sharing t. smooth: also a "
+           "pseudoranges (k, 5) [t, prn, pr, cn0, lock] or (k, 6) [..., Doppler Hz (NaN: none)] (tight), rows of one epoch sharing t. smooth: also a "
            "fixed-interval smoother over the run (smooth_state, smooth_covariance, smooth_info); its record of the "
            "forward pass goes to a temporary file in chunks of smooth_chunk_mb. A run split into consecutive "
            "calls (each with the fixes and pseudoranges up to its last IMU time) gives the same rows: *_row0 are "
@@ -704,7 +713,7 @@ void bind_filter(py::module_& m) {
            "first = index of the block's first row); otherwise returned whole (smooth_state, smooth_covariance). "
            "Both give smooth_info (tape size, wall times).")
       .def("push_pseudoranges", &PyFilter::push_pseudoranges, py::arg("t"), py::arg("prn"), py::arg("pr"),
-           py::arg("cn0"), py::arg("lock"))
+           py::arg("cn0"), py::arg("lock"), py::arg("doppler") = std::vector<double>{})
       .def("push_attitude", &PyFilter::push_attitude, py::arg("t"), py::arg("yaw"),
            py::arg("pitch") = std::numeric_limits<double>::quiet_NaN(), py::arg("sigma_yaw"),
            py::arg("sigma_pitch") = std::numeric_limits<double>::quiet_NaN(),

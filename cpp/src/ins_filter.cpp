@@ -10,6 +10,7 @@
 #include "gpsins/aiding/nonholonomic.hpp"
 #include "gpsins/aiding/position_fix.hpp"
 #include "gpsins/aiding/pseudorange.hpp"
+#include "gpsins/aiding/range_rate.hpp"
 #include "gpsins/aiding/time_offset.hpp"
 #include "gpsins/gnss/spp.hpp"
 #include "gpsins/aiding/velocity.hpp"
@@ -581,9 +582,14 @@ InputStatus InsFilter<NB, NC, NT>::push_pseudoranges(const PseudorangeEpoch& ep)
     last_pr_t_ = ep.t_s;
     ++counters_.pseudorange_epochs;
     track_locks(ep);
-    if (counters_.pseudorange_epochs % std::max(1, cfg_.pseudorange_decimation) != 0) return InputStatus::Ok;
-    if (have_time_ && ep.t_s <= t_last_) {
-      if (initialised_) process_pseudoranges(ep);
+    PseudorangeEpoch e = ep;
+    if (counters_.pseudorange_epochs % std::max(1, cfg_.pseudorange_decimation) != 0) {
+      // The decimation is for the ranges' correlated errors; the Doppler's are white, so every epoch gives it.
+      if (!(cfg_.doppler_sigma_mps > 0.0)) return InputStatus::Ok;
+      e.ranges = false;
+    }
+    if (have_time_ && e.t_s <= t_last_) {
+      if (initialised_) process_pseudoranges(e);
       return InputStatus::Ok;
     }
     if (pending_pr_count_ == kPendingPr) {
@@ -592,7 +598,7 @@ InputStatus InsFilter<NB, NC, NT>::push_pseudoranges(const PseudorangeEpoch& ep)
       --pending_pr_count_;
       if (initialised_) process_pseudoranges(oldest);
     }
-    pending_pr_[static_cast<std::size_t>(pending_pr_count_++)] = ep;
+    pending_pr_[static_cast<std::size_t>(pending_pr_count_++)] = e;
     return InputStatus::Ok;
   }
 }
@@ -788,13 +794,13 @@ void InsFilter<NB, NC, NT>::process_pseudoranges(const PseudorangeEpoch& ep) {
       gnss::SatState st;
       const gnss::Ephemeris* eph = nullptr;
       if (!gnss::sat_at_transmission(store_, ep.prn[k], t_abs, ep.pr_m[k], st, &eph)) {
-        ++counters_.pseudoranges_no_ephemeris;
+        if (ep.ranges) ++counters_.pseudoranges_no_ephemeris;
         continue;
       }
       const gnss::AzEl ae = gnss::az_el(llh, r_a, st.r_ecef_m);
       if (ae.el_rad < cfg_.pseudorange_elevation_mask_rad || ep.cn0_dbhz[k] < cfg_.pseudorange_min_cn0_dbhz ||
           !settled[k]) {
-        ++counters_.pseudoranges_masked;
+        if (ep.ranges) ++counters_.pseudoranges_masked;
         continue;
       }
       const double iono = cfg_.pseudorange_ionosphere ? gnss::klobuchar_m(iono_, llh, ae, tow) : 0.0;
@@ -805,13 +811,21 @@ void InsFilter<NB, NC, NT>::process_pseudoranges(const PseudorangeEpoch& ep) {
       var += correlated_variance(ep.prn[k], ep.t_s, ae.el_rad, gnss::ura_m(eph->ura_index));
       // Everything but geometry and the receiver clock moved to the measurement side.
       const double corr = ep.pr_m[k] + gnss::kSpeedOfLight * (st.clock_s - eph->tgd_s) - iono - trop;
-      use[static_cast<std::size_t>(n++)] = PrUse{st.r_ecef_m, corr, gnss::sagnac_m(st.r_ecef_m, r_a), var, ep.prn[k]};
+      PrUse& u = use[static_cast<std::size_t>(n++)];
+      u = PrUse{st.r_ecef_m, corr, gnss::sagnac_m(st.r_ecef_m, r_a), var, ep.prn[k]};
+      if (cfg_.doppler_sigma_mps > 0.0 && std::isfinite(ep.doppler_hz[k])) {
+        const gnss::SatMotion sm = gnss::sat_motion(*eph, t_abs - ep.pr_m[k] / gnss::kSpeedOfLight - st.clock_s);
+        const double s_el = std::sin(ae.el_rad);
+        u.sat_v = sm.v_ecef_mps;
+        u.rate_corr = -gnss::kL1WavelengthM * ep.doppler_hz[k] + gnss::kSpeedOfLight * sm.clock_drift;
+        u.rate_var = 0.5 * cfg_.doppler_sigma_mps * cfg_.doppler_sigma_mps * (1.0 + 1.0 / (s_el * s_el));
+      }
     }
     if (n == 0) return;
     // GPS first, Galileo after it (see update_galileo): the clock states are GPS's.
     const auto galileo_first = std::stable_partition(use.begin(), use.begin() + n,
                                                      [](const PrUse& u) { return !gnss::is_galileo(u.prn); });
-    const int n_gps = static_cast<int>(galileo_first - use.begin());
+    const int n_gps = ep.ranges ? static_cast<int>(galileo_first - use.begin()) : 0;
     if (n_gps > 0) check_clock(use.data(), n_gps, ep.t_s);
     bool any = false;
     const Vec3 v_a = NT == 1 ? antenna_velocity_now() : Vec3::Zero();
@@ -825,11 +839,36 @@ void InsFilter<NB, NC, NT>::process_pseudoranges(const PseudorangeEpoch& ep) {
       if (r.accepted) pr_used_t_[static_cast<std::size_t>(u.prn)] = ep.t_s;
       any = any || r.accepted;
     }
-    if (n - n_gps >= 2) any = update_galileo(use.data() + n_gps, n - n_gps, v_a, ep.t_s) || any;
+    const int n_gal = ep.ranges ? static_cast<int>(use.begin() + n - galileo_first) : 0;
+    if (n_gal >= 2) any = update_galileo(&*galileo_first, n_gal, v_a, ep.t_s) || any;
+    // Every system's Doppler shares the one drift: the receiver's oscillator (GGTO's rate is nil).
+    if (heading_known_) any = update_range_rates(use.data(), n) || any;
     note_gnss(any, ep.t_s);
   } else {
     (void)ep;
   }
+}
+
+template <int NB, int NC, int NT>
+bool InsFilter<NB, NC, NT>::update_range_rates(const PrUse* use, int n) {
+  bool any = false;
+  if constexpr (NC == 2) {
+    const Vec3 rate = gyro_rate_now();
+    const Vec3 a_a = NT == 1 ? antenna_acceleration_now() : Vec3::Zero();
+    for (int i = 0; i < n; ++i) {
+      const PrUse& u = use[i];
+      if (!std::isfinite(u.rate_corr)) continue;
+      auto m = range_rate(core_, cfg_.lever_arm_body_m, rate, u.sat, u.sat_v, u.rate_corr, u.rate_var);
+      add_time_offset(m, core_, es::vel, a_a);
+      const auto r = apply(m, 1);
+      record(kRangeRate, r, 1, u.prn);
+      ++(r.accepted ? counters_.range_rates_used : counters_.range_rates_rejected);
+      any = any || r.accepted;
+    }
+  } else {
+    (void)use, (void)n;
+  }
+  return any;
 }
 
 template <int NB, int NC, int NT>
@@ -1045,24 +1084,27 @@ void InsFilter<NB, NC, NT>::process_fix(const FixInput& fix) {
   if (cfg_.use_fix_velocity && fix.v_ecef_mps.allFinite() && heading_known_) {
     const Vec3 sv = stated_or(fix.sigma_v_ned_mps, Vec3::Constant(fix_velocity_sigma(fix)));
     const Mat3 r_v = c_en * square(sv).asDiagonal() * c_en.transpose();
-    const Vec3 rate = last_inc_.dt_s > 0.0 ? Vec3(last_inc_.dtheta_rad / last_inc_.dt_s) : Vec3::Zero();
+    const Vec3 rate = gyro_rate_now();
     // A lagged velocity, moved to now by what the navigation's velocity did since.
     const Vec3 v_meas = cfg_.fix_velocity_lag_s > 0.0
                             ? Vec3(fix.v_ecef_mps + velocity_change_since(fix.t_s - cfg_.fix_velocity_lag_s))
                             : fix.v_ecef_mps;
     auto mv = gnss_velocity(core_, v_meas, r_v, cfg_.lever_arm_body_m, rate);
-    if constexpr (NT == 1)
-      add_time_offset(mv, core_, es::vel,
-                      antenna_acceleration(accel_ecef_, core_.nav.q_eb.toRotationMatrix(),
-                                           body_rate_wrt_earth(core_, rate), cfg_.lever_arm_body_m));
+    if constexpr (NT == 1) add_time_offset(mv, core_, es::vel, antenna_acceleration_now());
     record(kFixVelocity, apply(mv, 3), 3);
   }
 }
 
 template <int NB, int NC, int NT>
 Vec3 InsFilter<NB, NC, NT>::antenna_velocity_now() const {
-  const Vec3 rate = last_inc_.dt_s > 0.0 ? Vec3(last_inc_.dtheta_rad / last_inc_.dt_s) : Vec3::Zero();
-  return antenna_velocity(core_, cfg_.lever_arm_body_m, rate);
+  return antenna_velocity(core_, cfg_.lever_arm_body_m, gyro_rate_now());
+}
+
+// NT == 1: what a GNSS velocity's or range rate's time offset column needs.
+template <int NB, int NC, int NT>
+Vec3 InsFilter<NB, NC, NT>::antenna_acceleration_now() const {
+  return antenna_acceleration(accel_ecef_, core_.nav.q_eb.toRotationMatrix(), body_rate_wrt_earth(core_, gyro_rate_now()),
+                              cfg_.lever_arm_body_m);
 }
 
 template <int NB, int NC, int NT>

@@ -21,6 +21,7 @@
 
 #include "gpsins/aiding/position_fix.hpp"
 #include "gpsins/aiding/pseudorange.hpp"
+#include "gpsins/aiding/range_rate.hpp"
 #include "gpsins/aiding/velocity.hpp"
 #include "gpsins/aiding/zero_rate.hpp"
 #include "gpsins/aiding/zero_velocity.hpp"
@@ -258,6 +259,16 @@ double range_with_sagnac(const Filter& x, const World& w) {
   return (w.sat - ra).norm() + sagnac + x.clock(0);
 }
 
+// Its rate along both ends' motion: the time derivative of range_with_sagnac with the
+// satellite moving at sat_v and the antenna at antenna_velocity, plus the clock drift.
+double range_rate_with_sagnac(const Filter& x, const World& w, const Vec3& sat_v) {
+  const Vec3 ra = antenna_position(x, w), va = antenna_velocity(x, w);
+  const Vec3 u = (w.sat - ra).normalized();
+  const double sagnac_rate = wgs84::omega_rad_per_s / 299792458.0 *
+                             (sat_v.x() * ra.y() + w.sat.x() * va.y() - sat_v.y() * ra.x() - w.sat.y() * va.x());
+  return u.dot(sat_v - va) + sagnac_rate + x.clock(1);
+}
+
 template <int M, class H>
 Eigen::Matrix<double, M, N> differences(const Filter& f, H h) {
   VecN step = fd_steps();
@@ -314,6 +325,14 @@ TEST_CASE("every aiding source's H matches finite differences of an independent 
     compare_h<1>(worst, "pseudorange", pr.H, differences<1>(f, [&](const Filter& x) {
                    return Eigen::Matrix<double, 1, 1>(range_with_sagnac(x, w));
                  }));
+
+    const Vec3 sat_v = uniform3(rng, 3000.0);
+    const auto rr = range_rate(f, w.lever, w.raw_rate, w.sat, sat_v, 0.0, 1.0);
+    compare_h<1>(worst, "range_rate", rr.H, differences<1>(f, [&](const Filter& x) {
+                   return Eigen::Matrix<double, 1, 1>(range_rate_with_sagnac(x, w, sat_v));
+                 }));
+    // Its innovation is the measurement less that model at the nominal state.
+    CHECK(std::abs(rr.y(0) + range_rate_with_sagnac(f, w, sat_v)) < 1e-9 * (1.0 + std::abs(rr.y(0))));
   }
   for (const auto& [k, v] : worst.rel) MESSAGE(k << " worst relative error " << v);
   // Exact: position and velocity states, clock.
@@ -323,6 +342,10 @@ TEST_CASE("every aiding source's H matches finite differences of an independent 
   // The pseudorange treats the Sagnac term as a constant: omega r_sat / c ~ 6e-6 of the line of sight.
   CHECK(worst.rel["pseudorange_pos"] < 1e-4);
   CHECK(worst.rel["pseudorange_att"] < 1e-4);
+  // The range rate likewise treats the Sagnac rate as constant in the antenna's motion (omega |r_sat| / c).
+  for (const char* k : {"range_rate_vel", "range_rate_pos", "range_rate_att", "range_rate_bg", "range_rate_sg"})
+    CHECK_MESSAGE(worst.rel[k] < 1e-4, std::string(k));
+  CHECK(worst.rel["range_rate_clock"] < 1e-6);
   CHECK(worst.rel["zero_rate_att"] < 1e-6);
   // The gyro's bias and scale factor enter through the corrected rate (m - b) / (1 + s): the
   // antenna velocity through its lever arm, the standing rate directly; the antenna velocity's

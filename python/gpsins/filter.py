@@ -48,7 +48,7 @@ EVENT_KINDS = {1: "imu_gap_restart", 2: "gnss_reset", 3: "imu_sample_rejected", 
                5: "clock_reseed"}
 UPDATE_CHECKS = ("chi_square", "attitude_correction", "both", "none")
 UPDATE_KINDS = {1: "fix_3d", 2: "fix_2d", 3: "fix_velocity", 4: "zero_velocity", 5: "zero_rate", 6: "pseudorange",
-                7: "nonholonomic", 8: "baseline_attitude"}
+                7: "nonholonomic", 8: "baseline_attitude", 9: "range_rate"}
 
 GM_PEAK_PER_SIGMA = 0.617  # ADEV peak of a Gauss-Markov process / its stationary sigma
 FLAT_PER_B = 0.664  # ADEV floor of bias instability B
@@ -470,22 +470,24 @@ class ImuColumns:
 
 @dataclass
 class PseudorangeColumns:
-    """A pseudorange table (k, 5) [t, prn, pseudorange m, C/N0 dB-Hz, lock count] held by columns in
-    the smallest types that give every value back exactly (a day at 10 Hz is 5 million rows):
-    ``[a:b]`` gives those rows as the float table, ``[:, 0]`` the times, ``[mask]`` a subset."""
+    """A pseudorange table (k, 5) [t, prn, pseudorange m, C/N0 dB-Hz, lock count], or (k, 6) with the
+    Doppler (Hz, NaN: none), held by columns in the smallest types that give every value back exactly
+    (a day at 10 Hz is 5 million rows): ``[a:b]`` gives those rows as the float table, ``[:, 0]`` the
+    times, ``[mask]`` a subset."""
 
     t: np.ndarray
     prn: np.ndarray
     pseudorange_m: np.ndarray
     cn0_dbhz: np.ndarray
     lock: np.ndarray
+    doppler_hz: np.ndarray | None = None
 
     @classmethod
     def compact(cls, table: np.ndarray):
         """The table by columns, or the table itself where a smaller type would change a value."""
-        table = np.asarray(table, float).reshape(-1, 5)
+        table = pr_table(table)
         cols = []
-        for j, dtype in enumerate((np.float64, np.uint8, np.float64, np.float32, np.float32)):
+        for j, dtype in enumerate((np.float64, np.uint8, np.float64, np.float32, np.float32, np.float64)[:table.shape[1]]):
             c = table[:, j].astype(dtype)
             if not np.array_equal(c.astype(np.float64), table[:, j], equal_nan=True):
                 return table
@@ -503,20 +505,30 @@ class PseudorangeColumns:
             return PseudorangeColumns(*(c[rows] for c in self._columns()))
         if not isinstance(rows, slice):
             raise TypeError("PseudorangeColumns: rows by a slice or a boolean mask")
-        out = np.empty((len(self.t[rows]), 5))
+        out = np.empty((len(self.t[rows]), len(self._columns())))
         for j, c in enumerate(self._columns()):
             out[:, j] = c[rows]
         return out[(slice(None),) + cols] if cols else out
 
     def _columns(self) -> tuple:
-        return self.t, self.prn, self.pseudorange_m, self.cn0_dbhz, self.lock
+        base = self.t, self.prn, self.pseudorange_m, self.cn0_dbhz, self.lock
+        return base if self.doppler_hz is None else base + (self.doppler_hz,)
+
+
+def pr_table(prs) -> np.ndarray:
+    """Pseudoranges as a float table of 5 columns, or 6 with the Doppler."""
+    a = np.ascontiguousarray(prs, dtype=float)
+    width = a.shape[-1] if a.ndim == 2 else 5
+    if width not in (5, 6):
+        raise ValueError(f"pseudoranges: 5 or 6 columns, got {width}")
+    return a.reshape(-1, width)
 
 
 def _pr_table(prs):
-    """Pseudoranges (k, 5) as floats; a ``PseudorangeColumns`` stays by columns."""
+    """Pseudoranges as floats (``pr_table``); a ``PseudorangeColumns`` stays by columns."""
     if prs is None or isinstance(prs, PseudorangeColumns):
         return prs
-    return np.ascontiguousarray(prs, dtype=float).reshape(-1, 5)
+    return pr_table(prs)
 
 
 def _imu_table(imu) -> np.ndarray:
@@ -631,8 +643,9 @@ def run(imu: np.ndarray, fixes: np.ndarray, config=None, *, mode: str | None = N
     ``platform = "handheld"`` without an initial yaw: the heading is searched first (``search_heading``);
     the result is in ``Solution.extra["heading_search"]``.
     config: a configuration table, preset name or TOML path (see load_config).
-    Tight mode also takes pseudoranges (k, 5) [t, prn, pseudorange m, C/N0 dB-Hz, lock count]
-    (one epoch's rows share t), the ephemerides (``_core.gnss.Ephemeris``), the Klobuchar
+    Tight mode also takes pseudoranges (k, 5) [t, prn, pseudorange m, C/N0 dB-Hz, lock count], or (k, 6)
+    with the Doppler (Hz, positive approaching, NaN: none; used with ``doppler_sigma_mps``) (one epoch's
+    rows share t), the ephemerides (``_core.gnss.Ephemeris``), the Klobuchar
     (alpha, beta) and the offset from the time base to GPS seconds since the GPS epoch.
     smooth: also run the fixed-interval smoother; its solution (same epochs) is
     ``extra["smoothed"]``, its tape size and timings ``extra["smooth_info"]``.
@@ -642,7 +655,7 @@ def run(imu: np.ndarray, fixes: np.ndarray, config=None, *, mode: str | None = N
     imu = _imu_table(imu)
     setup = _setup(imu, fixes, config, mode, ephemerides, klobuchar, gps_time_offset_s)
     f, fixes = setup.core_filter, setup.fixes
-    prs = None if pseudoranges is None else np.ascontiguousarray(pseudoranges[:], dtype=float).reshape(-1, 5)
+    prs = None if pseudoranges is None else pr_table(pseudoranges[:])
     out = f.run(imu, fixes, prs, output_every, covariance, smooth, smooth_chunk_mb,
                 attitude=_attitude_table(attitude))
     sol = Solution.from_batch(out, setup.mode, setup.scale_factors)

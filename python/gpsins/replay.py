@@ -87,6 +87,12 @@ RESULT_ARRAYS = {
 }
 MODES = ("loose", "tight", "ins")
 UNKNOWN_CN0_DBHZ = 99.0  # what the tight filter is given for a pseudorange whose C/N0 the file does not state
+# An outside receiver's oscillator unless its data set says otherwise: a free-running TCXO, whose frequency
+# random walk (h_-2 = 2e-20) drives the clock drift by sqrt(2 pi^2 h_-2) c = 0.19 m/s per sqrt(s). The
+# preset's 0.01 is the simulated receiver's steered clock; the walk's u-blox drift moves by 0.37 m/s within
+# 1 s and ramps 15 m/s over its 134 s, which 0.01 cannot follow once Doppler pins the drift (the tight walk's
+# vertical error went to 17 m).
+REAL_RECEIVER_CLOCK_DRIFT_NOISE_MPS_PER_SQRT_S = 0.19
 POINTS = ("antenna", "imu")
 TRUTH_SCORING_HZ = 10.0  # a simulated truth scored as the reference is taken at about this rate
 POS_TIME_RESOLUTION_S = 0.001  # an RTKLIB .pos reference's epochs are printed to the millisecond
@@ -125,7 +131,7 @@ class Inputs:
     fixes: np.ndarray  # (m, 10) every fix the receiver (or file) gave
     fix_sats: np.ndarray  # (m,)
     gnss_span: tuple[float, float]  # first and last GNSS epoch: the outage schedule's origin
-    pseudoranges: np.ndarray | None = None  # (k, 5) tight
+    pseudoranges: np.ndarray | None = None  # (k, 5), or (k, 6) with the Doppler: tight
     ephemerides: list = field(default_factory=list)
     klobuchar: tuple | None = None
     base_config: object = None  # load_config's source
@@ -255,6 +261,7 @@ def _dataset_inputs(path: Path, config, overrides: dict) -> Inputs:
         if len(ep) > 1:
             rate = 1.0 / float(np.median(np.diff(ep)))
             derived["pseudorange_decimation"] = max(1, int(round(rate)))  # about one epoch per second
+        derived["clock_drift_noise_mps_per_sqrt_s"] = REAL_RECEIVER_CLOCK_DRIFT_NOISE_MPS_PER_SQRT_S
     # A car's body axes are its vehicle axes (dataset spec): its heading is its course, and it takes the
     # non-holonomic constraint; anything else may point away from where it goes (handheld).
     derived["platform"] = "vehicle" if ds.vehicle_kind == "car" else "handheld"

@@ -29,9 +29,10 @@ Line2D = lazy.name("matplotlib.lines", "Line2D", before=lazy.agg_backend)
 Patch = lazy.name("matplotlib.patches", "Patch", before=lazy.agg_backend)
 chi2 = lazy.name("scipy.stats", "chi2")
 
-KIND_FIX3, KIND_FIX2, KIND_PR = 1, 2, 6
+KIND_FIX3, KIND_FIX2, KIND_PR, KIND_RR = 1, 2, 6, 9
 KIND_FIX = (KIND_FIX3, KIND_FIX2)
-KIND_NAMES = {KIND_FIX3: "3D fix", KIND_FIX2: "2D fix", KIND_PR: "pseudorange"}
+KIND_NAMES = {KIND_FIX3: "3D fix", KIND_FIX2: "2D fix", KIND_PR: "pseudorange", KIND_RR: "range rate"}
+PER_SATELLITE = (KIND_PR, KIND_RR)
 MODE_COLORS = {"loose": "tab:blue", "tight": "tab:orange", "ins": "tab:red"}
 OTHER_COLORS = ("tab:purple", "tab:brown", "tab:pink")
 RECEIVER_COLOR = "tab:green"
@@ -175,9 +176,9 @@ def innovation_intervals(r: Result, k: float = 3.0) -> list[dict]:
     """Table 7.4: stretches of consecutive updates (per kind, per satellite) with an innovation beyond k sigma."""
     a = r.a
     rows = []
-    for kind in (KIND_FIX3, KIND_FIX2, KIND_PR):
+    for kind in (KIND_FIX3, KIND_FIX2, KIND_PR, KIND_RR):
         sel = a["upd_kind"] == kind
-        ids = np.unique(a["upd_id"][sel]) if kind == KIND_PR else [None]
+        ids = np.unique(a["upd_id"][sel]) if kind in PER_SATELLITE else [None]
         for sid in ids:
             m = sel if sid is None else sel & (a["upd_id"] == sid)
             idx = np.flatnonzero(m)
@@ -496,14 +497,16 @@ def _fig_innovations(results, base, t0):
     return fig
 
 
-def _fig_pseudorange(results, base, t0):
-    tight = [r for r in results if (r.a["upd_kind"] == KIND_PR).any()]
+def _fig_satellite_innovations(results, base, t0, kind):
+    """A tight filter's per-satellite updates (pseudoranges or range rates): innovations over their sigma, NIS."""
+    name = KIND_NAMES[kind]
+    tight = [r for r in results if (r.a["upd_kind"] == kind).any()]
     if not tight:
         return None
     fig, axs = plt.subplots(2, 1, figsize=(11, 7.5), sharex=True)
     cmap = plt.get_cmap("tab20")
     for r in tight:
-        k = r.a["upd_kind"] == KIND_PR
+        k = r.a["upd_kind"] == kind
         t, prn = r.a["upd_t"][k] - t0, r.a["upd_id"][k]
         z = r.a["upd_innovation"][k, 0] / r.a["upd_innovation_sigma"][k, 0]
         acc = r.a["upd_accepted"][k] > 0
@@ -517,7 +520,7 @@ def _fig_pseudorange(results, base, t0):
             axs[0].axhline(sgn * 3, color="0.4", lw=0.8, ls="--")
             axs[0].axhline(sgn * gate, color="r", lw=0.8)
         nis = r.a["upd_nis"][k]
-        axs[1].semilogy(t, nis, ".", ms=2, color=r.color, label=f"{r.name} pseudorange NIS")
+        axs[1].semilogy(t, nis, ".", ms=2, color=r.color, label=f"{r.name} {name} NIS")
         axs[1].axhline(gate ** 2, color="r", lw=0.8, label=f"gate {gate ** 2:.1f}")
     lo, hi = chi2.ppf([0.025, 0.975], 1)
     axs[1].axhspan(lo, hi, color="grey", alpha=0.2, label="95 % band, 1 dof")
@@ -530,7 +533,7 @@ def _fig_pseudorange(results, base, t0):
     axs[1].set_ylim(1e-5, max(100.0, gate ** 2 * 3))
     axs[1].legend(fontsize=8, loc="lower right")
     _mark_segments(axs, base, t0)
-    axs[0].set_title("Tight filter: normalised pseudorange innovations per satellite, and their NIS", pad=14)
+    axs[0].set_title(f"Tight filter: normalised {name} innovations per satellite, and their NIS", pad=14)
     axs[-1].set_xlabel("time (s)")
     return fig
 
@@ -733,7 +736,8 @@ def build_figures(results: list[Result]) -> dict[str, plt.Figure]:
     figs["biases.png"] = _fig_biases(results, base, t0, true_residual_biases(base, truth))
     figs["bias_sigma.png"] = _fig_bias_sigma(results, base, t0)
     figs["innovations.png"] = _fig_innovations(results, base, t0)
-    figs["pseudorange.png"] = _fig_pseudorange(results, base, t0)
+    figs["pseudorange.png"] = _fig_satellite_innovations(results, base, t0, KIND_PR)
+    figs["range_rate.png"] = _fig_satellite_innovations(results, base, t0, KIND_RR)
     figs["gnss.png"] = _fig_gnss(results, base, t0)
     figs["consistency.png"] = _fig_consistency(results, base, t0)
     figs["clock.png"] = _fig_clock(results, base, t0, truth)

@@ -159,6 +159,12 @@ struct InsConfig {
   double pseudorange_sis_tau_s = 0.0;
   bool pseudorange_ionosphere = true;
   bool pseudorange_troposphere = true;
+  // Doppler (tight coupling): each satellite's range rate, with variance
+  // sigma^2 (1 + 1 / sin^2 el) / 2 (this sigma at zenith), used once the heading is
+  // known, as fix velocities are. Doppler is white (no multipath to speak of) and
+  // sees the velocity along each line of sight, so a slow platform's heading
+  // becomes observable where pseudoranges' metres cannot show it. <= 0: not used.
+  double doppler_sigma_mps = 0.0;
   double gps_time_offset_s = 0.0;  // filter time + this = GPS seconds since the GPS epoch
 
   // IMU time offset state (eskf.hpp, NT = 1): the residual dt_imu by which the IMU's

@@ -55,6 +55,15 @@ struct PseudorangeEpoch {
   std::array<double, kMaxSats> pr_m{};
   std::array<double, kMaxSats> cn0_dbhz{};
   std::array<int, kMaxSats> lock_count{};
+  std::array<double, kMaxSats> doppler_hz = no_doppler();  // positive approaching; NaN: none
+  bool ranges = true;  // false: only the Doppler is used (an epoch pseudorange_decimation skips)
+
+ private:
+  static constexpr std::array<double, kMaxSats> no_doppler() {
+    std::array<double, kMaxSats> a{};
+    for (auto& x : a) x = std::numeric_limits<double>::quiet_NaN();
+    return a;
+  }
 };
 
 // Heading (and pitch) of a dual-antenna GNSS baseline at t_s, in local NED
@@ -76,6 +85,7 @@ enum UpdateKind : int {
   kPseudorange = 6,
   kNonholonomic = 7,
   kBaselineAttitude = 8,
+  kRangeRate = 9,
 };
 
 struct UpdateRecord {
@@ -132,6 +142,8 @@ struct Counters {
   std::int64_t pseudoranges_rejected = 0;
   std::int64_t pseudoranges_no_ephemeris = 0;
   std::int64_t pseudoranges_masked = 0;
+  std::int64_t range_rates_used = 0;
+  std::int64_t range_rates_rejected = 0;
   std::int64_t clock_reseeds = 0;  // receiver clock bias (and drift) re-seeded from an epoch's residuals  // elevation, C/N0 or settling after (re)acquisition
   // Set when the filter stopped explaining its measurements (sustained GNSS
   // rejection) or its covariance or state became invalid; stays set.
@@ -183,9 +195,13 @@ class InsFilter {
     Vec3 sat;
     double pr_corr, sagnac, var;
     int prn;
+    // Its Doppler as a range rate with the satellite's clock drift removed (NaN: none).
+    Vec3 sat_v = Vec3::Zero();
+    double rate_corr = std::numeric_limits<double>::quiet_NaN(), rate_var = 0.0;
   };
   void check_clock(const PrUse* use, int n, double t);
   bool update_galileo(const PrUse* use, int n, const Vec3& v_a, double t);
+  bool update_range_rates(const PrUse* use, int n);
   void track_locks(const PseudorangeEpoch& epoch);
   double correlated_variance(int prn, double t, double el_rad, double ura_m) const;
   void initialise(const FixInput& fix);
@@ -212,7 +228,11 @@ class InsFilter {
     return Vec3::Zero();
   }
   void event(int kind, double value);
+  Vec3 gyro_rate_now() const {  // the last IMU step's mean rate (raw, calibrated)
+    return last_inc_.dt_s > 0.0 ? Vec3(last_inc_.dtheta_rad / last_inc_.dt_s) : Vec3::Zero();
+  }
   Vec3 antenna_velocity_now() const;
+  Vec3 antenna_acceleration_now() const;
   void inflate_unknown_heading(const Increment& inc);
   void constrain_vehicle(const Increment& inc);
   void process_attitude(const AttitudeInput& a, const Increment& inc);

@@ -97,6 +97,12 @@ SatState sat_state(const Ephemeris& eph, double t_abs) {
   return s;
 }
 
+SatMotion sat_motion(const Ephemeris& eph, double t_abs) {
+  constexpr double h = 0.5;
+  const SatState a = sat_state(eph, t_abs - h), b = sat_state(eph, t_abs + h);
+  return SatMotion{(b.r_ecef_m - a.r_ecef_m) / (2.0 * h), (b.clock_s - a.clock_s) / (2.0 * h)};
+}
+
 double ura_m(int index) {
   static constexpr std::array<double, 15> table{2.4, 3.4, 4.85, 6.85, 9.65, 13.65, 24.0, 48.0,
                                                 96.0, 192.0, 384.0, 768.0, 1536.0, 3072.0, 6144.0};

@@ -21,6 +21,10 @@ double sagnac_m(const Vec3& s, const Vec3& r) {
   return kOmegaEarth * (s.x() * r.y() - s.y() * r.x()) / kSpeedOfLight;
 }
 
+double sagnac_rate_mps(const Vec3& s, const Vec3& vs, const Vec3& r, const Vec3& vr) {
+  return kOmegaEarth * (vs.x() * r.y() + s.x() * vr.y() - vs.y() * r.x() - s.y() * vr.x()) / kSpeedOfLight;
+}
+
 double klobuchar_m(const Klobuchar& k, const Geodetic& llh, const AzEl& ae, double tow_s) {
   if (!k.valid || ae.el_rad <= 0.0) return 0.0;
   const double el = ae.el_rad / M_PI;  // semicircles

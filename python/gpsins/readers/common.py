@@ -143,11 +143,12 @@ class Pseudoranges:
         return [(float(self.t_abs[i]), self.prn[i:j].tolist(), self.pr_m[i:j].tolist()) for i, j in zip(b[:-1], b[1:])]
 
     def table(self, t0: float = 0.0) -> np.ndarray:
-        """The tight filter's (k, 5) [t - t0, prn, pseudorange m, C/N0 dB-Hz, lock count]; the lock count is the
-        lock time in ms (0 where unknown: tracking taken as continuous while the satellite is present)."""
+        """The tight filter's (k, 6) [t - t0, prn, pseudorange m, C/N0 dB-Hz, lock count, Doppler Hz]; the lock
+        count is the lock time in ms (0 where unknown: tracking taken as continuous while the satellite is
+        present), the Doppler NaN where absent."""
         lock = np.where(np.isfinite(self.lock_s), np.round(self.lock_s * 1e3), 0.0)
         cn0 = np.where(np.isfinite(self.cn0_dbhz), self.cn0_dbhz, 0.0)
-        return np.column_stack([self.t_abs - t0, self.prn, self.pr_m, cn0, lock]).reshape(-1, 5)
+        return np.column_stack([self.t_abs - t0, self.prn, self.pr_m, cn0, lock, self.doppler_hz]).reshape(-1, 6)
 
     @classmethod
     def empty(cls, source: str = "") -> "Pseudoranges":

@@ -158,9 +158,10 @@ def tight_inputs(s: Simulation) -> dict:
 
 
 def pseudorange_table(s: Simulation) -> np.ndarray:
-    """(k, 5) [t, prn, pseudorange, C/N0, lock count] per tracked satellite, t the receiver's
+    """(k, 6) [t, prn, pseudorange, C/N0, lock count, Doppler Hz] per tracked satellite, t the receiver's
     time of the epoch on the run's time line (tow_rx - start tow)."""
     g = s.gnss
     k, j = np.nonzero(g.tracked)
     t = g.tow_rx[k] - s.scenario.start.gps_tow_s
-    return np.column_stack([t, j + 1, g.pseudorange_m[k, j], g.cn0_dbhz[k, j], g.lock_count[k, j]])
+    return np.column_stack([t, j + 1, g.pseudorange_m[k, j], g.cn0_dbhz[k, j], g.lock_count[k, j],
+                            g.doppler_hz()[k, j]])

@@ -97,6 +97,22 @@ class GnssSim:
     eph_table: dict = field(default_factory=dict)  # (prn, toe) -> every ephemeris the epochs use
     fixes: list[Fix] = field(default_factory=list)
 
+    def doppler_hz(self) -> np.ndarray:
+        """(m, 32) Doppler (Hz, positive approaching) from the carrier's rate, as a receiver measures both:
+        central differences inside a track, one-sided at its ends, NaN where a satellite is tracked for a
+        single epoch (or not at all)."""
+        cyc, t = self.carrier_cycles, self.t
+        out = np.full(cyc.shape, np.nan)
+        if len(t) < 2:
+            return out
+        fwd = (cyc[1:] - cyc[:-1]) / (t[1:] - t[:-1])[:, None]  # rate over each step, NaN across a gap
+        before = np.vstack([np.full((1, cyc.shape[1]), np.nan), fwd])
+        after = np.vstack([fwd, np.full((1, cyc.shape[1]), np.nan)])
+        both = np.isfinite(before) & np.isfinite(after)
+        out[both] = -0.5 * (before[both] + after[both])
+        out[~both] = -np.where(np.isfinite(before), before, after)[~both]
+        return out
+
 
 def _blocked(sc: Scenario, t: np.ndarray, az: np.ndarray, el: np.ndarray, flicker: list,
              spans: np.ndarray) -> np.ndarray:

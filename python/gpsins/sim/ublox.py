@@ -187,8 +187,7 @@ def messages(sim, sensors: bool = True) -> list[TimedMessage]:
     out: list[TimedMessage] = []
     dt = 1.0 / sc.gnss.measurement_rate_hz
     lock = _lock_ms(g.tracked, dt)
-    # Doppler from the carrier's rate (central differences): the receiver measures both.
-    doppler = -np.gradient(g.carrier_cycles, g.t, axis=0) if len(g.t) > 1 else np.zeros_like(g.carrier_cycles)
+    doppler = g.doppler_hz()
     for k in range(len(g.t)):
         meas = [(int(j + 1), float(g.pseudorange_m[k, j]), float(g.carrier_cycles[k, j]),
                  float(doppler[k, j]) if np.isfinite(doppler[k, j]) else 0.0, float(g.cn0_dbhz[k, j]),

@@ -55,6 +55,15 @@ struct SatState {
 // t: GPS time (seconds since the GPS epoch) treated as the transmission time.
 SatState sat_state(const Ephemeris& eph, double t_abs_s);
 
+// The satellite's ECEF velocity and clock drift at t (what a Doppler measurement
+// needs), as central differences of sat_state over +-0.5 s: the orbit's third
+// derivative keeps their error below 1e-5 m/s, far inside any receiver's Doppler noise.
+struct SatMotion {
+  Vec3 v_ecef_mps = Vec3::Zero();
+  double clock_drift = 0.0;  // s/s, incl. the relativistic term's rate
+};
+SatMotion sat_motion(const Ephemeris& eph, double t_abs_s);
+
 // User range accuracy (m) of a URA index (IS-GPS-200 20.3.3.3.1.3), 6144 m when unknown.
 double ura_m(int index);
 

@@ -5,6 +5,7 @@
 #include <array>
 
 #include "gpsins/earth.hpp"
+#include "gpsins/gnss/ephemeris.hpp"
 #include "gpsins/types.hpp"
 
 namespace gpsins::gnss {
@@ -18,6 +19,11 @@ AzEl az_el(const Geodetic& rx_llh, const Vec3& rx_ecef, const Vec3& sat_ecef);
 
 // Earth rotation during the signal's travel: range correction w (xs yr - ys xr) / c, m.
 double sagnac_m(const Vec3& sat_ecef, const Vec3& rx_ecef);
+// Its rate, m/s, from both ends' ECEF velocities (a few cm/s: not negligible against a Doppler).
+double sagnac_rate_mps(const Vec3& sat_ecef, const Vec3& sat_v_ecef, const Vec3& rx_ecef, const Vec3& rx_v_ecef);
+
+// GPS L1 and Galileo E1 share one carrier: a Doppler (Hz, positive approaching) is -rate / wavelength.
+inline constexpr double kL1WavelengthM = kSpeedOfLight / 1575.42e6;
 
 struct Klobuchar {
   std::array<double, 4> alpha{};
