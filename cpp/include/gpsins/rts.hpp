@@ -291,8 +291,22 @@ class EskfRecorder final : public EskfObserver<3 * NB + NC + NT> {
     std::array<double, kNominal> row{};
     Pass::run(tape_, outputs_, [&](long k, const double* nom, int, const typename Pass::VecN& dx, const MatN& ps) {
       std::copy(nom, nom + kNominal, row.begin());
-      const Vec3 dth = dx.template segment<3>(es::att);
       Quat q(nom[7], nom[8], nom[9], nom[10]);
+      Vec3 dth = dx.template segment<3>(es::att);
+      MatN p = ps;
+      // Before the first heading the error about the vertical is no estimate: the forward pass keeps it
+      // unknown (sigma pi) and uncorrelated. Its smoothed value is left out of the injection, and its
+      // variance out of the reset below, which would otherwise turn some of pi^2 into the tilt (the
+      // smoothed tilt sigma came out up to 1.4x the forward's); it is put back about the vertical after.
+      const bool heading_unknown = (static_cast<int>(nom[kNominal - 1]) & 2) == 0;
+      const Vec3 up_b = q.conjugate() * Vec3(nom[1], nom[2], nom[3]).normalized();
+      const double yaw_var = up_b.dot(ps.template block<3, 3>(es::att, es::att) * up_b);
+      if (heading_unknown) {
+        const Mat3 keep = Mat3::Identity() - up_b * up_b.transpose();
+        dth = keep * dth;
+        p.template topRows<3>() = (keep * p.template topRows<3>()).eval();
+        p.template leftCols<3>() = (p.template leftCols<3>() * keep).eval();
+      }
       q = (q * quat_from_rotvec(dth)).normalized();
       for (int i = 0; i < 3; ++i) {
         row[static_cast<std::size_t>(1 + i)] += dx(es::pos + i);
@@ -302,9 +316,9 @@ class EskfRecorder final : public EskfObserver<3 * NB + NC + NT> {
       for (int i = 0; i < 3 * (NB - 3) + NC + NT; ++i) row[static_cast<std::size_t>(11 + i)] += dx(es::bg + i);
       // The smoothed covariance in the error definition of the smoothed nominal.
       const Mat3 g = Mat3::Identity() - skew(0.5 * dth);
-      MatN p = ps;
       p.template topRows<3>() = (g * p.template topRows<3>()).eval();
       p.template leftCols<3>() = (p.template leftCols<3>() * g.transpose()).eval();
+      if (heading_unknown) p.template block<3, 3>(es::att, es::att) += yaw_var * up_b * up_b.transpose();
       emit(k, row.data(), p);
     });
   }
