@@ -487,7 +487,8 @@ class PseudorangeColumns:
         """The table by columns, or the table itself where a smaller type would change a value."""
         table = pr_table(table)
         cols = []
-        for j, dtype in enumerate((np.float64, np.uint8, np.float64, np.float32, np.float32, np.float64)[:table.shape[1]]):
+        dtypes = (np.float64, np.uint8, np.float64, np.float32, np.float32, np.float64)[:table.shape[1]]
+        for j, dtype in enumerate(dtypes):
             c = table[:, j].astype(dtype)
             if not np.array_equal(c.astype(np.float64), table[:, j], equal_nan=True):
                 return table
