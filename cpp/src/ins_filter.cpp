@@ -585,7 +585,7 @@ InputStatus InsFilter<NB, NC, NT>::push_pseudoranges(const PseudorangeEpoch& ep)
     PseudorangeEpoch e = ep;
     if (counters_.pseudorange_epochs % std::max(1, cfg_.pseudorange_decimation) != 0) {
       // The decimation is for the ranges' correlated errors; the Doppler's are white, so every epoch gives it.
-      if (!(cfg_.doppler_sigma_mps > 0.0)) return InputStatus::Ok;
+      if (!(cfg_.doppler_sigma_mps > 0.0) || !ep.has_doppler()) return InputStatus::Ok;
       e.ranges = false;
     }
     if (have_time_ && e.t_s <= t_last_) {
@@ -791,6 +791,8 @@ void InsFilter<NB, NC, NT>::process_pseudoranges(const PseudorangeEpoch& ep) {
     int n = 0;
     for (int i = 0; i < ep.n; ++i) {
       const auto k = static_cast<std::size_t>(i);
+      const bool doppler = cfg_.doppler_sigma_mps > 0.0 && std::isfinite(ep.doppler_hz[k]);
+      if (!ep.ranges && !doppler) continue;
       gnss::SatState st;
       const gnss::Ephemeris* eph = nullptr;
       if (!gnss::sat_at_transmission(store_, ep.prn[k], t_abs, ep.pr_m[k], st, &eph)) {
@@ -803,17 +805,19 @@ void InsFilter<NB, NC, NT>::process_pseudoranges(const PseudorangeEpoch& ep) {
         if (ep.ranges) ++counters_.pseudoranges_masked;
         continue;
       }
-      const double iono = cfg_.pseudorange_ionosphere ? gnss::klobuchar_m(iono_, llh, ae, tow) : 0.0;
-      const double trop = cfg_.pseudorange_troposphere ? gnss::saastamoinen_m(llh, ae.el_rad) : 0.0;
-      // The white part without the broadcast URA: orbit and clock errors are slow (correlated_variance).
-      double var = cfg_.pseudorange_sigma_m > 0.0 ? cfg_.pseudorange_sigma_m * cfg_.pseudorange_sigma_m
-                                                  : gnss::pseudorange_variance_m2(ae.el_rad, 0.0, iono);
-      var += correlated_variance(ep.prn[k], ep.t_s, ae.el_rad, gnss::ura_m(eph->ura_index));
-      // Everything but geometry and the receiver clock moved to the measurement side.
-      const double corr = ep.pr_m[k] + gnss::kSpeedOfLight * (st.clock_s - eph->tgd_s) - iono - trop;
       PrUse& u = use[static_cast<std::size_t>(n++)];
-      u = PrUse{st.r_ecef_m, corr, gnss::sagnac_m(st.r_ecef_m, r_a), var, ep.prn[k]};
-      if (cfg_.doppler_sigma_mps > 0.0 && std::isfinite(ep.doppler_hz[k])) {
+      u = PrUse{st.r_ecef_m, 0.0, gnss::sagnac_m(st.r_ecef_m, r_a), 0.0, ep.prn[k]};
+      if (ep.ranges) {
+        const double iono = cfg_.pseudorange_ionosphere ? gnss::klobuchar_m(iono_, llh, ae, tow) : 0.0;
+        const double trop = cfg_.pseudorange_troposphere ? gnss::saastamoinen_m(llh, ae.el_rad) : 0.0;
+        // The white part without the broadcast URA: orbit and clock errors are slow (correlated_variance).
+        u.var = cfg_.pseudorange_sigma_m > 0.0 ? cfg_.pseudorange_sigma_m * cfg_.pseudorange_sigma_m
+                                               : gnss::pseudorange_variance_m2(ae.el_rad, 0.0, iono);
+        u.var += correlated_variance(ep.prn[k], ep.t_s, ae.el_rad, gnss::ura_m(eph->ura_index));
+        // Everything but geometry and the receiver clock moved to the measurement side.
+        u.pr_corr = ep.pr_m[k] + gnss::kSpeedOfLight * (st.clock_s - eph->tgd_s) - iono - trop;
+      }
+      if (doppler) {
         const gnss::SatMotion sm = gnss::sat_motion(*eph, t_abs - ep.pr_m[k] / gnss::kSpeedOfLight - st.clock_s);
         const double s_el = std::sin(ae.el_rad);
         u.sat_v = sm.v_ecef_mps;

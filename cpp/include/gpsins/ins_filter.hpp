@@ -8,6 +8,7 @@
 #pragma once
 
 #include <array>
+#include <cmath>
 #include <cstdint>
 #include <limits>
 #include <vector>
@@ -57,6 +58,11 @@ struct PseudorangeEpoch {
   std::array<int, kMaxSats> lock_count{};
   std::array<double, kMaxSats> doppler_hz = no_doppler();  // positive approaching; NaN: none
   bool ranges = true;  // false: only the Doppler is used (an epoch pseudorange_decimation skips)
+  bool has_doppler() const {
+    for (int i = 0; i < n; ++i)
+      if (std::isfinite(doppler_hz[static_cast<std::size_t>(i)])) return true;
+    return false;
+  }
 
  private:
   static constexpr std::array<double, kMaxSats> no_doppler() {

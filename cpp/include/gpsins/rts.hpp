@@ -299,9 +299,11 @@ class EskfRecorder final : public EskfObserver<3 * NB + NC + NT> {
       // variance out of the reset below, which would otherwise turn some of pi^2 into the tilt (the
       // smoothed tilt sigma came out up to 1.4x the forward's); it is put back about the vertical after.
       const bool heading_unknown = (static_cast<int>(nom[kNominal - 1]) & 2) == 0;
-      const Vec3 up_b = q.conjugate() * Vec3(nom[1], nom[2], nom[3]).normalized();
-      const double yaw_var = up_b.dot(ps.template block<3, 3>(es::att, es::att) * up_b);
+      Vec3 up_b = Vec3::Zero();
+      double yaw_var = 0.0;
       if (heading_unknown) {
+        up_b = q.conjugate() * Vec3(nom[1], nom[2], nom[3]).normalized();
+        yaw_var = up_b.dot(ps.template block<3, 3>(es::att, es::att) * up_b);
         const Mat3 keep = Mat3::Identity() - up_b * up_b.transpose();
         dth = keep * dth;
         p.template topRows<3>() = (keep * p.template topRows<3>()).eval();
