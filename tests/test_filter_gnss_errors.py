@@ -88,11 +88,12 @@ def test_smoother_runs_over_the_fix_error_states(stop_and_go):
 
 def test_correlated_pseudorange_variance_makes_the_confidence_independent_of_the_rate():
     """White pseudoranges at 10 Hz look ten times as informative as at 1 Hz; with the correlated
-    variance sigma^2 (1 + a) / (1 - a) per update the position sigma no longer depends on the rate."""
+    variance sigma^2 (1 + a) / (1 - a) per update the position sigma no longer depends on the rate. (The
+    signal-in-space part is left to the variance here: as states it would dominate both sigmas.)"""
     s = sim.simulate(sim.load("default"), seed=6)
 
     def horizontal_sigma(**over):
-        sol = both(s, **over)["tight"]
+        sol = both(s, pseudorange_sis_states=False, **over)["tight"]
         return float(np.median(np.hypot(sol.sigma[sol.heading_known, 6], sol.sigma[sol.heading_known, 7])))
 
     ratio = {}
@@ -166,7 +167,8 @@ def test_white_signal_in_space_error_adds_its_variance_at_any_elevation(stop_and
     s = stop_and_go
     imu = sim.imu_table(s)[:64 * 120]
     base = {**sim.imu_noise_truth(s.scenario.imu), "mode": "tight", "pseudorange_decimation": 10,
-            "pseudorange_error_gm_sigma_m": 0.0, "pseudorange_sis_use_ura": False, "pseudorange_sis_tau_s": 0.0}
+            "pseudorange_error_gm_sigma_m": 0.0, "pseudorange_sis_use_ura": False, "pseudorange_sis_tau_s": 0.0,
+            "pseudorange_sis_states": False}
     inputs = sim.tight_inputs(s)
 
     def run(**over):
@@ -181,7 +183,8 @@ def test_white_signal_in_space_error_adds_its_variance_at_any_elevation(stop_and
 
 def test_correlated_signal_in_space_variance_makes_the_confidence_independent_of_the_rate():
     """As the multipath's: with the signal-in-space part correlated (sigma^2 (1 + a) / (1 - a) per
-    update) the position sigma no longer depends on the rate; white, 10 Hz looks far more informative."""
+    update) the position sigma no longer depends on the rate; white, 10 Hz looks far more informative.
+    As states (pseudorange_sis_states) it is one error per satellite at any rate, so neither does."""
     s = sim.simulate(sim.load("default"), seed=6)
 
     def horizontal_sigma(**over):
@@ -189,12 +192,14 @@ def test_correlated_signal_in_space_variance_makes_the_confidence_independent_of
                    pseudorange_sis_sigma_m=1.0, **over)["tight"]
         return float(np.median(np.hypot(sol.sigma[sol.heading_known, 6], sol.sigma[sol.heading_known, 7])))
 
-    ratio = {name: horizontal_sigma(pseudorange_decimation=10, pseudorange_sis_tau_s=tau) /
-             horizontal_sigma(pseudorange_decimation=1, pseudorange_sis_tau_s=tau)
-             for name, tau in (("white", 0.0), ("correlated", 20.0))}
-    print(f"position sigma 1 Hz / 10 Hz: white {ratio['white']:.2f}, correlated {ratio['correlated']:.2f}")
+    ratio = {name: horizontal_sigma(pseudorange_decimation=10, pseudorange_sis_tau_s=tau, pseudorange_sis_states=states) /
+             horizontal_sigma(pseudorange_decimation=1, pseudorange_sis_tau_s=tau, pseudorange_sis_states=states)
+             for name, tau, states in (("white", 0.0, False), ("correlated", 20.0, False), ("states", 0.0, True))}
+    print(f"position sigma 1 Hz / 10 Hz: white {ratio['white']:.2f}, correlated {ratio['correlated']:.2f}, "
+          f"states {ratio['states']:.2f}")
     assert ratio["white"] > 1.5
     assert 0.85 < ratio["correlated"] < 1.15
+    assert 0.85 < ratio["states"] < 1.15
 
 
 def test_preset_signal_in_space_sigma_is_the_simulated_receivers():

@@ -329,7 +329,7 @@ def test_tight_smoothed_clock_and_position():
                   pseudoranges=sim.pseudorange_table(s), ephemerides=ephs,
                   klobuchar=(s.gnss.ion_alpha, s.gnss.ion_beta), gps_time_offset_s=offset)
     sm = fwd.extra["smoothed"]
-    assert sm.clock is not None and sm.sigma.shape[1] == 17
+    assert sm.clock is not None and sm.sigma.shape[1] == 15 + _core.SIS_SLOTS + 2  # slots, then the clock
     tr = truth_of(s)
     _, ef, sf = errors(fwd, tr)
     _, es, ss = errors(sm, tr)

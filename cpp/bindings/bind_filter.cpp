@@ -39,17 +39,20 @@ using namespace gpsins;
 namespace {
 
 using Array = py::array_t<double, py::array::c_style | py::array::forcecast>;
-using AnyFilter = std::variant<InsFilter<5, 0>, InsFilter<7, 0>, InsFilter<5, 2>, InsFilter<7, 2>, InsFilter<5, 3>,
-                               InsFilter<7, 3>, InsFilter<5, 0, 1>, InsFilter<7, 0, 1>, InsFilter<5, 2, 1>,
-                               InsFilter<7, 2, 1>, InsFilter<5, 3, 1>, InsFilter<7, 3, 1>>;
+constexpr int kTight = kTightAugmented;
+using AnyFilter = std::variant<InsFilter<5, 0>, InsFilter<7, 0>, InsFilter<5, kTight>, InsFilter<7, kTight>,
+                               InsFilter<5, 3>, InsFilter<7, 3>, InsFilter<5, 0, 1>, InsFilter<7, 0, 1>,
+                               InsFilter<5, kTight, 1>, InsFilter<7, kTight, 1>, InsFilter<5, 3, 1>,
+                               InsFilter<7, 3, 1>>;
 
-// Tight: clock states (NC = 2). Loose: fix-error states (NC = 3) when configured.
+// Tight: signal-in-space slots and clock states (NC = kTightAugmented). Loose: fix-error
+// states (NC = 3) when configured.
 // NT = 1: the IMU time offset state.
 template <int NT>
 AnyFilter make_filter_nt(const InsConfig& cfg, bool tight) {
   if (tight) {
-    if (cfg.scale_factor_states) return InsFilter<7, 2, NT>(cfg);
-    return InsFilter<5, 2, NT>(cfg);
+    if (cfg.scale_factor_states) return InsFilter<7, kTight, NT>(cfg);
+    return InsFilter<5, kTight, NT>(cfg);
   }
   if ((cfg.fix_error_gm_sigma_m.array() > 0.0).any()) {
     if (cfg.scale_factor_states) return InsFilter<7, 3, NT>(cfg);
@@ -150,7 +153,8 @@ py::dict update_dict(const UpdateRecord& u) {
 }
 
 // Row layout of a batch's state output: t, r, v, q, bg, ba, [sg, sa], the NC
-// augmented states (clock bias and drift, or the fix error), [the time offset], sigmas, flags.
+// augmented states (tight: the signal-in-space slots, clock bias and drift; loose: the fix error),
+// [the time offset], sigmas, flags.
 template <int NB, int NC, int NT>
 struct StateRow {
   static constexpr int N = 3 * NB + NC + NT;
@@ -171,7 +175,9 @@ struct StateRow {
       for (int i = 0; i < 3; ++i) o[k++] = e.imu.gyro_scale_factor(i);
       for (int i = 0; i < 3; ++i) o[k++] = e.imu.accel_scale_factor(i);
     }
-    if constexpr (NC == 2) {
+    if constexpr (Eskf<NB, NC, NT>::kSisCount > 0)
+      for (int i = 0; i < Eskf<NB, NC, NT>::kSisCount; ++i) o[k++] = e.sis(i);
+    if constexpr (Eskf<NB, NC, NT>::kHasClock) {
       o[k++] = e.clock(0);
       o[k++] = e.clock(1);
     }
@@ -573,6 +579,8 @@ class PyFilter {
 }  // namespace
 
 void bind_filter(py::module_& m) {
+  // The tight filter's signal-in-space slots: its output rows carry them before the clock.
+  m.attr("SIS_SLOTS") = kSisSlots;
   py::enum_<BiasModel>(m, "BiasModel")
       .value("random_walk", BiasModel::RandomWalk)
       .value("gauss_markov", BiasModel::GaussMarkov)
@@ -611,6 +619,7 @@ void bind_filter(py::module_& m) {
   GPSINS_FIELD(gyro_bias);
   GPSINS_FIELD(accel_bias);
   GPSINS_FIELD(scale_factor_states);
+  GPSINS_FIELD(pseudorange_sis_states);
   GPSINS_FIELD(gyro_scale_factor_sigma);
   GPSINS_FIELD(accel_scale_factor_sigma);
   GPSINS_FIELD(gyro_misalignment_sigma_rad);

@@ -66,6 +66,7 @@ ProcessNoise noise_of(const InsConfig& c) {
   q.fix_error_var_ned = square(c.fix_error_gm_sigma_m);
   q.fix_error_inv_tau = c.fix_error_gm_tau_s > 0.0 ? 1.0 / c.fix_error_gm_tau_s : 0.0;
   q.time_offset_var = c.time_offset_rw_s_per_sqrt_s * c.time_offset_rw_s_per_sqrt_s;
+  q.sis_inv_tau = c.pseudorange_sis_tau_s > 0.0 ? 1.0 / c.pseudorange_sis_tau_s : 0.0;
   return q;
 }
 
@@ -141,6 +142,9 @@ InsFilter<NB, NC, NT>::InsFilter(const InsConfig& cfg) : cfg_(cfg), detector_(th
   v.roll_rad = cfg.body_to_vehicle_ypr_rad.z();
   c_vb_ = dcm_from_euler(v);
   pr_used_t_.fill(std::numeric_limits<double>::quiet_NaN());
+  sis_prn_.fill(-1);
+  sis_iode_.fill(-1);
+  sis_used_t_.fill(-std::numeric_limits<double>::infinity());
 }
 
 template <int NB, int NC, int NT>
@@ -375,7 +379,7 @@ void InsFilter<NB, NC, NT>::restart_after_gap(double gap_s, double t_end) {
   P.template block<3, 3>(es::pos, es::pos) = Mat3::Identity() * sp * sp;
   P.template block<3, 3>(es::bg, es::bg).diagonal() += core_.noise.gyro_bias_drive_var * gap_s;
   P.template block<3, 3>(es::ba, es::ba).diagonal() += core_.noise.accel_bias_drive_var * gap_s;
-  if constexpr (NC == 2) {
+  if constexpr (Core::kHasClock) {
     P.template middleRows<2>(Core::kClock).setZero();
     P.template middleCols<2>(Core::kClock).setZero();
     P(Core::kClock, Core::kClock) = cfg_.clock_bias_sigma_m * cfg_.clock_bias_sigma_m;
@@ -392,12 +396,12 @@ void InsFilter<NB, NC, NT>::restart_after_gap(double gap_s, double t_end) {
     if (!(dt > 0.0)) return;
     core_.nav.r_ecef_m += core_.nav.v_ecef_mps * dt;
     core_.nav.t_s += dt;
-    if constexpr (NC == 2) core_.clock(0) += core_.clock(1) * dt;
+    if constexpr (Core::kHasClock) core_.clock(0) += core_.clock(1) * dt;
     // The error moves as the state does (position by velocity, clock bias by drift):
     // P <- A P A^T, and the smoother is told A.
     typename Core::MatN move = Core::MatN::Identity();
     move.template block<3, 3>(es::pos, es::vel) = Mat3::Identity() * dt;
-    if constexpr (NC == 2) move(Core::kClock, Core::kClock + 1) = dt;
+    if constexpr (Core::kHasClock) move(Core::kClock, Core::kClock + 1) = dt;
     P = (move * P * move.transpose()).eval();
     core_.note_transition(move);
     t_last_ += dt;
@@ -454,7 +458,7 @@ void InsFilter<NB, NC, NT>::reset_to_fix(const FixInput& fix) {
   P.template block<3, 3>(es::pos, es::pos) =
       Mat3::Identity() * std::max(cfg_.position_sigma_m * cfg_.position_sigma_m, s_fix * s_fix);
   core_.note_restart(es::vel, 6);
-  if constexpr (NC == 2) clock_set_ = false;
+  if constexpr (Core::kHasClock) clock_set_ = false;
 }
 
 // While the heading is unknown the horizontal acceleration is applied in a
@@ -614,10 +618,10 @@ static double gm_update_factor(double dt, double tau) {
 
 // The variance a pseudorange's correlated errors add to this update: multipath
 // (pseudorange_error_gm_*, growing as 1 / sin(elevation)) and signal in space
-// (pseudorange_sis_*, the same at any elevation), each sigma^2 (1 + a) / (1 - a)
-// with its own tau, dt since the satellite's previous update.
+// (sigma sis_m, the same at any elevation; 0 when a state carries it), each
+// sigma^2 (1 + a) / (1 - a) with its own tau, dt since the satellite's previous update.
 template <int NB, int NC, int NT>
-double InsFilter<NB, NC, NT>::correlated_variance(int prn, double t, double el_rad, double ura_m) const {
+double InsFilter<NB, NC, NT>::correlated_variance(int prn, double t, double el_rad, double sis_m) const {
   const bool known = gnss::is_sat_id(prn);
   const double dt = known ? t - pr_used_t_[static_cast<std::size_t>(prn)] : std::numeric_limits<double>::quiet_NaN();
   double var = 0.0;
@@ -625,9 +629,75 @@ double InsFilter<NB, NC, NT>::correlated_variance(int prn, double t, double el_r
     const double s = cfg_.pseudorange_error_gm_sigma_m / std::max(std::sin(el_rad), 0.1);
     var += s * s * gm_update_factor(dt, cfg_.pseudorange_error_gm_tau_s);
   }
-  const double sis = cfg_.pseudorange_sis_use_ura ? ura_m : cfg_.pseudorange_sis_sigma_m;
-  if (sis > 0.0) var += sis * sis * gm_update_factor(dt, cfg_.pseudorange_sis_tau_s);
+  if (sis_m > 0.0) var += sis_m * sis_m * gm_update_factor(dt, cfg_.pseudorange_sis_tau_s);
   return var;
+}
+
+// Signal-in-space slots (pseudorange_sis_states). A satellite keeps its slot while
+// it is away (its broadcast error is still the same when it returns); a new
+// ephemeris issue restarts it (a new upload, a new error). A satellite without one
+// takes a free slot, else the one used longest ago, never one used at this epoch.
+template <int NB, int NC, int NT>
+int InsFilter<NB, NC, NT>::sis_slot(int prn, int iode, double t, double var_m2) {
+  if constexpr (Core::kSisCount > 0) {
+    int pick = -1;
+    for (int s = 0; s < kSisSlots; ++s) {
+      const auto k = static_cast<std::size_t>(s);
+      if (sis_prn_[k] == prn) {
+        if (sis_iode_[k] != iode) restart_sis_slot(s, var_m2);
+        sis_iode_[k] = iode;
+        sis_used_t_[k] = t;
+        return s;
+      }
+      if (sis_used_t_[k] < t && (pick < 0 || sis_used_t_[k] < sis_used_t_[static_cast<std::size_t>(pick)])) pick = s;
+    }
+    if (pick < 0) return -1;
+    const auto k = static_cast<std::size_t>(pick);
+    restart_sis_slot(pick, var_m2);
+    sis_prn_[k] = prn;
+    sis_iode_[k] = iode;
+    sis_used_t_[k] = t;
+    return pick;
+  } else {
+    (void)prn, (void)iode, (void)t, (void)var_m2;
+    return -1;
+  }
+}
+
+// A slot's error restarts unknown within its stationary spread, uncorrelated.
+template <int NB, int NC, int NT>
+void InsFilter<NB, NC, NT>::restart_sis_slot(int slot, double var_m2) {
+  if constexpr (Core::kSisCount > 0) {
+    const int i = Core::kSis + slot;
+    core_.P.row(i).setZero();
+    core_.P.col(i).setZero();
+    core_.P(i, i) = var_m2;
+    core_.noise.sis_var(slot) = var_m2;
+    core_.sis(slot) = 0.0;
+    core_.note_restart(i, 1);
+  } else {
+    (void)slot, (void)var_m2;
+  }
+}
+
+// One pseudorange as a measurement: geometry, clock, the IMU time offset's range
+// rate and, when it has a slot, the satellite's signal-in-space error.
+template <int NB, int NC, int NT>
+Measurement<1, InsFilter<NB, NC, NT>::N> InsFilter<NB, NC, NT>::range_measurement(const PrUse& u, const Vec3& v_a) const {
+  if constexpr (Core::kHasClock) {
+    auto m = pseudorange(core_, cfg_.lever_arm_body_m, u.sat, u.pr_corr, u.sagnac, u.var);
+    add_time_offset(m, core_, es::pos, v_a, heading_known_);  // the range rate the receiver's motion gives
+    if constexpr (Core::kSisCount > 0) {
+      if (u.sis_slot >= 0) {
+        m.y(0) -= core_.sis(u.sis_slot);
+        m.H(0, Core::kSis + u.sis_slot) = 1.0;
+      }
+    }
+    return m;
+  } else {
+    (void)u, (void)v_a;
+    return Measurement<1, N>{};
+  }
 }
 
 // The receiver's lock counter grows while a satellite stays locked (saturating);
@@ -662,7 +732,7 @@ void InsFilter<NB, NC, NT>::track_locks(const PseudorangeEpoch& ep) {
 // unless the step is a whole number of milliseconds.
 template <int NB, int NC, int NT>
 void InsFilter<NB, NC, NT>::check_clock(const PrUse* use, int n, double t) {
-  if constexpr (NC == 2) {
+  if constexpr (Core::kHasClock) {
     std::array<double, PseudorangeEpoch::kMaxSats> res{}, var{};
     const Vec3 r_a = core_.nav.r_ecef_m + core_.nav.q_eb * cfg_.lever_arm_body_m;
     for (int i = 0; i < n; ++i) {
@@ -723,7 +793,7 @@ void InsFilter<NB, NC, NT>::check_clock(const PrUse* use, int n, double t) {
 // move with every injection; L does not depend on the state).
 template <int NB, int NC, int NT>
 bool InsFilter<NB, NC, NT>::update_galileo(const PrUse* use, int n, const Vec3& v_a, double t) {
-  if constexpr (NC == 2) {
+  if constexpr (Core::kHasClock) {
     constexpr int kMax = PseudorangeEpoch::kMaxSats;
     using MatD = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, 0, kMax, kMax>;
     int ref = 0;
@@ -740,12 +810,7 @@ bool InsFilter<NB, NC, NT>::update_galileo(const PrUse* use, int n, const Vec3& 
     const MatD l_inv = llt.matrixL().solve(MatD::Identity(nd, nd));
     bool any = false;
     for (int k = 0; k < nd; ++k) {
-      const auto single = [&](int i) {
-        const PrUse& u = use[i];
-        auto m = pseudorange(core_, cfg_.lever_arm_body_m, u.sat, u.pr_corr, u.sagnac, u.var);
-        add_time_offset(m, core_, es::pos, v_a, heading_known_);
-        return m;
-      };
+      const auto single = [&](int i) { return range_measurement(use[i], v_a); };
       const auto m_ref = single(ref);
       Measurement<1, N> m;
       for (int j = 0; j <= k; ++j) {  // L^-1 is lower triangular
@@ -773,7 +838,7 @@ bool InsFilter<NB, NC, NT>::update_galileo(const PrUse* use, int n, const Vec3& 
 
 template <int NB, int NC, int NT>
 void InsFilter<NB, NC, NT>::process_pseudoranges(const PseudorangeEpoch& ep) {
-  if constexpr (NC == 2) {
+  if constexpr (Core::kHasClock) {
     // A satellite settles for a while after (re)acquisition (see track_locks).
     std::array<bool, PseudorangeEpoch::kMaxSats> settled{};
     for (int i = 0; i < ep.n; ++i) {
@@ -813,7 +878,9 @@ void InsFilter<NB, NC, NT>::process_pseudoranges(const PseudorangeEpoch& ep) {
         // The white part without the broadcast URA: orbit and clock errors are slow (correlated_variance).
         u.var = cfg_.pseudorange_sigma_m > 0.0 ? cfg_.pseudorange_sigma_m * cfg_.pseudorange_sigma_m
                                                : gnss::pseudorange_variance_m2(ae.el_rad, 0.0, iono);
-        u.var += correlated_variance(ep.prn[k], ep.t_s, ae.el_rad, gnss::ura_m(eph->ura_index));
+        const double sis = cfg_.pseudorange_sis_use_ura ? gnss::ura_m(eph->ura_index) : cfg_.pseudorange_sis_sigma_m;
+        if (cfg_.pseudorange_sis_states && sis > 0.0) u.sis_slot = sis_slot(ep.prn[k], eph->iode, ep.t_s, sis * sis);
+        u.var += correlated_variance(ep.prn[k], ep.t_s, ae.el_rad, u.sis_slot >= 0 ? 0.0 : sis);
         // Everything but geometry and the receiver clock moved to the measurement side.
         u.pr_corr = ep.pr_m[k] + gnss::kSpeedOfLight * (st.clock_s - eph->tgd_s) - iono - trop;
       }
@@ -835,9 +902,7 @@ void InsFilter<NB, NC, NT>::process_pseudoranges(const PseudorangeEpoch& ep) {
     const Vec3 v_a = NT == 1 ? antenna_velocity_now() : Vec3::Zero();
     for (int i = 0; i < n_gps; ++i) {
       const auto& u = use[static_cast<std::size_t>(i)];
-      auto m = pseudorange(core_, cfg_.lever_arm_body_m, u.sat, u.pr_corr, u.sagnac, u.var);
-      add_time_offset(m, core_, es::pos, v_a, heading_known_);  // the range rate the receiver's motion gives
-      const auto r = apply(m, 1);
+      const auto r = apply(range_measurement(u, v_a), 1);
       record(kPseudorange, r, 1, u.prn);
       ++(r.accepted ? counters_.pseudoranges_used : counters_.pseudoranges_rejected);
       if (r.accepted) pr_used_t_[static_cast<std::size_t>(u.prn)] = ep.t_s;
@@ -856,7 +921,7 @@ void InsFilter<NB, NC, NT>::process_pseudoranges(const PseudorangeEpoch& ep) {
 template <int NB, int NC, int NT>
 bool InsFilter<NB, NC, NT>::update_range_rates(const PrUse* use, int n) {
   bool any = false;
-  if constexpr (NC == 2) {
+  if constexpr (Core::kHasClock) {
     const Vec3 rate = gyro_rate_now();
     const Vec3 a_a = NT == 1 ? antenna_acceleration_now() : Vec3::Zero();
     for (int i = 0; i < n; ++i) {
@@ -901,9 +966,18 @@ void InsFilter<NB, NC, NT>::initialise(const FixInput& fix) {
     P.template block<3, 3>(es::sg, es::sg) = square(cfg_.gyro_scale_factor_sigma).asDiagonal();
     P.template block<3, 3>(es::sa, es::sa) = square(cfg_.accel_scale_factor_sigma).asDiagonal();
   }
-  if constexpr (NC == 2) {
+  if constexpr (Core::kHasClock) {
     P(Core::kClock, Core::kClock) = cfg_.clock_bias_sigma_m * cfg_.clock_bias_sigma_m;
     P(Core::kClock + 1, Core::kClock + 1) = cfg_.clock_drift_sigma_mps * cfg_.clock_drift_sigma_mps;
+  }
+  if constexpr (Core::kSisCount > 0) {  // every slot free; a free slot sits at a spread no update touches
+    const double s = cfg_.pseudorange_sis_sigma_m > 0.0 ? cfg_.pseudorange_sis_sigma_m : 1.0;
+    core_.sis.setZero();
+    core_.noise.sis_var.setConstant(s * s);
+    P.diagonal().template segment<Core::kSisCount>(Core::kSis).setConstant(s * s);
+    sis_prn_.fill(-1);
+    sis_iode_.fill(-1);
+    sis_used_t_.fill(-std::numeric_limits<double>::infinity());
   }
   if constexpr (NC == 3) {  // the fix error starts unknown within its stationary spread
     core_.fix_error.setZero();
@@ -1041,7 +1115,7 @@ void InsFilter<NB, NC, NT>::process_fix(const FixInput& fix) {
   const bool reset_due = rejecting_ && fix.mode == 2 && cfg_.gnss_reset_timeout_s > 0.0 &&
                          fix.t_s - rejected_since_ >= cfg_.gnss_reset_timeout_s &&
                          fix.hdop <= cfg_.gnss_reset_max_dop && fix.vdop <= cfg_.gnss_reset_max_dop;
-  if constexpr (NC == 2) {  // tight: the receiver's fixes only start the filter, give the heading, reset it
+  if constexpr (Core::kHasClock) {  // tight: the receiver's fixes only start the filter, give the heading, reset it
     if (reset_due) reset_to_fix(fix);
     prev_fix_ = fix;
     have_prev_fix_ = true;
@@ -1225,15 +1299,15 @@ void InsFilter<NB, NC, NT>::detect_standstill(const Increment& inc) {
 #ifndef GPSINS_INS_FILTER_TIME_OFFSET
 template class InsFilter<5, 0>;
 template class InsFilter<7, 0>;
-template class InsFilter<5, 2>;
-template class InsFilter<7, 2>;
+template class InsFilter<5, kTightAugmented>;
+template class InsFilter<7, kTightAugmented>;
 template class InsFilter<5, 3>;
 template class InsFilter<7, 3>;
 #else
 template class InsFilter<5, 0, 1>;
 template class InsFilter<7, 0, 1>;
-template class InsFilter<5, 2, 1>;
-template class InsFilter<7, 2, 1>;
+template class InsFilter<5, kTightAugmented, 1>;
+template class InsFilter<7, kTightAugmented, 1>;
 template class InsFilter<5, 3, 1>;
 template class InsFilter<7, 3, 1>;
 #endif

@@ -589,14 +589,15 @@ class Solution:
         sf = None
         if scale_factors:
             sf, k = s[:, k:k + 6], k + 6
-        # After them the augmented states: the clock (tight) or the fix error (loose, fix_error_gm_sigma_m),
-        # then the IMU time offset (estimate_time_offset): the counts 2, 3 (tight) and 0, 1, 3, 4 (loose)
-        # tell which are there.
+        # After them the augmented states: the signal-in-space slots and the clock (tight) or the fix error
+        # (loose, fix_error_gm_sigma_m), then the IMU time offset (estimate_time_offset): what is left after
+        # the tight ones (0 or 1) or the loose count (0, 1, 3, 4) tells which are there.
         clock = fix_error = time_offset = None
         augmented = n - 15 - (6 if scale_factors else 0)
         if mode == "tight":
+            k += _core.SIS_SLOTS  # slot values mean nothing without the filter's satellite table
             clock, k = s[:, k:k + 2], k + 2
-            augmented -= 2
+            augmented -= 2 + _core.SIS_SLOTS
         elif augmented >= 3:
             fix_error, k = s[:, k:k + 3], k + 3
             augmented -= 3

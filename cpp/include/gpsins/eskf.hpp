@@ -8,7 +8,10 @@
 //   dbg (3), dba (3)  gyro and accelerometer bias
 //   [dsg (3), dsa (3)]  gyro and accelerometer scale factor       (NB = 7)
 //   then NC augmented states, by sensor:
-//   [clock bias c*dt (m), clock drift (m/s)]       NC = 2 (tight: pseudoranges)
+//   [clock bias c*dt (m), clock drift (m/s)]       NC = 2 (pseudoranges, no bias states)
+//   [sis (kSisSlots), clock bias, clock drift]     NC = kTightAugmented (tight: each slot
+//                 one tracked satellite's signal-in-space error (m), the broadcast orbit and
+//                 clock's error along its line of sight; the filter assigns the slots)
 //   [fix error db (3), ECEF (m)]                   NC = 3 (loose: Gauss-Markov fix errors)
 //   then NT = 0 or 1 time-offset state (estimate_time_offset):
 //   [dt_imu (s)]  the IMU stamps' offset from GNSS time: at filter time t the
@@ -40,6 +43,10 @@ namespace es {  // first index of each 3-block
 inline constexpr int att = 0, vel = 3, pos = 6, bg = 9, ba = 12, sg = 15, sa = 18;
 }
 
+// Signal-in-space bias states of the tight filter: one per slot, a satellite to a slot.
+inline constexpr int kSisSlots = 12;
+inline constexpr int kTightAugmented = kSisSlots + 2;
+
 // Continuous-time noise densities and bias dynamics, per axis.
 struct ProcessNoise {
   Vec3 gyro_white_var = Vec3::Zero();        // rad^2/s   (ARW^2)
@@ -56,6 +63,11 @@ struct ProcessNoise {
   double clock_bias_var = 0.0;   // m^2/s
   double clock_drift_var = 0.0;  // m^2/s^3
   double time_offset_var = 0.0;  // s^2/s: the IMU time offset's random walk (NT = 1)
+  // Signal-in-space slots: each a first-order Gauss-Markov error with its own
+  // stationary variance (m^2, set when a satellite takes the slot) and one 1/tau
+  // (0: a random constant, the broadcast error changing over hours).
+  Eigen::Matrix<double, kSisSlots, 1> sis_var = Eigen::Matrix<double, kSisSlots, 1>::Zero();
+  double sis_inv_tau = 0.0;
   // Fix error (NC = 3): first-order Gauss-Markov per local north, east, down axis,
   // stationary variance (m^2) and 1/tau (1/s), one tau for all axes.
   Vec3 fix_error_var_ned = Vec3::Zero();
@@ -127,12 +139,17 @@ template <int NB, int NC, int NT = 0>
 class Eskf {
  public:
   static_assert(NB == 5 || NB == 7, "5 blocks (15 states) or 7 (with scale factors)");
-  static_assert(NC == 0 || NC == 2 || NC == 3, "none, clock bias + drift, or the fix error");
+  static_assert(NC == 0 || NC == 2 || NC == kTightAugmented || NC == 3,
+                "none, clock bias + drift (with or without signal-in-space slots), or the fix error");
   static_assert(NT == 0 || NT == 1, "no time offset state, or one");
   static constexpr int kNav = 3 * NB;
   static constexpr int N = kNav + NC + NT;
-  static constexpr int kClock = kNav;     // NC == 2
+  static constexpr bool kHasClock = NC == 2 || NC == kTightAugmented;
+  static constexpr int kSisCount = NC == kTightAugmented ? kSisSlots : 0;
+  static constexpr int kSis = kNav;                 // kSisCount slots
+  static constexpr int kClock = kNav + kSisCount;   // kHasClock
   static constexpr int kFixError = kNav;  // NC == 3
+  using VecSis = Eigen::Matrix<double, kSisSlots, 1>;
   static constexpr int kTimeOffset = kNav + NC;  // NT == 1
   using VecN = Eigen::Matrix<double, N, 1>;
   using MatN = Eigen::Matrix<double, N, N>;
@@ -142,6 +159,7 @@ class Eskf {
   ImuErrorEstimate imu;
   Eigen::Vector2d clock = Eigen::Vector2d::Zero();  // receiver clock bias (m), drift (m/s)
   Vec3 fix_error = Vec3::Zero();  // NC == 3: the fix's correlated error estimate, ECEF (m)
+  VecSis sis = VecSis::Zero();    // kSisCount: each slot's signal-in-space error estimate (m)
   double time_offset_s = 0.0;     // NT == 1: dt_imu (see the layout above)
   MatN P = MatN::Zero();
   ProcessNoise noise;
@@ -165,7 +183,8 @@ class Eskf {
     const Mat3 c0 = nav.q_eb.toRotationMatrix();
     mechanise(nav, c);
     // Clock: bias integrates drift.
-    if constexpr (NC == 2) clock(0) += clock(1) * dt;
+    if constexpr (kHasClock) clock(0) += clock(1) * dt;
+    if constexpr (kSisCount > 0) sis *= gauss_markov_step(noise.sis_inv_tau, dt).phi;
     // Fix error: its estimate decays as the process's mean does.
     if constexpr (NC == 3) fix_error *= gauss_markov_step(noise.fix_error_inv_tau, dt).phi;
     propagate_covariance(w, f, c0, dt);
@@ -319,9 +338,15 @@ class Eskf {
       for (int k = 0; k < NB; ++k)
         if (phi.has(i, k)) rows.noalias() += phi.at(i, k) * P.template middleRows<3>(3 * k);
     }
-    if constexpr (NC == 2) {
+    if constexpr (kHasClock) {
       m.template middleRows<2>(kClock) = P.template middleRows<2>(kClock);
       m.row(kClock) += dt * P.row(kClock + 1);
+    }
+    // Signal in space: Phi = phi I, Qd = (1 - phi^2) x each slot's stationary variance.
+    GaussMarkovStep sis_gm;
+    if constexpr (kSisCount > 0) {
+      sis_gm = gauss_markov_step(noise.sis_inv_tau, dt);
+      m.template middleRows<kSisCount>(kSis) = sis_gm.phi * P.template middleRows<kSisCount>(kSis);
     }
     // Fix error: Phi = phi I, Qd = (1 - phi^2) x its stationary covariance.
     GaussMarkovStep gm;
@@ -337,7 +362,11 @@ class Eskf {
       for (int k = 0; k < NB; ++k)
         if (phi.has(j, k)) cols.noalias() += m.template middleCols<3>(3 * k) * phi.at(j, k).transpose();
     }
-    if constexpr (NC == 2) {
+    if constexpr (kSisCount > 0) {
+      P.template middleCols<kSisCount>(kSis) = sis_gm.phi * m.template middleCols<kSisCount>(kSis);
+      P.diagonal().template segment<kSisCount>(kSis) += sis_gm.qd_per_var * noise.sis_var;
+    }
+    if constexpr (kHasClock) {
       P.template middleCols<2>(kClock) = m.template middleCols<2>(kClock);
       P.col(kClock) += dt * m.col(kClock + 1);
       const double qb = noise.clock_bias_var, qdr = noise.clock_drift_var;
@@ -361,7 +390,8 @@ class Eskf {
       for (int i = 0; i < NB; ++i)
         for (int k = 0; k < NB; ++k)
           if (phi.has(i, k)) full.template block<3, 3>(3 * i, 3 * k) = phi.at(i, k);
-      if constexpr (NC == 2) full.template block<2, 2>(kClock, kClock) << 1.0, dt, 0.0, 1.0;
+      if constexpr (kHasClock) full.template block<2, 2>(kClock, kClock) << 1.0, dt, 0.0, 1.0;
+      if constexpr (kSisCount > 0) full.diagonal().template segment<kSisCount>(kSis).setConstant(sis_gm.phi);
       if constexpr (NC == 3) full.template block<3, 3>(kFixError, kFixError) = gm.phi * Mat3::Identity();
       if constexpr (NT == 1) full(kTimeOffset, kTimeOffset) = 1.0;
       observer->on_propagate(full);
@@ -446,7 +476,8 @@ class Eskf {
       imu.gyro_scale_factor += dx.template segment<3>(sg);
       imu.accel_scale_factor += dx.template segment<3>(sa);
     }
-    if constexpr (NC == 2) clock += dx.template segment<2>(kClock);
+    if constexpr (kHasClock) clock += dx.template segment<2>(kClock);
+    if constexpr (kSisCount > 0) sis += dx.template segment<kSisCount>(kSis);
     if constexpr (NC == 3) fix_error += dx.template segment<3>(kFixError);
     if constexpr (NT == 1) time_offset_s += dx(kTimeOffset);
     // Reset: the attitude error is now relative to the corrected q (seed 003).

@@ -157,6 +157,12 @@ struct InsConfig {
   double pseudorange_sis_sigma_m = 0.0;
   bool pseudorange_sis_use_ura = true;
   double pseudorange_sis_tau_s = 0.0;
+  // Tight: carry each satellite's signal-in-space error as a state (a slot of
+  // kSisSlots; eskf.hpp) instead of in each update's variance: the error then stays
+  // one error however long the filter remembers its ranges (Doppler keeps it
+  // remembering for minutes). Its sigma and tau are the ones above; a satellite
+  // finding no free slot falls back to the variance.
+  bool pseudorange_sis_states = false;
   bool pseudorange_ionosphere = true;
   bool pseudorange_troposphere = true;
   // Doppler (tight coupling): each satellite's range rate, with variance

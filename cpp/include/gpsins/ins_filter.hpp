@@ -167,7 +167,7 @@ class InsFilter {
 
   InputStatus push_imu(double t_s, const Vec3& dtheta_rad, const Vec3& dv_mps);
   InputStatus push_fix(const FixInput& fix);
-  // Tight coupling only (NC == 2); held until the IMU reaches their time.
+  // Tight coupling only (Core::kHasClock); held until the IMU reaches their time.
   // NC == 3 is loose coupling with the fix-error states (fix_error_gm_sigma_m).
   InputStatus push_pseudoranges(const PseudorangeEpoch& epoch);
   // Dual-antenna heading and pitch; used at the first IMU sample at or after
@@ -204,12 +204,20 @@ class InsFilter {
     // Its Doppler as a range rate with the satellite's clock drift removed (NaN: none).
     Vec3 sat_v = Vec3::Zero();
     double rate_corr = std::numeric_limits<double>::quiet_NaN(), rate_var = 0.0;
+    int sis_slot = -1;  // its signal-in-space state (pseudorange_sis_states), or none: in var
   };
+  Measurement<1, N> range_measurement(const PrUse& u, const Vec3& v_a) const;
+  // The slot holding this satellite's signal-in-space error, (re)assigned as needed;
+  // -1: none free (all in use at this epoch).
+  int sis_slot(int prn, int iode, double t, double var_m2);
+  void restart_sis_slot(int slot, double var_m2);
+  std::array<int, kSisSlots> sis_prn_, sis_iode_;
+  std::array<double, kSisSlots> sis_used_t_;
   void check_clock(const PrUse* use, int n, double t);
   bool update_galileo(const PrUse* use, int n, const Vec3& v_a, double t);
   bool update_range_rates(const PrUse* use, int n);
   void track_locks(const PseudorangeEpoch& epoch);
-  double correlated_variance(int prn, double t, double el_rad, double ura_m) const;
+  double correlated_variance(int prn, double t, double el_rad, double sis_m) const;
   void initialise(const FixInput& fix);
   void decouple_yaw();
   void set_heading(const FixInput& fix, const Vec3& v_ecef, double course_rad, double sigma_rad);
@@ -329,14 +337,14 @@ class InsFilter {
 
 extern template class InsFilter<5, 0>;
 extern template class InsFilter<7, 0>;
-extern template class InsFilter<5, 2>;
-extern template class InsFilter<7, 2>;
+extern template class InsFilter<5, kTightAugmented>;
+extern template class InsFilter<7, kTightAugmented>;
 extern template class InsFilter<5, 3>;
 extern template class InsFilter<7, 3>;
 extern template class InsFilter<5, 0, 1>;
 extern template class InsFilter<7, 0, 1>;
-extern template class InsFilter<5, 2, 1>;
-extern template class InsFilter<7, 2, 1>;
+extern template class InsFilter<5, kTightAugmented, 1>;
+extern template class InsFilter<7, kTightAugmented, 1>;
 extern template class InsFilter<5, 3, 1>;
 extern template class InsFilter<7, 3, 1>;
 

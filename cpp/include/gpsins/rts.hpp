@@ -234,7 +234,8 @@ class EskfRecorder final : public EskfObserver<3 * NB + NC + NT> {
   using Core = Eskf<NB, NC, NT>;
   using MatN = Eigen::Matrix<double, N, N>;
   using Base = EskfObserver<N>;
-  // Nominal payload: t, r, v, q (w x y z), bg, ba, [sg, sa], [clock or fix error], [time offset], flags.
+  // Nominal payload: t, r, v, q (w x y z), bg, ba, [sg, sa], [[sis slots] clock or fix error], [time offset],
+  // flags: after the quaternion one value per error state, in its order.
   static constexpr int kNominal = 1 + 3 + 3 + 4 + 6 + (NB == 7 ? 6 : 0) + NC + NT + 1;
   using Pass = BackwardPass<N>;
 
@@ -275,7 +276,9 @@ class EskfRecorder final : public EskfObserver<3 * NB + NC + NT> {
       for (int i = 0; i < 3; ++i) *o++ = e.imu.gyro_scale_factor(i);
       for (int i = 0; i < 3; ++i) *o++ = e.imu.accel_scale_factor(i);
     }
-    if constexpr (NC == 2) { *o++ = e.clock(0); *o++ = e.clock(1); }
+    if constexpr (Core::kSisCount > 0)
+      for (int i = 0; i < Core::kSisCount; ++i) *o++ = e.sis(i);
+    if constexpr (Core::kHasClock) { *o++ = e.clock(0); *o++ = e.clock(1); }
     if constexpr (NC == 3)
       for (int i = 0; i < 3; ++i) *o++ = e.fix_error(i);
     if constexpr (NT == 1) *o++ = e.time_offset_s;

@@ -22,7 +22,7 @@ Measurement<1, Eskf<NB, NC, NT>::N> range_rate(const Eskf<NB, NC, NT>& f, const 
                                               const Vec3& gyro_rate_rad_per_s, const Vec3& sat_ecef,
                                               const Vec3& sat_v_ecef_mps, double corrected_rate_mps,
                                               double variance_m2_per_s2) {
-  static_assert(NC == 2, "range rates need the receiver clock drift state");
+  static_assert(Eskf<NB, NC, NT>::kHasClock, "range rates need the receiver clock drift state");
   const Mat3 c = f.nav.q_eb.toRotationMatrix();
   const Vec3 r_a = f.nav.r_ecef_m + c * lever_body_m;
   const Vec3 d = sat_ecef - r_a;
