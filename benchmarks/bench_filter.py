@@ -93,7 +93,7 @@ def nees(seeds: int) -> None:
 
 def tight(repeats: int) -> None:
     """The default drive's pseudoranges at the receiver's full 10 Hz (decimation 1, the preset) and
-    at 1 Hz, through the batch API (17 states)."""
+    at 1 Hz, through the batch API (29 states: 12 signal-in-space slots and the clock)."""
     from gpsins.sim import ephemeris as sim_eph
 
     s = sim.simulate(sim.load("default"), 0)

@@ -7,7 +7,7 @@
     python benchmarks/bench_smoother.py segments [SEEDS] [matched|imu|fixes]  # per segment, forward vs smoothed
 
 Speed: the default drive (18 k IMU epochs, output and covariance at every epoch),
-loose (18 states with the preset's fix-error states) and tight (17 states, the preset's 10 Hz pseudoranges): the forward pass without
+loose (18 states with the preset's fix-error states) and tight (29 states with the signal-in-space slots, the preset's 10 Hz pseudoranges): the forward pass without
 the smoother, the forward pass recording for it, and the backward pass, in IMU epochs/s
 (thread CPU times measured in C++: the machine may be
 shared, and wall time then counts the waits for a core); the tape's bytes per epoch; a run spilled to a

@@ -706,7 +706,7 @@ def _setup(imu, fixes, config, mode, ephemerides, klobuchar, gps_time_offset_s) 
     return _Setup(f, mode, core.scale_factor_states, fixes, search)
 
 
-CHUNK_ROWS = 4096  # IMU samples per call of a chunked run: ~10 MB of covariances at 17 states
+CHUNK_ROWS = 4096  # IMU samples per call of a chunked run: ~10 MB of covariances at 17 states (tight: 28 MB)
 
 
 class ChunkedRun:
