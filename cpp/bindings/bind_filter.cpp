@@ -133,6 +133,9 @@ py::dict counters_dict(const Counters& c) {
   d["range_rates_used"] = c.range_rates_used;
   d["range_rates_rejected"] = c.range_rates_rejected;
   d["clock_reseeds"] = c.clock_reseeds;
+  d["sis_slots_taken"] = c.sis_slots_taken;
+  d["sis_slots_restarted"] = c.sis_slots_restarted;
+  d["pseudoranges_without_sis_slot"] = c.pseudoranges_without_sis_slot;
   d["diverged"] = c.diverged;
   return d;
 }

@@ -644,16 +644,23 @@ int InsFilter<NB, NC, NT>::sis_slot(int prn, int iode, double t, double var_m2) 
     for (int s = 0; s < kSisSlots; ++s) {
       const auto k = static_cast<std::size_t>(s);
       if (sis_prn_[k] == prn) {
-        if (sis_iode_[k] != iode) restart_sis_slot(s, var_m2);
+        if (sis_iode_[k] != iode) {
+          restart_sis_slot(s, var_m2);
+          ++counters_.sis_slots_restarted;
+        }
         sis_iode_[k] = iode;
         sis_used_t_[k] = t;
         return s;
       }
       if (sis_used_t_[k] < t && (pick < 0 || sis_used_t_[k] < sis_used_t_[static_cast<std::size_t>(pick)])) pick = s;
     }
-    if (pick < 0) return -1;
+    if (pick < 0) {
+      ++counters_.pseudoranges_without_sis_slot;
+      return -1;
+    }
     const auto k = static_cast<std::size_t>(pick);
     restart_sis_slot(pick, var_m2);
+    ++counters_.sis_slots_taken;
     sis_prn_[k] = prn;
     sis_iode_[k] = iode;
     sis_used_t_[k] = t;

@@ -147,10 +147,15 @@ struct Counters {
   std::int64_t pseudoranges_used = 0;
   std::int64_t pseudoranges_rejected = 0;
   std::int64_t pseudoranges_no_ephemeris = 0;
-  std::int64_t pseudoranges_masked = 0;
+  std::int64_t pseudoranges_masked = 0;  // elevation, C/N0 or settling after (re)acquisition
   std::int64_t range_rates_used = 0;
   std::int64_t range_rates_rejected = 0;
-  std::int64_t clock_reseeds = 0;  // receiver clock bias (and drift) re-seeded from an epoch's residuals  // elevation, C/N0 or settling after (re)acquisition
+  std::int64_t clock_reseeds = 0;  // receiver clock bias (and drift) re-seeded from an epoch's residuals
+  // Signal-in-space slots (pseudorange_sis_states): taken by a satellite without one,
+  // restarted by a new ephemeris issue, and pseudoranges that found none free.
+  std::int64_t sis_slots_taken = 0;
+  std::int64_t sis_slots_restarted = 0;
+  std::int64_t pseudoranges_without_sis_slot = 0;
   // Set when the filter stopped explaining its measurements (sustained GNSS
   // rejection) or its covariance or state became invalid; stays set.
   bool diverged = false;
