@@ -150,10 +150,11 @@ struct InsConfig {
   // Signal-in-space error: the broadcast orbit and clock's error along the line of
   // sight, per satellite, the same at any elevation, changing over hours. Its sigma
   // is this figure, or the satellite's broadcast URA when pseudorange_sis_use_ura
-  // (which bounds the error rather than measuring it). Added to each update's
-  // variance as the correlated part is, with its own correlation time: the
-  // sigma^2 (1 + a) / (1 - a) of a Gauss-Markov error; tau <= 0: white (as the
-  // elevation model had it, and the default: URA as white noise).
+  // (which bounds the error rather than measuring it). With pseudorange_sis_states
+  // it is each satellite's state (tau <= 0: a random constant). Without, it is added
+  // to each update's variance as the correlated part is, with its own correlation
+  // time: the sigma^2 (1 + a) / (1 - a) of a Gauss-Markov error; tau <= 0: white (as
+  // the elevation model had it, and the default: URA as white noise).
   double pseudorange_sis_sigma_m = 0.0;
   bool pseudorange_sis_use_ura = true;
   double pseudorange_sis_tau_s = 0.0;
