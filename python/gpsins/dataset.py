@@ -32,6 +32,10 @@ Extensions (all optional):
 - ``[gnss] velocity_lag_s``: how long before its fix's time a fix velocity applies (default 0), or
   ``"measured"``: from the fixes themselves (``velocity_lag``; a receiver that reports the mean velocity
   over the epoch just ended gives half an epoch). The filter's ``fix_velocity_lag_s``.
+- ``[gnss] ionosphere = "dual-frequency"`` (rinex, ubx; default ``"broadcast"``: Klobuchar when the
+  navigation data has it): each L1 range less the ionospheric delay its second code measures (GPS L2,
+  Galileo E5a; ``ionosphere.py``), averaged along each satellite's track over ``ionosphere_smoothing_s``
+  (default 60); ranges without a second code are dropped and the filter leaves Klobuchar out.
 - ``[scoring] reference = "FILE.pos"``, ``reference_q = [1]`` (the Q values that count),
   ``outages = "FIRST:LENGTH:PERIOD[:END]"``: defaults for ``--reference`` and ``--outages``.
 
@@ -49,7 +53,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import _core, outages as outages_mod
+from . import _core, ionosphere as ionosphere_mod, outages as outages_mod
 from .evaluate import c_en
 from .readers import imu_csv, kfgins, rinex, rtklib_pos, ubx
 from .readers.common import Fixes, Navigation, Pseudoranges, ReaderError
@@ -57,13 +61,14 @@ from .readers.imu_csv import ImuData
 
 IMU_FORMATS = ("csv", "kf-gins")
 GNSS_FORMATS = ("rtklib-pos", "kf-gins", "rinex", "ubx")
+IONOSPHERE_MODELS = ("broadcast", "dual-frequency")
 VEHICLE_KINDS = ("none", "car")
 _KNOWN = {
     "": {"name", "imu", "gnss", "vehicle", "filter", "scoring", "description"},
     "imu": {"file", "format", "columns", "time", "week", "accel_unit", "gyro_unit", "time_offset_s", "imu_to_body",
             "imu_to_body_ypr_deg", "delimiter", "skip_rows"},
     "gnss": {"file", "format", "nav", "antenna_m", "week", "geoid_height_m", "sigma_floor_m", "sigma_default_m",
-             "velocity_sigma_floor_mps", "velocity_lag_s", "systems"},
+             "velocity_sigma_floor_mps", "velocity_lag_s", "systems", "ionosphere", "ionosphere_smoothing_s"},
     "vehicle": {"kind"},
     "scoring": {"reference", "reference_q", "reference_geoid_height_m", "outages"},
 }
@@ -191,6 +196,7 @@ class Dataset:
     sigma_default_m: dict = field(default_factory=dict)  # [gnss.sigma_default_m]
     velocity_sigma_floor_mps: float = VELOCITY_SIGMA_FLOOR_MPS
     velocity_lag_s: float | str = 0.0  # [gnss] velocity_lag_s: seconds, or "measured"
+    ionosphere: str = "broadcast"  # [gnss] ionosphere: "broadcast" (Klobuchar) or "dual-frequency" (ranges corrected)
 
     def gnss_span(self) -> tuple[float, float]:
         """First and last GNSS epoch (fixes or pseudoranges): the origin of the outage schedule."""
@@ -366,13 +372,15 @@ def load(path: str | Path) -> Dataset:
     elif fmt == "rinex":
         if not navs:
             raise DatasetError(path, "a RINEX observation file needs `nav = \"FILE\"`", field="[gnss] nav")
-        ds.pseudoranges = rinex.read_obs(gfile).gps_l1()
+        obs = rinex.read_obs(gfile)
+        ds.pseudoranges, second = obs.gps_l1(), obs.gps_l2
         ds.navigation = _merge_nav(navs)
     else:
         systems = _systems(tg, path)
         u = ubx.read(gfile)
         pr = u.pseudoranges
         ds.fixes, ds.pseudoranges = u.fixes, pr.select(np.isin(ubx.system_of(pr.prn), systems))
+        second = u.second_frequency
         nav = u.navigation
         nav.ephemerides = [e for e in nav.ephemerides if ubx.system_of(e.prn) in systems]
         ds.navigation = _merge_nav([nav] + navs)
@@ -389,6 +397,8 @@ def load(path: str | Path) -> Dataset:
         if dropped:
             skipped["ubx: NAV-PVT without a valid fix"] = dropped
 
+    if ds.pseudoranges is not None:
+        _ionosphere(ds, tg, second, path, skipped)
     ds.vehicle_kind, ds.filter_table, ds.outages = kind, ft, spec
     ds.sigma_floor_m = _quality_table(tg, "sigma_floor_m", path)
     ds.sigma_default_m = _quality_table(tg, "sigma_default_m", path)
@@ -404,6 +414,29 @@ def load(path: str | Path) -> Dataset:
         ds.reference = load_reference(_file(base, ts["reference"], path, "[scoring] reference"),
                                       ts.get("reference_q", [1]), ts.get("reference_geoid_height_m"))
     return ds
+
+
+def _ionosphere(ds: Dataset, tg: dict, second, path: Path, skipped: Counter) -> None:
+    """``[gnss] ionosphere = "dual-frequency"``: the L1 ranges less the delay their second frequency measures
+    (``ionosphere.corrected``, smoothed over ``ionosphere_smoothing_s``); ranges without one are dropped."""
+    ds.ionosphere = tg.get("ionosphere", "broadcast")
+    if ds.ionosphere not in IONOSPHERE_MODELS:
+        raise DatasetError(path, f"unknown model {ds.ionosphere!r} ({', '.join(IONOSPHERE_MODELS)})",
+                           field="[gnss] ionosphere")
+    smoothing = tg.get("ionosphere_smoothing_s", ionosphere_mod.SMOOTHING_S)
+    if not (isinstance(smoothing, (int, float)) and not isinstance(smoothing, bool) and smoothing > 0):
+        raise DatasetError(path, "must be positive seconds", field="[gnss] ionosphere_smoothing_s")
+    if ds.ionosphere == "broadcast":
+        return
+    l2 = second()
+    if not len(l2):
+        raise DatasetError(path, "dual-frequency: the file has no second frequency (GPS L2, Galileo E5a)",
+                           field="[gnss] ionosphere")
+    n = len(ds.pseudoranges)
+    ds.pseudoranges, dropped = ionosphere_mod.corrected(ds.pseudoranges, l2, ds.navigation, float(smoothing))
+    skipped.update(dropped)
+    ds.notes.append(f"dual-frequency ionosphere: {len(ds.pseudoranges)} of {n} L1 ranges have a second "
+                    f"frequency in their epoch and are corrected, the rest dropped")
 
 
 def _quality_table(tg: dict, key: str, path: Path) -> dict:

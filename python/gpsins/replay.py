@@ -257,6 +257,9 @@ def _dataset_inputs(path: Path, config, overrides: dict) -> Inputs:
         inp.pseudoranges[~np.isfinite(ds.pseudoranges.cn0_dbhz), 3] = UNKNOWN_CN0_DBHZ
         inp.ephemerides = list(ds.navigation.ephemerides)
         inp.klobuchar = (ds.navigation.alpha, ds.navigation.beta) if len(ds.navigation.alpha) == 4 else None
+        if ds.ionosphere == "dual-frequency":  # the ranges come without their delay
+            inp.klobuchar = None
+            derived["pseudorange_ionosphere"] = False
         ep = np.unique(ds.pseudoranges.t_abs)
         if len(ep) > 1:
             rate = 1.0 / float(np.median(np.diff(ep)))
@@ -275,7 +278,8 @@ def _dataset_inputs(path: Path, config, overrides: dict) -> Inputs:
     inp.info = {"dataset": str(path), "name": ds.name, "decode_s": decode_s, "skipped": dict(ds.skipped),
                 "warnings": list(ds.notes), "imu_to_body": ds.imu_to_body.tolist(),
                 "imu_time_offset_s": ds.imu_time_offset_s, "antenna_m": ds.antenna_m.tolist(),
-                "gnss_format": ds.gnss_format, "vehicle_kind": ds.vehicle_kind, "fix_quality": n_fix_q,
+                "gnss_format": ds.gnss_format, "ionosphere": ds.ionosphere, "vehicle_kind": ds.vehicle_kind,
+                "fix_quality": n_fix_q,
                 "from_data": inp.data_config, "velocity_lag_measured": measured_lag,
                 "ephemerides_prn": ds.navigation.prns() if ds.navigation is not None else []}
     return inp

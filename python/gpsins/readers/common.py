@@ -164,6 +164,9 @@ class Navigation:
     alpha: list[float] = field(default_factory=list)
     beta: list[float] = field(default_factory=list)
     leap_s: int | None = None
+    # Galileo's BGD(E1, E5a) by core id: the E1/E5a pair's group delay (I/NAV word type 5), which the
+    # ephemeris's tgd_s (BGD(E1, E5b), for the E1 single-frequency user) does not carry.
+    bgd_e1_e5a_s: dict[int, float] = field(default_factory=dict)
 
     def store(self):
         from .. import _core

@@ -93,6 +93,7 @@ class InavCollector:
     def __init__(self):
         self.words: dict[int, dict[int, int]] = {}  # svid -> word type -> latest data word
         self.sets: dict[tuple[int, int], dict[int, int]] = {}  # (svid, IODnav) -> word types 1-5
+        self.bgd_e1_e5a_s: dict[int, float] = {}  # core id -> BGD(E1, E5a) of its latest complete set
         self.stats = Counter()
 
     def add(self, svid: int, words32: list[int]) -> None:
@@ -118,8 +119,14 @@ class InavCollector:
                 self.stats["inconsistent sets"] += 1
             else:
                 out.append(eph)
+                self.bgd_e1_e5a_s[eph.prn] = bgd_e1_e5a_s(words)
         self.stats["complete Galileo ephemerides"] = len(out)
         return out
+
+
+def bgd_e1_e5a_s(w: dict[int, int]) -> float:
+    """BGD(E1, E5a) of word type 5 (seconds): the group delay a user of the E1/E5a pair needs."""
+    return _signed(_bits(w[5], 47, 10), 10) * 2.0 ** -32
 
 
 def decode(svid: int, w: dict[int, int]):

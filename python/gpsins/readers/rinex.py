@@ -25,6 +25,7 @@ URA_TABLE_M = (2.4, 3.4, 4.85, 6.85, 9.65, 13.65, 24.0, 48.0, 96.0, 192.0, 384.0
 NAV_LINES_V3 = {"G": 8, "E": 8, "C": 8, "J": 8, "I": 8, "R": 4, "S": 4}  # lines per record by system
 L1_ALIASES = {"C1": ("C1C", "C1"), "P1": ("C1P", "C1W", "P1"), "D1": ("D1C", "D1"), "S1": ("S1C", "S1"),
               "L1": ("L1C", "L1")}
+L2_CODES = ("P2", "C2W", "C2", "C2L", "C2S", "C2X")  # semi-codeless P(Y) first: what TGD is defined for
 
 
 class RinexError(ReaderError):
@@ -156,6 +157,22 @@ class ObsFile:
         if c is None:
             raise RinexError(self.source or "<obs>", f"observation type {name} not in {self.types}")
         return c
+
+    def gps_l2(self) -> Pseudoranges:
+        """GPS L2 pseudoranges, the partner of ``gps_l1`` for a dual-frequency ionosphere: the first of P2 (RINEX 3
+        C2W), C2, C2L, C2S, C2X the file has; empty if none."""
+        col = next((c for c in (self.find(n) for n in L2_CODES) if c is not None), None)
+        if col is None:
+            return Pseudoranges.empty(self.source)
+        t, prn, pr = [], [], []
+        for te, prns, v in self.epochs:
+            ok = np.isfinite(v[:, col])
+            t += [te] * int(ok.sum())
+            prn += np.asarray(prns)[ok].tolist()
+            pr += v[ok, col].tolist()
+        nan = np.full(len(t), np.nan)
+        return Pseudoranges(np.asarray(t, float), np.asarray(prn, int), np.asarray(pr, float), nan, nan, nan,
+                            self.source)
 
     def gps_l1(self) -> Pseudoranges:
         """GPS L1 C/A pseudoranges with Doppler and C/N0 where the file has them (satellites without a

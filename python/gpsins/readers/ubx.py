@@ -42,6 +42,8 @@ NAMES = {(0x02, 0x15): "RXM-RAWX", (0x02, 0x13): "RXM-SFRBX", (0x01, 0x07): "NAV
 GNSS_GPS, GNSS_SBAS, GNSS_GALILEO, GNSS_BEIDOU, GNSS_QZSS, GNSS_GLONASS = 0, 1, 2, 3, 5, 6
 
 SYSTEMS = ("gps", "galileo")  # what the core's satellite ids cover
+# RAWX signal ids (UBX interface description, "GNSS signal identifiers")
+SIG_GPS_L2CL, SIG_GPS_L2CM, SIG_GALILEO_E5AI, SIG_GALILEO_E5AQ = 3, 4, 3, 4
 
 
 def system_of(sat_id):
@@ -100,6 +102,18 @@ class UbxFile:
         return Pseudoranges(self.rawx_t_abs[sel], m["sv"].astype(int), m["pr_m"].astype(float),
                             m["doppler_hz"].astype(float), m["cn0_dbhz"].astype(float), m["lock_ms"] * 1e-3,
                             self.source)
+
+    def second_frequency(self) -> Pseudoranges:
+        """Each satellite's second code with the core's ids, the partner of ``pseudoranges`` for a dual-frequency
+        ionosphere: GPS L2C (CL, else CM) and Galileo E5a (the Q pilot, else I)."""
+        def first_tracked(gnss, sigs):
+            for sig in sigs:
+                p = self.signal(gnss, sig)
+                if len(p):
+                    return p
+            return Pseudoranges.empty(self.source)
+        return _with_galileo(first_tracked(GNSS_GPS, (SIG_GPS_L2CL, SIG_GPS_L2CM)),
+                             first_tracked(GNSS_GALILEO, (SIG_GALILEO_E5AQ, SIG_GALILEO_E5AI)))
 
     def damage_summary(self) -> str:
         if not self.damage:
@@ -366,7 +380,7 @@ def parse(data: bytes, source: str = "<bytes>", path=None) -> UbxFile:
     if week_hint is None and lnav.sets:
         lnav.stats["sets without a GPS week (no RAWX/NAV-PVT)"] = len(lnav.sets)
     ephs += inav.ephemerides()
-    nav = Navigation(ephs, lnav.alpha, lnav.beta, int(np.median(leaps)) if leaps else None)
+    nav = Navigation(ephs, lnav.alpha, lnav.beta, int(np.median(leaps)) if leaps else None, inav.bgd_e1_e5a_s)
 
     out = UbxFile(t_meas, meas, Pseudoranges.empty(source), pvt_fixes(pvt, t_pvt, source), pvt, t_pvt, nav, counts,
                   damage, lnav.stats + inav.stats, source)
