@@ -18,6 +18,11 @@ Extensions (all optional):
 - ``[imu] delimiter``, ``skip_rows``: the table's separator and header lines (guessed when absent).
 - ``[imu] time = "gps_abs"`` (GPS seconds since 1980-01-06) and ``"utc_unix"`` (Unix time in
   UTC: leap seconds added).
+- ``[imu] time = "rtklib_tag"``, ``tag = "FILE.tag"``, ``counter_hz``: a raw stream logged by RTKLIB
+  (str2str, rtknavi) with its time tags; ``columns`` name a ``counter`` (the sensor's own sample counter,
+  ``counter_bits`` 32 unless given) instead of ``t``. Each sample's time is its counter mapped onto the
+  tags' arrival times along their lower envelope (``timing.counter_times``); the first line and an
+  unterminated last one are not used (the logger starts and stops mid-line).
 - ``[gnss] week``: the GPS week of a kf-gins GNSS file (default: ``[imu] week``).
 - ``[gnss] geoid_height_m``, ``[scoring] reference_geoid_height_m``: for .pos (and kf-gins)
   heights above the geoid, the geoid's height above the ellipsoid (added to them).
@@ -53,9 +58,9 @@ from pathlib import Path
 
 import numpy as np
 
-from . import _core, ionosphere as ionosphere_mod, outages as outages_mod
+from . import _core, ionosphere as ionosphere_mod, outages as outages_mod, timing
 from .evaluate import c_en
-from .readers import imu_csv, kfgins, rinex, rtklib_pos, ubx
+from .readers import imu_csv, kfgins, rinex, rtklib_pos, rtklib_tag, ubx
 from .readers.common import Fixes, Navigation, Pseudoranges, ReaderError
 from .readers.imu_csv import ImuData
 
@@ -66,7 +71,7 @@ VEHICLE_KINDS = ("none", "car")
 _KNOWN = {
     "": {"name", "imu", "gnss", "vehicle", "filter", "scoring", "description"},
     "imu": {"file", "format", "columns", "time", "week", "accel_unit", "gyro_unit", "time_offset_s", "imu_to_body",
-            "imu_to_body_ypr_deg", "delimiter", "skip_rows"},
+            "imu_to_body_ypr_deg", "delimiter", "skip_rows", "tag", "counter_hz", "counter_bits"},
     "gnss": {"file", "format", "nav", "antenna_m", "week", "geoid_height_m", "sigma_floor_m", "sigma_default_m",
              "velocity_sigma_floor_mps", "velocity_lag_s", "systems", "ionosphere", "ionosphere_smoothing_s"},
     "vehicle": {"kind"},
@@ -269,6 +274,27 @@ def _file(base: Path, value, path, key) -> Path:
     return f
 
 
+def _read_tagged_imu(t: dict, f: Path, base: Path, path: Path) -> ImuData:
+    """``time = "rtklib_tag"``: a raw stream logged with RTKLIB's time tags; the times are the sensor's counter
+    (``counter_hz``) mapped onto the tags' arrival times (``timing.counter_times``)."""
+    if "tag" not in t:
+        raise DatasetError(path, 'time = "rtklib_tag" needs `tag = "FILE.tag"`', field="[imu] tag")
+    hz = t.get("counter_hz")
+    if not (isinstance(hz, (int, float)) and not isinstance(hz, bool) and hz > 0):
+        raise DatasetError(path, "the counter's ticks per second (e.g. 1000 for milliseconds)",
+                           field="[imu] counter_hz")
+    accel_unit, gyro_unit = t.get("accel_unit", "m/s^2"), t.get("gyro_unit", "rad/s")
+    rows = imu_csv.read_counter_rows(f, t["columns"], accel_unit, gyro_unit, t.get("delimiter"),
+                                     int(t.get("counter_bits", 32)))
+    tags = rtklib_tag.read(_file(base, t["tag"], path, "[imu] tag"))
+    arrival = tags.arrival_t_abs(tags.stream_offsets(rows.end_offset, rows.line_no, rows.file_bytes,
+                                                     rows.newlines))
+    times, fit = timing.counter_times(rows.counter / float(hz), arrival)
+    imu = imu_csv.from_samples(times, rows.acc, rows.gyr, accel_unit, gyro_unit, f.name, rows.skipped)
+    imu.alignment = {"tag": tags.source, **fit}
+    return imu
+
+
 def _read_imu(t: dict, base: Path, path: Path) -> ImuData:
     fmt = t.get("format", "csv")
     f = _file(base, t.get("file"), path, "[imu] file")
@@ -276,6 +302,8 @@ def _read_imu(t: dict, base: Path, path: Path) -> ImuData:
     if fmt == "csv":
         if "columns" not in t:
             raise DatasetError(path, "a csv IMU needs `columns`", field="[imu] columns")
+        if t.get("time") == "rtklib_tag":
+            return _read_tagged_imu(t, f, base, path)
         return imu_csv.read(f, t["columns"], t.get("time", "gpst_unix"), t.get("accel_unit", "m/s^2"),
                             t.get("gyro_unit", "rad/s"), week, t.get("delimiter"), t.get("skip_rows"))
     if fmt == "kf-gins":
@@ -350,7 +378,7 @@ def load(path: str | Path) -> Dataset:
     offset = float(ti.get("time_offset_s", 0.0))
     raw = _read_imu(ti, base, path)
     imu = ImuData(raw.t_abs + offset, raw.dtheta_rad @ m.T, raw.dv_mps @ m.T, raw.source, raw.skipped,
-                  covers_gaps=raw.covers_gaps)
+                  alignment=raw.alignment, covers_gaps=raw.covers_gaps)
     skipped = Counter(raw.skipped)
 
     fmt = tg.get("format")
@@ -360,6 +388,12 @@ def load(path: str | Path) -> Dataset:
     ds = Dataset(str(doc.get("name", path.stem)), path, imu, m, offset,
                  _vector(tg.get("antenna_m", [0.0, 0.0, 0.0]), path, "[gnss] antenna_m"), fmt)
     ds.skipped = skipped
+    if imu.alignment:
+        a = imu.alignment
+        late = a["arrival_above_envelope_ms"]
+        ds.notes.append(f"{imu.source}: times from {a['tag']}: the counter runs {a['counter_rate_ppm']:+.1f} ppm "
+                        f"against the logger's clock; arrival above the lower envelope median {late['median']:.1f} "
+                        f"ms, 95 % {late['p95']:.1f} ms, worst {late['max']:.1f} ms")
     navs = [rinex.read_nav(n) for n in _nav_files(tg, base, path)]
     if fmt == "rtklib-pos":
         ds.fixes = rtklib_pos.read(gfile, tg.get("geoid_height_m"))

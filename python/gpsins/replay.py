@@ -277,7 +277,8 @@ def _dataset_inputs(path: Path, config, overrides: dict) -> Inputs:
                zip(*np.unique(ds.fixes.q, return_counts=True))} if ds.fixes is not None else {}
     inp.info = {"dataset": str(path), "name": ds.name, "decode_s": decode_s, "skipped": dict(ds.skipped),
                 "warnings": list(ds.notes), "imu_to_body": ds.imu_to_body.tolist(),
-                "imu_time_offset_s": ds.imu_time_offset_s, "antenna_m": ds.antenna_m.tolist(),
+                "imu_time_offset_s": ds.imu_time_offset_s, "imu_alignment": ds.imu.alignment,
+                "antenna_m": ds.antenna_m.tolist(),
                 "gnss_format": ds.gnss_format, "ionosphere": ds.ionosphere, "vehicle_kind": ds.vehicle_kind,
                 "fix_quality": n_fix_q,
                 "from_data": inp.data_config, "velocity_lag_measured": measured_lag,

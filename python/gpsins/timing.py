@@ -140,6 +140,20 @@ def lower_envelope(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
     return float(a[0]), b
 
 
+def counter_times(counter_s: np.ndarray, arrival_t_abs: np.ndarray) -> tuple[np.ndarray, dict]:
+    """GPS times of samples from the sensor's own counter (seconds) and the logger's arrival times (NaN where
+    none): the lower envelope of arrival against counter, so latency never makes a sample earlier than it
+    arrived, and the counter's rate against the host's clock comes with it."""
+    x = counter_s - counter_s[0]
+    ok = np.isfinite(arrival_t_abs)
+    a, b = lower_envelope(x[ok], arrival_t_abs[ok])
+    t = a + b * x
+    late_ms = (arrival_t_abs[ok] - t[ok]) * 1e3
+    return t, {"counter_rate_ppm": (b - 1.0) * 1e6, "arrival_above_envelope_ms": {
+        "median": float(np.median(late_ms)), "p95": float(np.percentile(late_ms, 95)), "max": float(late_ms.max())},
+        "samples_with_arrival": int(ok.sum())}
+
+
 def joint_lower_envelope(x: np.ndarray, y: np.ndarray, group: np.ndarray | None) -> tuple[np.ndarray, float]:
     """One slope b and an intercept a_g per group (``group`` None: one group): y_i >= a_g + b x_i minimising
     the summed residual. For a given b each a_g is the minimum of y - b x over its group, so the objective

@@ -5,6 +5,7 @@
 - ``rtklib_pos``: RTKLIB ``.pos`` solutions (Q, standard deviations, velocities)
 - ``rinex``: RINEX 2 and 3 observation and GPS navigation files
 - ``ubx``: u-blox UBX (RXM-RAWX, RXM-SFRBX GPS LNAV, NAV-PVT)
+- ``rtklib_tag``: RTKLIB time-tag files (a logged stream's arrival times)
 
 Files whose names end in .gz are read through gzip. Damaged input raises ``ReaderError`` naming the file, the offset or line and the field;
 binary streams skip damaged frames and count them instead.

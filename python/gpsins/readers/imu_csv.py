@@ -6,12 +6,18 @@ together they cover every step, a long one too;
 increments (m/s, rad, deg) are taken as they are, each ending at its own time stamp.
 Samples whose time does not increase are dropped and counted; a value that is not a
 number is an error naming the file, line and column.
+
+A stream logged raw has no time column but the sensor's own sample counter:
+``read_counter_rows`` gives its rows with where each line ends, for the logger's arrival
+times (``rtklib_tag``) and the alignment (``timing.counter_times``); ``from_samples``
+then makes the increments.
 """
 
 from __future__ import annotations
 
 import datetime as dt
 import gzip
+import io
 import re
 from collections import Counter
 from dataclasses import dataclass, field
@@ -19,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .common import SECONDS_PER_WEEK, UNIX_TO_GPS_S, ReaderError, leap_seconds, read_text_lines
+from .common import SECONDS_PER_WEEK, UNIX_TO_GPS_S, ReaderError, leap_seconds, read_bytes, read_text_lines
 
 G0 = 9.80665  # standard gravity: what "g" means in IMU data sheets
 ACCEL_UNITS = {"g": (G0, True), "m/s^2": (1.0, True), "m/s2": (1.0, True), "m/s": (1.0, False)}
@@ -37,6 +43,7 @@ class ImuData:
     dv_mps: np.ndarray  # (n, 3)
     source: str = ""
     skipped: Counter = field(default_factory=Counter)
+    alignment: dict | None = None  # how the times were found, when not read from a time column
     # Each increment covers the whole step from the previous stamp (rates integrated over it), so a
     # long step is no lost frame for the filter to bridge (its imu_increments_cover_gaps).
     covers_gaps: bool = False
@@ -126,7 +133,83 @@ def read(path: str | Path, columns, time: str = "gpst_unix", accel_unit: str = "
     t = to_gps_seconds(col["t"], time, week, path)
     acc = np.column_stack([col["ax"], col["ay"], col["az"]]) * ACCEL_UNITS[accel_unit][0]
     gyr = np.column_stack([col["gx"], col["gy"], col["gz"]]) * GYRO_UNITS[gyro_unit][0]
+    return from_samples(t, acc, gyr, accel_unit, gyro_unit, path.name)
+
+
+@dataclass
+class CounterRows:
+    """An IMU stream logged raw, time-stamped by its own sample counter (``columns`` with "counter" instead of
+    "t"): the rows in SI units and where each line ends in the file, for the logger's arrival times."""
+
+    counter: np.ndarray  # (n,) the sensor's counter, unwrapped
+    acc: np.ndarray  # (n, 3) SI
+    gyr: np.ndarray  # (n, 3) SI
+    end_offset: np.ndarray  # (n,) file offset after each row's line end
+    line_no: np.ndarray  # (n,) 1-based line number
+    file_bytes: int
+    newlines: int  # line ends in the file
+    skipped: Counter = field(default_factory=Counter)
+
+
+def read_counter_rows(path: str | Path, columns, accel_unit: str = "m/s^2", gyro_unit: str = "rad/s",
+                      delimiter: str | None = None, counter_bits: int = 32) -> CounterRows:
+    """Rows of a raw logged stream; lines with too few fields are skipped and counted, every whole one kept.
+    The counter wraps at 2^counter_bits."""
+    path = Path(path)
+    columns = list(columns)
+    missing = [c for c in ("counter", *AXES) if c not in columns]
+    if missing:
+        raise ReaderError(path, f"columns lack {', '.join(missing)}", field="columns")
+    data = read_bytes(path)
+    lines = data.split(b"\n")
+    ends = np.cumsum([len(x) + 1 for x in lines])
+    if not data.endswith(b"\n"):
+        ends[-1] -= 1  # the last line has no line end
+    sep = (b"," if b"," in data[:4096] else None) if delimiter is None else delimiter.encode()
+    width = len(columns)
+    # The logger may have started and stopped mid-line: the first line and an unterminated last one can be
+    # cut anywhere, even between digits, so they are never used.
+    whole = range(1, len(lines) - 1)
+    kept = [i for i in whole if lines[i].strip() and len(lines[i].split(sep)) >= width]
     skipped = Counter()
+    if lines[0].strip() or lines[-1].strip():
+        skipped["IMU lines at the ends of the stream (a logger starts and stops mid-line)"] = \
+            bool(lines[0].strip()) + bool(lines[-1].strip())
+    short = sum(1 for i in whole if lines[i].strip()) - len(kept)
+    if short:
+        skipped["IMU lines with too few fields"] = short
+    use = [k for k, c in enumerate(columns) if c != "-"]
+    text = "\n".join(lines[i].rstrip(b"\r").decode("ascii", "replace") for i in kept)
+    try:  # NumPy's C parser; the scan below only to name a bad value
+        a = np.loadtxt(io.StringIO(text), delimiter=sep.decode() if sep else None, usecols=use, ndmin=2)
+    except ValueError:
+        for i in kept:
+            parts = lines[i].rstrip(b"\r").split(sep)
+            for k in use:
+                try:
+                    float(parts[k])
+                except ValueError:
+                    raise ReaderError(path, f"not a number: {parts[k][:20].decode('ascii', 'replace')!r}",
+                                      line=i + 1, field=columns[k]) from None
+        raise
+    col = {columns[k]: a[:, j] for j, k in enumerate(use)}
+    counter = col["counter"].astype(np.int64)
+    counter += np.concatenate([[0], np.cumsum(np.diff(counter) < -(1 << (counter_bits - 1)))]) << counter_bits
+    back = np.flatnonzero(np.diff(counter) <= 0)
+    if len(back):
+        raise ReaderError(path, f"the counter does not increase ({counter[back[0]]} then {counter[back[0] + 1]}): "
+                          "a sensor restart? one continuous counter per file", line=kept[back[0] + 1] + 1,
+                          field="counter")
+    acc = np.column_stack([col["ax"], col["ay"], col["az"]]) * ACCEL_UNITS[accel_unit][0]
+    gyr = np.column_stack([col["gx"], col["gy"], col["gz"]]) * GYRO_UNITS[gyro_unit][0]
+    kept = np.asarray(kept, int)
+    return CounterRows(counter, acc, gyr, ends[kept], kept + 1, len(data), data.count(b"\n"), skipped)
+
+
+def from_samples(t: np.ndarray, acc: np.ndarray, gyr: np.ndarray, accel_unit: str, gyro_unit: str,
+                 source: str = "", skipped: Counter | None = None) -> ImuData:
+    """Samples in SI units (rates or increments as their units say) at GPS times to increments."""
+    skipped = Counter(skipped or {})
     # Keep samples whose time increases over the last kept one (a stamp that goes back is a glitch).
     keep = np.ones(len(t), bool)
     if len(t) > 1:
@@ -148,7 +231,7 @@ def read(path: str | Path, columns, time: str = "gpst_unix", accel_unit: str = "
             dv = dv[1:]
         if not gyro_rates:
             dth = dth[1:]
-    return ImuData(t, dth, dv, path.name, skipped, covers_gaps=accel_rates and gyro_rates)
+    return ImuData(t, dth, dv, source, skipped, covers_gaps=accel_rates and gyro_rates)
 
 
 def _increments(t: np.ndarray, x: np.ndarray, rates: bool) -> np.ndarray:
