@@ -143,6 +143,11 @@ def test_dataset_ionosphere_key(tmp_path):
     # The filter must not add Klobuchar's delay to ranges that come without theirs.
     assert inp.klobuchar is None and inp.data_config["pseudorange_ionosphere"] is False
     assert inp.info["ionosphere"] == "dual-frequency"
+    fixes_only = (WALK / "walk_0827.toml").read_text().replace('format = "rtklib-pos"',
+                                                                'format = "rtklib-pos"\nionosphere = "dual-frequency"')
+    (tmp_path / "f.toml").write_text(fixes_only)
+    with pytest.raises(dataset.DatasetError, match="only pseudoranges"):
+        dataset.load(tmp_path / "f.toml")
     path.write_text(text % "nequick")
     with pytest.raises(dataset.DatasetError, match=r"\[gnss\] ionosphere"):
         dataset.load(path)

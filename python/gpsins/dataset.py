@@ -395,6 +395,7 @@ def load(path: str | Path) -> Dataset:
                         f"against the logger's clock; arrival above the lower envelope median {late['median']:.1f} "
                         f"ms, 95 % {late['p95']:.1f} ms, worst {late['max']:.1f} ms")
     navs = [rinex.read_nav(n) for n in _nav_files(tg, base, path)]
+    second = None  # the second frequency's ranges, read only if asked for
     if fmt == "rtklib-pos":
         ds.fixes = rtklib_pos.read(gfile, tg.get("geoid_height_m"))
     elif fmt == "kf-gins":
@@ -431,8 +432,7 @@ def load(path: str | Path) -> Dataset:
         if dropped:
             skipped["ubx: NAV-PVT without a valid fix"] = dropped
 
-    if ds.pseudoranges is not None:
-        _ionosphere(ds, tg, second, path, skipped)
+    _ionosphere(ds, tg, second, path, skipped)
     ds.vehicle_kind, ds.filter_table, ds.outages = kind, ft, spec
     ds.sigma_floor_m = _quality_table(tg, "sigma_floor_m", path)
     ds.sigma_default_m = _quality_table(tg, "sigma_default_m", path)
@@ -462,6 +462,9 @@ def _ionosphere(ds: Dataset, tg: dict, second, path: Path, skipped: Counter) -> 
         raise DatasetError(path, "must be positive seconds", field="[gnss] ionosphere_smoothing_s")
     if ds.ionosphere == "broadcast":
         return
+    if second is None:
+        raise DatasetError(path, "only pseudoranges (rinex, ubx) have an ionosphere to correct",
+                           field="[gnss] ionosphere")
     l2 = second()
     if not len(l2):
         raise DatasetError(path, "dual-frequency: the file has no second frequency (GPS L2, Galileo E5a)",
