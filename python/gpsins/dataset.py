@@ -274,13 +274,18 @@ def _file(base: Path, value, path, key) -> Path:
     return f
 
 
+def _positive_number(value) -> bool:
+    """A TOML number (not a boolean) above zero."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and value > 0
+
+
 def _read_tagged_imu(t: dict, f: Path, base: Path, path: Path) -> ImuData:
     """``time = "rtklib_tag"``: a raw stream logged with RTKLIB's time tags; the times are the sensor's counter
     (``counter_hz``) mapped onto the tags' arrival times (``timing.counter_times``)."""
     if "tag" not in t:
         raise DatasetError(path, 'time = "rtklib_tag" needs `tag = "FILE.tag"`', field="[imu] tag")
     hz = t.get("counter_hz")
-    if not (isinstance(hz, (int, float)) and not isinstance(hz, bool) and hz > 0):
+    if not _positive_number(hz):
         raise DatasetError(path, "the counter's ticks per second (e.g. 1000 for milliseconds)",
                            field="[imu] counter_hz")
     accel_unit, gyro_unit = t.get("accel_unit", "m/s^2"), t.get("gyro_unit", "rad/s")
@@ -458,7 +463,7 @@ def _ionosphere(ds: Dataset, tg: dict, second, path: Path, skipped: Counter) -> 
         raise DatasetError(path, f"unknown model {ds.ionosphere!r} ({', '.join(IONOSPHERE_MODELS)})",
                            field="[gnss] ionosphere")
     smoothing = tg.get("ionosphere_smoothing_s", ionosphere_mod.SMOOTHING_S)
-    if not (isinstance(smoothing, (int, float)) and not isinstance(smoothing, bool) and smoothing > 0):
+    if not _positive_number(smoothing):
         raise DatasetError(path, "must be positive seconds", field="[gnss] ionosphere_smoothing_s")
     if ds.ionosphere == "broadcast":
         return

@@ -29,10 +29,10 @@ from collections import Counter
 import numpy as np
 from scipy.signal import lfilter
 
+from . import _core
 from .readers.common import Navigation, Pseudoranges
 from .readers.galileo_inav import GALILEO_ID_OFFSET
 
-SPEED_OF_LIGHT_MPS = 299792458.0
 F_L1_HZ = 1575.42e6  # GPS L1 and Galileo E1
 F_SECOND_HZ = {"gps": 1227.60e6, "galileo": 1176.45e6}  # GPS L2, Galileo E5a: what readers give as second
 SMOOTHING_S = 60.0
@@ -74,7 +74,7 @@ def l1_delay_m(l1: Pseudoranges, second: Pseudoranges, nav: Navigation, smoothin
     prn = l1.prn[paired]
     g = np.where(prn > GALILEO_ID_OFFSET, gamma("galileo"), gamma("gps"))
     raw = (second.pr_m[j[paired]] - l1.pr_m[paired]) / (g - 1.0) \
-        - SPEED_OF_LIGHT_MPS * group_delays_s(nav, prn)
+        - _core.gnss.SPEED_OF_LIGHT * group_delays_s(nav, prn)
     t = l1.t_abs[paired]
     epochs = np.unique(t)
     # A track breaks at a gap, not at the file's own interval (30 s RINEX).

@@ -90,6 +90,25 @@ def _locate_bad_value(path: Path, text: list[str], usecols, names, delimiter, sk
     return ReaderError(path, "unreadable table")
 
 
+def _check_layout(path: Path, columns: list, time_column: str, accel_unit: str, gyro_unit: str) -> None:
+    missing = [c for c in (time_column, *AXES) if c not in columns]
+    if missing:
+        raise ReaderError(path, f"columns lack {', '.join(missing)}", field="columns")
+    unknown = [c for c in columns if c not in (time_column, "-", *AXES)]
+    if unknown:
+        raise ReaderError(path, f"unknown column names {unknown}", field="columns")
+    if accel_unit not in ACCEL_UNITS:
+        raise ReaderError(path, f"unknown accel_unit {accel_unit!r} ({', '.join(ACCEL_UNITS)})", field="accel_unit")
+    if gyro_unit not in GYRO_UNITS:
+        raise ReaderError(path, f"unknown gyro_unit {gyro_unit!r} ({', '.join(GYRO_UNITS)})", field="gyro_unit")
+
+
+def _axes_si(col: dict, accel_unit: str, gyro_unit: str) -> tuple[np.ndarray, np.ndarray]:
+    acc = np.column_stack([col["ax"], col["ay"], col["az"]]) * ACCEL_UNITS[accel_unit][0]
+    gyr = np.column_stack([col["gx"], col["gy"], col["gz"]]) * GYRO_UNITS[gyro_unit][0]
+    return acc, gyr
+
+
 def read(path: str | Path, columns, time: str = "gpst_unix", accel_unit: str = "m/s^2", gyro_unit: str = "rad/s",
          week: int | None = None, delimiter: str | None = None, skip_rows: int | None = None) -> ImuData:
     """Read an IMU table. ``columns``: the leading columns' names in order (t, ax, ay, az, gx, gy, gz;
@@ -97,16 +116,7 @@ def read(path: str | Path, columns, time: str = "gpst_unix", accel_unit: str = "
     else whitespace). ``skip_rows``: header lines to skip (None: every leading line that is not numeric)."""
     path = Path(path)
     columns = list(columns)
-    missing = [c for c in ("t", *AXES) if c not in columns]
-    if missing:
-        raise ReaderError(path, f"columns lack {', '.join(missing)}", field="columns")
-    unknown = [c for c in columns if c not in ("t", "-", *AXES)]
-    if unknown:
-        raise ReaderError(path, f"unknown column names {unknown}", field="columns")
-    if accel_unit not in ACCEL_UNITS:
-        raise ReaderError(path, f"unknown accel_unit {accel_unit!r} ({', '.join(ACCEL_UNITS)})", field="accel_unit")
-    if gyro_unit not in GYRO_UNITS:
-        raise ReaderError(path, f"unknown gyro_unit {gyro_unit!r} ({', '.join(GYRO_UNITS)})", field="gyro_unit")
+    _check_layout(path, columns, "t", accel_unit, gyro_unit)
     try:
         opener = gzip.open if path.suffix.lower() == ".gz" else open
         with opener(path, "rt", encoding="utf-8", errors="replace") as f:
@@ -131,8 +141,7 @@ def read(path: str | Path, columns, time: str = "gpst_unix", accel_unit: str = "
         raise _locate_bad_value(path, text, usecols, names, delimiter, skip_rows) from None
     col = {n: a[:, k] for k, n in enumerate(names)}
     t = to_gps_seconds(col["t"], time, week, path)
-    acc = np.column_stack([col["ax"], col["ay"], col["az"]]) * ACCEL_UNITS[accel_unit][0]
-    gyr = np.column_stack([col["gx"], col["gy"], col["gz"]]) * GYRO_UNITS[gyro_unit][0]
+    acc, gyr = _axes_si(col, accel_unit, gyro_unit)
     return from_samples(t, acc, gyr, accel_unit, gyro_unit, path.name)
 
 
@@ -157,9 +166,7 @@ def read_counter_rows(path: str | Path, columns, accel_unit: str = "m/s^2", gyro
     The counter wraps at 2^counter_bits."""
     path = Path(path)
     columns = list(columns)
-    missing = [c for c in ("counter", *AXES) if c not in columns]
-    if missing:
-        raise ReaderError(path, f"columns lack {', '.join(missing)}", field="columns")
+    _check_layout(path, columns, "counter", accel_unit, gyro_unit)
     data = read_bytes(path)
     lines = data.split(b"\n")
     ends = np.cumsum([len(x) + 1 for x in lines])
@@ -200,8 +207,7 @@ def read_counter_rows(path: str | Path, columns, accel_unit: str = "m/s^2", gyro
         raise ReaderError(path, f"the counter does not increase ({counter[back[0]]} then {counter[back[0] + 1]}): "
                           "a sensor restart? one continuous counter per file", line=kept[back[0] + 1] + 1,
                           field="counter")
-    acc = np.column_stack([col["ax"], col["ay"], col["az"]]) * ACCEL_UNITS[accel_unit][0]
-    gyr = np.column_stack([col["gx"], col["gy"], col["gz"]]) * GYRO_UNITS[gyro_unit][0]
+    acc, gyr = _axes_si(col, accel_unit, gyro_unit)
     kept = np.asarray(kept, int)
     return CounterRows(counter, acc, gyr, ends[kept], kept + 1, len(data), data.count(b"\n"), skipped)
 

@@ -162,22 +162,15 @@ class ObsFile:
         """GPS L2 pseudoranges, the partner of ``gps_l1`` for a dual-frequency ionosphere: the first of P2 (RINEX 3
         C2W), C2, C2L, C2S, C2X the file has; empty if none."""
         col = next((c for c in (self.find(n) for n in L2_CODES) if c is not None), None)
-        if col is None:
-            return Pseudoranges.empty(self.source)
-        t, prn, pr = [], [], []
-        for te, prns, v in self.epochs:
-            ok = np.isfinite(v[:, col])
-            t += [te] * int(ok.sum())
-            prn += np.asarray(prns)[ok].tolist()
-            pr += v[ok, col].tolist()
-        nan = np.full(len(t), np.nan)
-        return Pseudoranges(np.asarray(t, float), np.asarray(prn, int), np.asarray(pr, float), nan, nan, nan,
-                            self.source)
+        return Pseudoranges.empty(self.source) if col is None else self._code(col, None, None)
 
     def gps_l1(self) -> Pseudoranges:
         """GPS L1 C/A pseudoranges with Doppler and C/N0 where the file has them (satellites without a
         pseudorange in an epoch are left out)."""
-        pr, dop, snr = self.column("C1"), self.find("D1"), self.find("S1")
+        return self._code(self.column("C1"), self.find("D1"), self.find("S1"))
+
+    def _code(self, pr: int, dop: int | None, snr: int | None) -> Pseudoranges:
+        """One code's rows, with the Doppler and C/N0 columns given (None: NaN)."""
         rows = []
         for t, prns, v in self.epochs:
             ok = np.isfinite(v[:, pr])
@@ -190,7 +183,6 @@ class ObsFile:
         a = np.concatenate(rows) if rows else np.zeros((0, 5))
         return Pseudoranges(a[:, 0], a[:, 1].astype(int), a[:, 2], a[:, 3], a[:, 4], np.full(len(a), np.nan),
                             self.source)
-
 
 def _obs_header(path, lines):
     version, kind, _ = _version(path, lines)

@@ -42,7 +42,6 @@ class TimeTags:
         out[ok] = self.start_t_abs + self.tick_ms[k[ok]] * 1e-3
         return out
 
-
     def stream_offsets(self, end_offset: np.ndarray, line_no: np.ndarray, file_bytes: int, newlines: int
                        ) -> np.ndarray:
         """A text file's line-end offsets as offsets of the logged stream: the same, or, when the stream had
