@@ -2,6 +2,7 @@
 
     python benchmarks/bench_walk.py                        # both data sets, seven schedules
     python benchmarks/bench_walk.py --sets walk_0827 --shifts -10,0,10
+    python benchmarks/bench_walk.py --set zero_rate_sigma_rad_per_s=1e-3   # a configuration variant
 
 The issue's schedule (25:15:45:45) puts two 15 s outages into a 134 s walk: two numbers, whose
 RMS moves by a metre when the outages start a few seconds earlier or later. This replays the
@@ -19,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from gpsins import filter as flt
 from gpsins import replay
 
 WALK = Path(__file__).resolve().parents[1] / "tests" / "data" / "walk_0827"
@@ -28,7 +30,9 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sets", default="walk_0827,walk_0827_ubx")
     ap.add_argument("--shifts", default="-10,-6,-2,0,2,6,10", help="seconds added to the first outage's 25 s")
+    ap.add_argument("--set", action="append", metavar="KEY=VALUE", help="override one configuration key")
     args = ap.parse_args()
+    overrides = flt.parse_overrides(args.set or [])
     shifts = [float(x) for x in args.shifts.split(",")]
     for name in args.sets.split(","):
         fwd, smo, outside = [], [], []
@@ -36,7 +40,7 @@ def main() -> None:
         for shift in shifts:
             with tempfile.TemporaryDirectory() as d:
                 res = replay.replay(WALK / f"{name}.toml", Path(d) / "r", outages=f"{25 + shift:g}:15:45:45",
-                                    smooth=True).summary
+                                    smooth=True, overrides=overrides).summary
             f, s = res["scoring"], res["smoothed"]["scoring"]
             fwd += [o["max_h_m"] for o in f["per_outage"] if np.isfinite(o["max_h_m"])]
             smo += [o["max_h_m"] for o in s["per_outage"] if np.isfinite(o["max_h_m"])]

@@ -220,3 +220,47 @@ def test_gnss_errors_measured_at_the_station_make_both_filters_consistent():
         assert nees["preset"] > 1.5 * nees["measured"], (mode, nees)
         assert mode == "tight" or nees["preset"] > 12.0, (mode, nees)
         assert 3.0 < nees["measured"] < 13.5, (mode, nees)
+
+
+def _riding(pitch_deg=0.3, roll_deg=0.2):
+    sc = _segments_scenario("")
+    sc.ride = scn.RideModel(pitch_deg=pitch_deg, roll_deg=roll_deg, band_hz=(1.0, 2.0), reference_speed_mps=8.0)
+    return sc
+
+
+def test_ride_rocks_the_body_not_its_path():
+    """[ride]: the body pitches and rolls on its suspension at 1-2 Hz, by the stated RMS times
+    v^2 / (v^2 + v_ref^2), not at rest; the path is the same as without it, so the body's own
+    vertical velocity (what a non-holonomic constraint takes as zero) is speed x the pitch; the
+    rates are the angles' derivatives (the truth re-integrates)."""
+    still, sc = _segments_scenario(""), _riding()
+    tr = trajectory.truth(sc, 1.0 / 64.0, 64.0, 40 * 64 - 2)
+    ref = trajectory.truth(still, 1.0 / 64.0, 64.0, 40 * 64 - 2)
+    assert np.array_equal(tr.r_ecef, ref.r_ecef) and np.array_equal(tr.v_ecef, ref.v_ecef)
+    d_pitch, d_roll = tr.ypr[:, 1] - ref.ypr[:, 1], tr.ypr[:, 2] - ref.ypr[:, 2]
+    assert np.all(d_pitch[tr.t <= 0.0] == 0.0)
+    cruise = (tr.t > 2.0) & (tr.t < 10.0)  # 15 m/s only from 10 s: the envelope of the speed then
+    fast = (tr.t > 12.0) & (tr.t < 40.0)
+    k = 15.0 ** 2 / (15.0 ** 2 + 8.0 ** 2)
+    rms = lambda x: float(np.sqrt(np.mean(np.square(x))))  # noqa: E731
+    assert rms(d_pitch[fast]) == pytest.approx(k * np.radians(0.3), rel=0.15)
+    assert rms(d_roll[fast]) == pytest.approx(k * np.radians(0.2), rel=0.15)
+    assert rms(d_pitch[cruise]) < rms(d_pitch[fast])
+    # Frequency: zero crossings of a 1-2 Hz sum about 3 per second.
+    crossings = np.count_nonzero(np.diff(np.sign(d_pitch[fast]))) / 28.0
+    assert 2.0 < crossings < 4.5, crossings
+    v_body = np.einsum("nji,nj->ni", tr.c_eb, tr.v_ecef)
+    speed = np.linalg.norm(tr.v_ecef, axis=1)
+    np.testing.assert_allclose(v_body[fast, 2], speed[fast] * np.sin(d_pitch[fast]), atol=2e-3)  # nose up: "down" in the body
+    att, pos = reintegration_errors(tr)
+    assert att < 1e-7 and pos < 2e-3, (att, pos)
+
+
+def test_ride_errors_name_the_key():
+    import tomllib
+    text = "[[segment]]\nlabel = 'a'\nduration_s = 5\n[ride]\npitch_deg = 0.3\n"
+    assert scn.parse(tomllib.loads(text), "r").ride.pitch_deg == 0.3
+    with pytest.raises(scn.ScenarioError, match=r"r: \[ride\]: unknown key\(s\) pitch\b"):
+        scn.parse(tomllib.loads(text.replace("pitch_deg", "pitch")), "r")
+    with pytest.raises(scn.ScenarioError, match=r"\[ride\]: band_hz"):
+        scn.parse(tomllib.loads(text + "band_hz = [2.0, 1.0]\n"), "r")

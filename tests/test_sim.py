@@ -291,3 +291,29 @@ def test_signal_in_space_error_is_per_satellite_slow_and_on_by_default():
     assert 0.2 < np.sqrt(np.mean(means ** 2)) < 2.0 and means.std() > 0.2
     # Its own generator: the other errors are drawn as without it.
     np.testing.assert_array_equal(g.multipath_m, base.multipath_m)
+
+
+def test_warmup_moves_the_bias_as_stated_and_leaves_the_other_draws():
+    """gyro_warmup / accel_warmup: each axis's bias moves by its drawn step times 1 - exp(-t / tau)
+    (written out here), the step's spread is the stated std, and every other term of the unit is
+    the same as without it (drawn last)."""
+    m = ImuModel()
+    for term in ("white_noise", "bias_instability", "rate_random_walk"):
+        m.terms[term] = False
+    rate, n = 64, 64 * 300
+    plain = imu.ImuErrorProcess(m, np.random.default_rng(3), lambda name: None)
+    warm_m = ImuModel(gyro_warmup_rad_per_s=5e-4, accel_warmup_mps2=0.01, warmup_tau_s=60.0)
+    warm_m.terms.update(m.terms)
+    warm = imu.ImuErrorProcess(warm_m, np.random.default_rng(3), lambda name: None)
+    assert np.array_equal(plain.constants.gyro_bias_rad_per_s, warm.constants.gyro_bias_rad_per_s)
+    assert np.array_equal(plain.constants.gyro_matrix, warm.constants.gyro_matrix)
+    assert plain.constants.gyro_warmup_rad_per_s is None
+    gd, ad = warm.drift(n // 2)
+    gd2, ad2 = warm.drift(n)  # in two pieces: the same curve
+    gd, ad = np.vstack([gd, gd2]), np.vstack([ad, ad2])
+    t = np.arange(n) / rate
+    for d, step in ((gd, warm.constants.gyro_warmup_rad_per_s), (ad, warm.constants.accel_warmup_mps2)):
+        np.testing.assert_allclose(d, (1.0 - np.exp(-t / 60.0))[:, None] * step, rtol=1e-12, atol=1e-18)
+    steps = np.array([imu.ImuErrorProcess(warm_m, np.random.default_rng(s), lambda name: None)
+                      .constants.gyro_warmup_rad_per_s for s in range(400)])
+    assert steps.std() == pytest.approx(5e-4, rel=0.1)

@@ -5,7 +5,7 @@ output = (I + scale factor + misalignment) ideal + bias * dt + white noise,
 plus, for the gyros, the g-sensitivity G delta-v (a rate error G f),
 where bias = turn-on bias + bias instability (a weighted sum of first-order
 Gauss-Markov processes whose Allan deviation is flat at 0.664 B) + rate random
-walk. Quantisation is the frame's LSB, applied by the encoder. Every true
+walk + warm-up (a drawn step reached as 1 - exp(-t / tau) after power-on). Quantisation is the frame's LSB, applied by the encoder. Every true
 value is returned so tests can set a filter's Q and P0 from it.
 """
 
@@ -49,6 +49,8 @@ class ImuErrors:
     gyro_bias_drift: np.ndarray  # (n, 3) time-varying part of the bias at each sample
     accel_bias_drift: np.ndarray
     gyro_g_matrix: np.ndarray | None = None  # (3, 3) rad/s per m/s^2 of specific force; None = none
+    gyro_warmup_rad_per_s: np.ndarray | None = None  # (3,) where the warm-up takes the bias; None = none
+    accel_warmup_mps2: np.ndarray | None = None
 
     def as_dict(self) -> dict:
         return {k: np.asarray(v).tolist() for k, v in self.__dict__.items() if "drift" not in k and v is not None}
@@ -107,7 +109,9 @@ class ImuErrorProcess:
                                           _vec(m.accel_rrw_mps2_per_sqrt_s), noise)]
         # Drawn last and only when asked for, so the other terms' draws stay the same per seed.
         gg = _g_sensitivity(rng, m) if draw_g_sensitivity else None
-        self.constants = ImuErrors(gb, ab, gm, am, np.zeros((0, 3)), np.zeros((0, 3)), gg)
+        self._warmup = [rng.normal(0.0, s, 3) if s > 0 else None
+                        for s in (m.gyro_warmup_rad_per_s, m.accel_warmup_mps2)]
+        self.constants = ImuErrors(gb, ab, gm, am, np.zeros((0, 3)), np.zeros((0, 3)), gg, *self._warmup)
         self._white = [noise("gyro white"), noise("accel white")] if m.terms["white_noise"] else None
         self._next = 0
 
@@ -142,6 +146,10 @@ class ImuErrorProcess:
                 s["rw"][1] = y[-1]
                 d += y[1:]
             out.append(d)
+        settled = 1.0 - np.exp(-np.arange(i0, i1) * self.dt / self.m.warmup_tau_s)
+        for d, step in zip(out, self._warmup):
+            if step is not None:
+                d += settled[:, None] * step
         self._next = i1
         return out[0], out[1]
 
@@ -164,7 +172,7 @@ def draw_errors(m: ImuModel, n: int, rng: np.random.Generator) -> ImuErrors:
     e = p.constants
     # The g-sensitivity after everything else here too, so switching it on changes no other term.
     return ImuErrors(e.gyro_bias_rad_per_s, e.accel_bias_mps2, e.gyro_matrix, e.accel_matrix, gd, ad,
-                     _g_sensitivity(rng, m))
+                     _g_sensitivity(rng, m), e.gyro_warmup_rad_per_s, e.accel_warmup_mps2)
 
 
 def measure(dtheta: np.ndarray, dv: np.ndarray, m: ImuModel, err: ImuErrors,

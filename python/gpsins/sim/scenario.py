@@ -29,6 +29,9 @@ segments become "Initialisation", "Lap 1".."Lap N" and "Stop", and each
 ``[[track.cover]]`` (``points = [i, j]``, ``below_elevation_deg``,
 ``azimuth_deg``, ``flicker``) becomes an obstruction on every lap.
 
+``[ride]`` rocks the body on its suspension (sim/ride.py: pitch and roll RMS, their band, growing
+with speed); off unless its angles are set.
+
 ``[reference]`` sets the dual-antenna RTK reference written beside the session
 (sim/reference.py; ``enabled = false`` writes none).
 
@@ -54,6 +57,7 @@ from gpsins_logger import bp3010
 from gpsins_logger.config import STANDARD_BAUDS
 
 from .reference import ReferenceModel
+from .ride import RideModel
 from .track import Cover, Track, TrackSpec
 
 LINE_BITS_PER_BYTE = 10  # 8N1
@@ -110,6 +114,11 @@ class ImuModel:
     accel_misalignment_rad: float = 1e-3
     # Gyro g-sensitivity: std of each element of the 3x3 matrix G (rate error G f); 0 = none and no draw.
     gyro_g_sensitivity_rad_per_s_per_mps2: float = 0.0
+    # Warm-up after power-on: each axis's bias moves by a step drawn with this std, as 1 - exp(-t / tau)
+    # (a MEMS unit's walk: about 1e-4 rad/s on its gyros in two minutes); 0 = none and no draw.
+    gyro_warmup_rad_per_s: float = 0.0
+    accel_warmup_mps2: float = 0.0
+    warmup_tau_s: float = 120.0
     # Noise (report Tables 5.8, 5.9: Q is the white-noise N, B bias instability, K rate random walk).
     gyro_arw_rad_per_sqrt_s: tuple = (8.8e-4, 8.7e-4, 8.1e-4)
     gyro_bias_instability_rad_per_s: tuple = (4.7e-4, 4.7e-4, 3.6e-4)
@@ -194,6 +203,7 @@ class Scenario:
     source: str = ""
     track: Track | None = None  # a ride along a 3-D track instead of segment profiles
     reference: ReferenceModel = field(default_factory=ReferenceModel)  # the dual-antenna RTK reference
+    ride: RideModel = field(default_factory=RideModel)  # the body's pitch and roll on its suspension
 
     @property
     def duration_s(self) -> float:
@@ -222,8 +232,8 @@ def _build(cls, table: dict, where: str):
 
 
 TOP_KEYS = {"name", "description", "base", "start", "segment", "obstruction", "repeat", "imu", "gnss", "timing",
-            "track", "reference"}
-TABLE_KEYS = ("start", "imu", "gnss", "timing", "reference")
+            "track", "reference", "ride"}
+TABLE_KEYS = ("start", "imu", "gnss", "timing", "reference", "ride")
 
 
 def _with_base(data: dict, source: str, here: Path | None, seen: tuple[str, ...]) -> tuple[dict, str]:
@@ -393,7 +403,18 @@ def parse(data: dict, source: str = "<scenario>", here: Path | None = None) -> S
                     segments=segs, obstructions=obs, start=_build(Start, data.get("start", {}), f"{source}: [start]"),
                     imu=imu, gnss=gnss,
                     timing=timing, source=source, track=track,
-                    reference=_build(ReferenceModel, data.get("reference", {}), f"{source}: [reference]"))
+                    reference=_build(ReferenceModel, data.get("reference", {}), f"{source}: [reference]"),
+                    ride=_ride(data.get("ride", {}), source))
+
+
+def _ride(table: dict, source: str) -> RideModel:
+    m = _build(RideModel, table, f"{source}: [ride]")
+    lo, hi = (float(x) for x in m.band_hz) if len(m.band_hz) == 2 else (0.0, -1.0)
+    if not (0.0 < lo <= hi and m.pitch_deg >= 0.0 and m.roll_deg >= 0.0 and m.reference_speed_mps > 0.0
+            and m.components >= 1):
+        raise ScenarioError(f"{source}: [ride]: band_hz = [low, high] with 0 < low <= high, angles >= 0, "
+                            f"reference_speed_mps > 0, components >= 1")
+    return m
 
 
 def _track(table: dict, source: str) -> tuple[Track, list[Segment], list[Obstruction]]:

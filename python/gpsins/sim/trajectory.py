@@ -31,6 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import earth
+from .ride import ride
 from .scenario import Scenario
 
 INTERNAL_RATE_HZ = 1024.0  # target rate of the internal grid
@@ -287,17 +288,21 @@ def _pointwise(sc: Scenario, out: Truth, dlat: np.ndarray, dlon: np.ndarray, k: 
     w_ie = np.stack([earth.OMEGA_E * np.cos(lat), np.zeros_like(lat), -earth.OMEGA_E * np.sin(lat)], -1)
     v_e = np.einsum("nij,nj->ni", c_en, v)
     a_e = np.einsum("nij,nj->ni", c_en, dv + np.cross(w_en, v))
-    roll = p.roll
-    c_nb = earth.euler_to_dcm(p.yaw, p.pitch, roll)
+    # The body's attitude: the road's, plus the ride on the suspension (not the path's: v above).
+    pitch, pitch_dot, roll, roll_dot = p.pitch, p.pitch_dot, p.roll, p.roll_dot
+    if sc.ride.enabled:
+        dp, dp_dot, dr, dr_dot = ride(sc.ride, t, p.speed, p.speed_dot)
+        pitch, pitch_dot, roll, roll_dot = pitch + dp, pitch_dot + dp_dot, roll + dr, roll_dot + dr_dot
+    c_nb = earth.euler_to_dcm(p.yaw, pitch, roll)
     c_eb = c_en @ c_nb
     f_e = a_e + 2.0 * np.cross(earth.OMEGA_VEC, v_e) - earth.gravity_ecef(r)
     # Euler-rate part of the body rate (z-y-x: roll rate about the body's x axis)
-    sr, cr, sp, cp = np.sin(roll), np.cos(roll), np.sin(p.pitch), np.cos(p.pitch)
-    w_nb = np.stack([p.roll_dot - p.yaw_dot * sp, p.pitch_dot * cr + p.yaw_dot * sr * cp,
-                     -p.pitch_dot * sr + p.yaw_dot * cr * cp], -1)
+    sr, cr, sp, cp = np.sin(roll), np.cos(roll), np.sin(pitch), np.cos(pitch)
+    w_nb = np.stack([roll_dot - p.yaw_dot * sp, pitch_dot * cr + p.yaw_dot * sr * cp,
+                     -pitch_dot * sr + p.yaw_dot * cr * cp], -1)
     out.r_ecef[k], out.v_ecef[k], out.a_ecef[k], out.c_eb[k] = r, v_e, a_e, c_eb
     out.q_eb[k] = earth.dcm_to_quat(c_eb)
-    out.ypr[k] = np.stack([p.yaw, p.pitch, roll], -1)
+    out.ypr[k] = np.stack([p.yaw, pitch, roll], -1)
     out.f_body[k] = np.einsum("nji,nj->ni", c_eb, f_e)
     out.w_ib_body[k] = np.einsum("nji,nj->ni", c_nb, w_ie + w_en) + w_nb
 
