@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <numeric>
 
 #include <Eigen/Cholesky>
 
@@ -636,10 +637,17 @@ double InsFilter<NB, NC, NT>::correlated_variance(int prn, double t, double el_r
 // Signal-in-space slots (pseudorange_sis_states). A satellite keeps its slot while
 // it is away (its broadcast error is still the same when it returns); a new
 // ephemeris issue restarts it (a new upload, a new error). A satellite without one
-// takes a free slot, else the one used longest ago, never one used at this epoch.
+// takes a free slot, else the one used longest ago, never one whose satellite was
+// ranged at this epoch or the one before: a tracked satellite is not robbed (each
+// theft would restart an error the filter has learnt, and the robbed one would rob
+// the next), a satellite gone for an epoch may be.
 template <int NB, int NC, int NT>
 int InsFilter<NB, NC, NT>::sis_slot(int prn, int iode, double t, double var_m2) {
   if constexpr (Core::kSisCount > 0) {
+    if (t > sis_epoch_t_) {
+      sis_prev_epoch_t_ = sis_epoch_t_;
+      sis_epoch_t_ = t;
+    }
     int pick = -1;
     for (int s = 0; s < kSisSlots; ++s) {
       const auto k = static_cast<std::size_t>(s);
@@ -652,7 +660,8 @@ int InsFilter<NB, NC, NT>::sis_slot(int prn, int iode, double t, double var_m2) 
         sis_used_t_[k] = t;
         return s;
       }
-      if (sis_used_t_[k] < t && (pick < 0 || sis_used_t_[k] < sis_used_t_[static_cast<std::size_t>(pick)])) pick = s;
+      if (sis_used_t_[k] < sis_prev_epoch_t_ || sis_prn_[k] < 0)
+        if (pick < 0 || sis_used_t_[k] < sis_used_t_[static_cast<std::size_t>(pick)]) pick = s;
     }
     if (pick < 0) {
       ++counters_.pseudoranges_without_sis_slot;
@@ -668,6 +677,26 @@ int InsFilter<NB, NC, NT>::sis_slot(int prn, int iode, double t, double var_m2) 
   } else {
     (void)prn, (void)iode, (void)t, (void)var_m2;
     return -1;
+  }
+}
+
+// With more satellites than slots the highest keep them: they are ranged first, so
+// they take what is free. A range without a slot carries its signal-in-space error in
+// its variance when that error is Gauss-Markov; a constant one (tau <= 0) would average
+// into the position as if white, so that range is not used (its Doppler is).
+template <int NB, int NC, int NT>
+void InsFilter<NB, NC, NT>::assign_sis(PrUse* use, int n, const PseudorangeEpoch& ep) {
+  std::array<int, PseudorangeEpoch::kMaxSats> order{};
+  std::iota(order.begin(), order.begin() + n, 0);
+  std::stable_sort(order.begin(), order.begin() + n, [&](int a, int b) { return use[a].el_rad > use[b].el_rad; });
+  for (int j = 0; j < n; ++j) {
+    PrUse& u = use[order[static_cast<std::size_t>(j)]];
+    const double sis = cfg_.pseudorange_sis_use_ura ? gnss::ura_m(u.eph->ura_index) : cfg_.pseudorange_sis_sigma_m;
+    if (cfg_.pseudorange_sis_states && sis > 0.0) {
+      u.sis_slot = sis_slot(u.prn, u.eph->iode, ep.t_s, sis * sis);
+      u.range = u.sis_slot >= 0 || cfg_.pseudorange_sis_tau_s > 0.0;
+    }
+    u.var += correlated_variance(u.prn, ep.t_s, u.el_rad, u.sis_slot >= 0 ? 0.0 : sis);
   }
 }
 
@@ -882,12 +911,11 @@ void InsFilter<NB, NC, NT>::process_pseudoranges(const PseudorangeEpoch& ep) {
       if (ep.ranges) {
         const double iono = cfg_.pseudorange_ionosphere ? gnss::klobuchar_m(iono_, llh, ae, tow) : 0.0;
         const double trop = cfg_.pseudorange_troposphere ? gnss::saastamoinen_m(llh, ae.el_rad) : 0.0;
-        // The white part without the broadcast URA: orbit and clock errors are slow (correlated_variance).
+        // The white part without the broadcast URA: orbit and clock errors are slow (assign_sis).
         u.var = cfg_.pseudorange_sigma_m > 0.0 ? cfg_.pseudorange_sigma_m * cfg_.pseudorange_sigma_m
                                                : gnss::pseudorange_variance_m2(ae.el_rad, 0.0, iono);
-        const double sis = cfg_.pseudorange_sis_use_ura ? gnss::ura_m(eph->ura_index) : cfg_.pseudorange_sis_sigma_m;
-        if (cfg_.pseudorange_sis_states && sis > 0.0) u.sis_slot = sis_slot(ep.prn[k], eph->iode, ep.t_s, sis * sis);
-        u.var += correlated_variance(ep.prn[k], ep.t_s, ae.el_rad, u.sis_slot >= 0 ? 0.0 : sis);
+        u.el_rad = ae.el_rad;
+        u.eph = eph;
         // Everything but geometry and the receiver clock moved to the measurement side.
         u.pr_corr = ep.pr_m[k] + gnss::kSpeedOfLight * (st.clock_s - eph->tgd_s) - iono - trop;
       }
@@ -900,10 +928,15 @@ void InsFilter<NB, NC, NT>::process_pseudoranges(const PseudorangeEpoch& ep) {
       }
     }
     if (n == 0) return;
-    // GPS first, Galileo after it (see update_galileo): the clock states are GPS's.
+    if (ep.ranges) assign_sis(use.data(), n, ep);
+    // GPS first, Galileo after it (see update_galileo): the clock states are GPS's. In
+    // each, the ranges to use before those only the Doppler is used of.
     const auto galileo_first = std::stable_partition(use.begin(), use.begin() + n,
                                                      [](const PrUse& u) { return !gnss::is_galileo(u.prn); });
-    const int n_gps = ep.ranges ? static_cast<int>(galileo_first - use.begin()) : 0;
+    const auto ranged = [](const PrUse& u) { return u.range; };
+    const auto gps_end = std::stable_partition(use.begin(), galileo_first, ranged);
+    const auto galileo_end = std::stable_partition(galileo_first, use.begin() + n, ranged);
+    const int n_gps = ep.ranges ? static_cast<int>(gps_end - use.begin()) : 0;
     if (n_gps > 0) check_clock(use.data(), n_gps, ep.t_s);
     bool any = false;
     const Vec3 v_a = NT == 1 ? antenna_velocity_now() : Vec3::Zero();
@@ -915,7 +948,7 @@ void InsFilter<NB, NC, NT>::process_pseudoranges(const PseudorangeEpoch& ep) {
       if (r.accepted) pr_used_t_[static_cast<std::size_t>(u.prn)] = ep.t_s;
       any = any || r.accepted;
     }
-    const int n_gal = ep.ranges ? static_cast<int>(use.begin() + n - galileo_first) : 0;
+    const int n_gal = ep.ranges ? static_cast<int>(galileo_end - galileo_first) : 0;
     if (n_gal >= 2) any = update_galileo(&*galileo_first, n_gal, v_a, ep.t_s) || any;
     // Every system's Doppler shares the one drift: the receiver's oscillator (GGTO's rate is nil).
     if (heading_known_) any = update_range_rates(use.data(), n) || any;

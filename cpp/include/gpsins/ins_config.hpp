@@ -161,8 +161,10 @@ struct InsConfig {
   // Tight: carry each satellite's signal-in-space error as a state (a slot of
   // kSisSlots; eskf.hpp) instead of in each update's variance: the error then stays
   // one error however long the filter remembers its ranges (Doppler keeps it
-  // remembering for minutes). Its sigma and tau are the ones above; a satellite
-  // finding no free slot falls back to the variance.
+  // remembering for minutes). Its sigma and tau are the ones above. A satellite
+  // finding no free slot falls back to the variance when tau > 0; with tau <= 0 its
+  // range is not used (its Doppler is): a constant error taken as white would
+  // average into the position as if it were information.
   bool pseudorange_sis_states = false;
   bool pseudorange_ionosphere = true;
   bool pseudorange_troposphere = true;

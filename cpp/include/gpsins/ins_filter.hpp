@@ -152,7 +152,8 @@ struct Counters {
   std::int64_t range_rates_rejected = 0;
   std::int64_t clock_reseeds = 0;  // receiver clock bias (and drift) re-seeded from an epoch's residuals
   // Signal-in-space slots (pseudorange_sis_states): taken by a satellite without one,
-  // restarted by a new ephemeris issue, and pseudoranges that found none free.
+  // restarted by a new ephemeris issue, and pseudoranges that found none free (with
+  // tau <= 0 those are not used: see InsConfig::pseudorange_sis_states).
   std::int64_t sis_slots_taken = 0;
   std::int64_t sis_slots_restarted = 0;
   std::int64_t pseudoranges_without_sis_slot = 0;
@@ -210,14 +211,21 @@ class InsFilter {
     Vec3 sat_v = Vec3::Zero();
     double rate_corr = std::numeric_limits<double>::quiet_NaN(), rate_var = 0.0;
     int sis_slot = -1;  // its signal-in-space state (pseudorange_sis_states), or none: in var
+    bool range = true;  // false: only its Doppler is used (a constant error found no slot)
+    double el_rad = 0.0;
+    const gnss::Ephemeris* eph = nullptr;
   };
   Measurement<1, N> range_measurement(const PrUse& u, const Vec3& v_a) const;
   // The slot holding this satellite's signal-in-space error, (re)assigned as needed;
-  // -1: none free (all in use at this epoch).
+  // -1: none free (every slot's satellite was ranged at this epoch or the one before).
   int sis_slot(int prn, int iode, double t, double var_m2);
+  // Slots for an epoch's ranges, the highest satellites first, and each range's variance.
+  void assign_sis(PrUse* use, int n, const PseudorangeEpoch& ep);
   void restart_sis_slot(int slot, double var_m2);
   std::array<int, kSisSlots> sis_prn_, sis_iode_;
   std::array<double, kSisSlots> sis_used_t_;
+  double sis_epoch_t_ = -std::numeric_limits<double>::infinity();       // the ranged epoch slots are for
+  double sis_prev_epoch_t_ = -std::numeric_limits<double>::infinity();  // and the one before it
   void check_clock(const PrUse* use, int n, double t);
   bool update_galileo(const PrUse* use, int n, const Vec3& v_a, double t);
   bool update_range_rates(const PrUse* use, int n);
