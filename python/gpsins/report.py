@@ -37,7 +37,6 @@ MODE_COLORS = {"loose": "tab:blue", "tight": "tab:orange", "ins": "tab:red"}
 OTHER_COLORS = ("tab:purple", "tab:brown", "tab:pink")
 RECEIVER_COLOR = "tab:green"
 AXIS_STYLES = ("-", "--", ":")
-SPEED_OF_LIGHT = 299792458.0
 SECONDS_PER_WEEK = 604800.0
 
 
@@ -599,7 +598,8 @@ def _fig_clock(results, base, t0, truth):
     if truth is not None and "clock_bias_s" in truth:
         weeks = int(truth["gps_week"]) - int(base.a["week"])
         tt = truth["gnss_t"] + float(truth["t0_tow_s"]) + weeks * SECONDS_PER_WEEK
-        true_clock = (tt, SPEED_OF_LIGHT * truth["clock_bias_s"], SPEED_OF_LIGHT * truth["clock_drift"])
+        c = _core.gnss.SPEED_OF_LIGHT
+        true_clock = (tt, c * truth["clock_bias_s"], c * truth["clock_drift"])
     ncol = 2 if true_clock else 1
     fig, axs = plt.subplots(2, ncol, figsize=(7 * ncol, 6), sharex=True, squeeze=False)
     for r in tight:
