@@ -694,7 +694,7 @@ def _setup(imu, fixes, config, mode, ephemerides, klobuchar, gps_time_offset_s) 
     if needs_heading_search(cfg):
         search = search_heading(_imu_table(imu), fixes, cfg)
         if search["yaw_deg"] is not None:
-            cfg = _merge(cfg, {"initial_yaw_deg": search["yaw_deg"], "heading_sigma_deg": search["sigma_deg"]})
+            cfg = starting_at_yaw(cfg, search["yaw_deg"], search["sigma_deg"])
     core = core_config(cfg)
     if gps_time_offset_s is not None:
         core.gps_time_offset_s = float(gps_time_offset_s)
@@ -810,6 +810,17 @@ MOVING_SPEED_MPS = 0.5  # the search window starts when the fixes move faster
 DOMINANCE = 20.0  # -2 log likelihood the best must win by over every hypothesis 90 deg away
 
 
+def starting_at_yaw(cfg: dict, yaw_deg: float, sigma_deg: float) -> dict:
+    """The configuration with the initial yaw and its sigma: the yaw's part of the initial attitude
+    sigma (a configured initial yaw otherwise starts at attitude_sigma's yaw, 180 deg in the preset)."""
+    if "attitude_sigma_deg" in cfg:
+        att = _vec3(cfg["attitude_sigma_deg"], "attitude_sigma_deg")
+    else:
+        att = np.degrees(_vec3(cfg.get("attitude_sigma_rad", [0.02, 0.02, 0.1]), "attitude_sigma_rad"))
+    cfg = {k: v for k, v in cfg.items() if k not in ("attitude_sigma_rad", "initial_yaw_rad")}
+    return _merge(cfg, {"initial_yaw_deg": float(yaw_deg), "attitude_sigma_deg": [att[0], att[1], float(sigma_deg)]})
+
+
 def needs_heading_search(cfg: dict) -> bool:
     """A handheld platform without a configured initial yaw."""
     yaw = cfg.get("initial_yaw_deg", cfg.get("initial_yaw_rad", math.nan))
@@ -865,7 +876,7 @@ def search_heading(imu: np.ndarray, fixes: np.ndarray, cfg: dict, window_s: floa
 
     def score(yaw: float, sigma: float) -> float:
         yaw = float((yaw + 180.0) % 360.0 - 180.0)
-        c = _merge(base, {"initial_yaw_deg": yaw, "heading_sigma_deg": sigma})
+        c = starting_at_yaw(base, yaw, sigma)
         s = _fix_log_likelihood(run(imu_w, fix_w, c, mode="loose", output_every=10 ** 6))
         scores[round(yaw, 3)] = s
         return s

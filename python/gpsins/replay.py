@@ -502,7 +502,7 @@ def run_mode(inp: Inputs, out: str | Path, *, mode: str = "loose", overrides: di
             raise ValueError(f"{source}: --mode ins: the heading never became known, so free navigation never "
                              "started (set initial_yaw_deg, or use data that moves faster than heading_min_speed_mps)")
         if searched and searched["yaw_deg"] is not None:  # the searched heading: aided over the search's fixes
-            cfg = flt._merge(cfg, {"initial_yaw_deg": searched["yaw_deg"], "heading_sigma_deg": searched["sigma_deg"]})
+            cfg = flt.starting_at_yaw(cfg, searched["yaw_deg"], searched["sigma_deg"])
             used = fixes[(fixes[:, 0] <= searched["t_end"]) & np.isin(fixes[:, 9], (2, 3))]
             free_from = float(used[-1, 0]) if len(used) else free_from
         fixes = fixes[fixes[:, 0] <= free_from]
