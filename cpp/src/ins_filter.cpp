@@ -644,10 +644,6 @@ double InsFilter<NB, NC, NT>::correlated_variance(int prn, double t, double el_r
 template <int NB, int NC, int NT>
 int InsFilter<NB, NC, NT>::sis_slot(int prn, int iode, double t, double var_m2) {
   if constexpr (Core::kSisCount > 0) {
-    if (t > sis_epoch_t_) {
-      sis_prev_epoch_t_ = sis_epoch_t_;
-      sis_epoch_t_ = t;
-    }
     int pick = -1;
     for (int s = 0; s < kSisSlots; ++s) {
       const auto k = static_cast<std::size_t>(s);
@@ -686,6 +682,10 @@ int InsFilter<NB, NC, NT>::sis_slot(int prn, int iode, double t, double var_m2) 
 // into the position as if white, so that range is not used (its Doppler is).
 template <int NB, int NC, int NT>
 void InsFilter<NB, NC, NT>::assign_sis(PrUse* use, int n, const PseudorangeEpoch& ep) {
+  if (ep.t_s > sis_epoch_t_) {
+    sis_prev_epoch_t_ = sis_epoch_t_;
+    sis_epoch_t_ = ep.t_s;
+  }
   std::array<int, PseudorangeEpoch::kMaxSats> order{};
   std::iota(order.begin(), order.begin() + n, 0);
   std::stable_sort(order.begin(), order.begin() + n, [&](int a, int b) { return use[a].el_rad > use[b].el_rad; });

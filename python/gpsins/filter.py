@@ -816,7 +816,8 @@ def starting_at_yaw(cfg: dict, yaw_deg: float, sigma_deg: float) -> dict:
     if "attitude_sigma_deg" in cfg:
         att = _vec3(cfg["attitude_sigma_deg"], "attitude_sigma_deg")
     else:
-        att = np.degrees(_vec3(cfg.get("attitude_sigma_rad", [0.02, 0.02, 0.1]), "attitude_sigma_rad"))
+        rad = cfg.get("attitude_sigma_rad", _core.InsConfig().attitude_sigma_rad)
+        att = np.degrees(_vec3(rad, "attitude_sigma_rad"))
     cfg = {k: v for k, v in cfg.items() if k not in ("attitude_sigma_rad", "initial_yaw_rad")}
     return _merge(cfg, {"initial_yaw_deg": float(yaw_deg), "attitude_sigma_deg": [att[0], att[1], float(sigma_deg)]})
 

@@ -184,6 +184,7 @@ class ObsFile:
         return Pseudoranges(a[:, 0], a[:, 1].astype(int), a[:, 2], a[:, 3], a[:, 4], np.full(len(a), np.nan),
                             self.source)
 
+
 def _obs_header(path, lines):
     version, kind, _ = _version(path, lines)
     if kind != "O":

@@ -5,8 +5,9 @@ output = (I + scale factor + misalignment) ideal + bias * dt + white noise,
 plus, for the gyros, the g-sensitivity G delta-v (a rate error G f),
 where bias = turn-on bias + bias instability (a weighted sum of first-order
 Gauss-Markov processes whose Allan deviation is flat at 0.664 B) + rate random
-walk + warm-up (a drawn step reached as 1 - exp(-t / tau) after power-on). Quantisation is the frame's LSB, applied by the encoder. Every true
-value is returned so tests can set a filter's Q and P0 from it.
+walk + warm-up (a drawn step reached as 1 - exp(-t / tau) after power-on).
+Quantisation is the frame's LSB, applied by the encoder. Every true value is
+returned so tests can set a filter's Q and P0 from it.
 """
 
 from __future__ import annotations
@@ -146,10 +147,11 @@ class ImuErrorProcess:
                 s["rw"][1] = y[-1]
                 d += y[1:]
             out.append(d)
-        settled = 1.0 - np.exp(-np.arange(i0, i1) * self.dt / self.m.warmup_tau_s)
-        for d, step in zip(out, self._warmup):
-            if step is not None:
-                d += settled[:, None] * step
+        if any(step is not None for step in self._warmup):
+            settled = 1.0 - np.exp(-np.arange(i0, i1) * self.dt / self.m.warmup_tau_s)
+            for d, step in zip(out, self._warmup):
+                if step is not None:
+                    d += settled[:, None] * step
         self._next = i1
         return out[0], out[1]
 

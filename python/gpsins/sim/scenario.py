@@ -115,7 +115,7 @@ class ImuModel:
     # Gyro g-sensitivity: std of each element of the 3x3 matrix G (rate error G f); 0 = none and no draw.
     gyro_g_sensitivity_rad_per_s_per_mps2: float = 0.0
     # Warm-up after power-on: each axis's bias moves by a step drawn with this std, as 1 - exp(-t / tau)
-    # (a MEMS unit's walk: about 1e-4 rad/s on its gyros in two minutes); 0 = none and no draw.
+    # (the real walk's MEMS gyros: about 5e-4 rad/s between rests two minutes apart); 0 = none and no draw.
     gyro_warmup_rad_per_s: float = 0.0
     accel_warmup_mps2: float = 0.0
     warmup_tau_s: float = 120.0
