@@ -19,6 +19,15 @@ fi
 cmake --build "$build" -j 2 || exit 1
 ctest --test-dir "$build" --output-on-failure -j 2
 ctest_rc=$?
+# CMake's doctest discovery turns each case into a ctest test by name; a name it cannot
+# pass back (a ';' splits it) becomes tests that match no case and pass without running.
+# So the number of ctest tests must be the number of cases the binary lists.
+cases=$("$build/cpp/tests/gpsins_cpp_tests" --list-test-cases --no-version 2>/dev/null | sed -n "s/.*passing the current filters: \([0-9]*\).*/\1/p")
+tests=$(ctest --test-dir "$build" -N | sed -n 's/^Total Tests: *//p')
+if [ "${cases:-0}" -eq 0 ] || [ "$cases" != "$tests" ]; then
+  echo "ctest runs $tests tests but the C++ test binary has $cases cases: a case name did not survive discovery"
+  ctest_rc=1
+fi
 
 # Two workers (the 2-core target), each test file whole on one (its module fixtures computed once):
 # 9.7 min serial, 5.5 min so on the 2-core machine.

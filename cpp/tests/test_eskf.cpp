@@ -120,7 +120,7 @@ TEST_CASE("chi-square quantiles match published values") {
   CHECK(chi2_quantile(0.5, 10) == doctest::Approx(9.34181776559197).epsilon(1e-10));
 }
 
-TEST_CASE("position update equals the information-form result; the gate rejects an outlier") {
+TEST_CASE("position update equals the information-form result, and the gate rejects an outlier") {
   auto f = realistic_filter<5, 0>();
   f.P = Eigen::Matrix<double, 15, 15>::Identity() * 4.0;
   const Vec3 r0 = f.nav.r_ecef_m;

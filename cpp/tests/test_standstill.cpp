@@ -117,7 +117,7 @@ InsConfig stand_config() {
 }
 }  // namespace
 
-TEST_CASE("a long IMU gap restarts the filter instead of failing; an out-of-range sample is not integrated") {
+TEST_CASE("a long IMU gap restarts the filter instead of failing, and an out-of-range sample is not integrated") {
   const Stand s;
   InsFilter<5, 0> f(stand_config());
   const double dt = 1.0 / 64.0;
