@@ -175,6 +175,61 @@ class _AppendFile:
             pass
 
 
+class _SidecarFile:
+    """session.json, replaced atomically (write a temporary, fsync, rename it
+    over) without needing free space once started: every version is padded
+    to a reserved size and the version replaced is kept (hard link) as the
+    next temporary, so its blocks are rewritten in place. On a full disk the
+    sidecar stays current while the records may not. A write that fails
+    leaves the last good sidecar; the next write carries the whole truth."""
+
+    BLOCK = 4096
+
+    def __init__(self, directory: Path):
+        self.path = directory / SIDECAR
+        self.tmp = directory / (SIDECAR + ".tmp")
+        self._old = directory / (SIDECAR + ".old")
+        self.reserved = 0  # bytes of each version, padding included
+
+    def write(self, doc: dict) -> None:
+        text = json.dumps(doc, indent=2).encode("utf-8")
+        if len(text) + 1 > self.reserved:
+            compact = json.dumps(doc, separators=(",", ":")).encode("utf-8")
+            if self.reserved and len(compact) + 1 <= self.reserved:
+                text = compact  # fits the blocks we have: better than growing on a full disk
+            else:  # grow, with head room for more parts and longer counts
+                need = len(text) + 1
+                self.reserved = -(-(need + max(need // 4, 2048)) // self.BLOCK) * self.BLOCK
+        data = text + b" " * (self.reserved - len(text) - 1) + b"\n"  # JSON allows trailing blanks
+        fd = os.open(self.tmp, os.O_WRONLY | os.O_CREAT, 0o644)  # no O_TRUNC: reuse its blocks
+        try:
+            view, off = memoryview(data), 0
+            while off < len(data):
+                n = os.pwrite(fd, view[off:], off)
+                if n <= 0:
+                    raise OSError(errno.ENOSPC, "No space left on device (short write)", str(self.tmp))
+                off += n
+            if os.fstat(fd).st_size > len(data):
+                os.ftruncate(fd, len(data))
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+        kept = False
+        try:
+            if self._old.exists():
+                self._old.unlink()
+            os.link(self.path, self._old)
+            kept = True
+        except OSError:
+            pass  # no sidecar yet, or no hard links here (FAT): the next temporary is new
+        os.replace(self.tmp, self.path)
+        if kept:
+            os.replace(self._old, self.tmp)
+
+    def names(self) -> list[Path]:
+        return [self.path, self.tmp, self._old]
+
+
 class StartupError(RuntimeError):
     """The session cannot be started (unwritable, read-only or full disk)."""
 
@@ -210,6 +265,7 @@ class Session:
         self.health = DiskHealth(self.directory, self._lost)
         self.clock_counts = FileCounts()
         self.sidecar_write_errors = 0
+        self._sidecar = _SidecarFile(self.directory)
         self.clock_steps = 0
         self._locks = {name: threading.Lock() for name in sensors}
         self._records: dict[str, _AppendFile] = {}
@@ -225,6 +281,7 @@ class Session:
             self._open_part()
             self._must(self.clock_pair(), CLOCK_FILE)
             self.write_sidecar(strict=True)
+            self.write_sidecar(strict=True)  # the second version reserves the next temporary's blocks
             self.sync()
             self._must(self.clock_counts.write_errors == 0, CLOCK_FILE)
         except OSError as e:
@@ -381,6 +438,8 @@ class Session:
             "state": "stopped" if self.stop else "running",
             "start": self.start,
             "stop": self.stop,
+            # When this version was written (readers compare it with the records' stamps).
+            "written": clock_pair(),
             "stamp": STAMP_MEANING,
             "record_layout": "header | f8 stamp little-endian | rest of the device frame",
             "raw_layout": "per read: <I length><d monotonic><d realtime> then the bytes",
@@ -394,25 +453,16 @@ class Session:
         }
 
     def write_sidecar(self, strict: bool = False) -> bool:
-        """Write-then-rename: a crash leaves the old or the new sidecar, never
-        half of one. A failure is counted (and raised only when strict)."""
-        tmp = self.directory / (SIDECAR + ".tmp")
+        """Write-then-rename (_SidecarFile): a crash leaves the old or the new
+        sidecar, never half of one. A failure is counted (raised only when
+        strict) and the last good version stays; the next call retries."""
         try:
-            with open(tmp, "w", encoding="utf-8") as f:
-                json.dump(self.sidecar(), f, indent=2)
-                f.write("\n")
-                f.flush()
-                os.fsync(f.fileno())
-            os.replace(tmp, self.directory / SIDECAR)
+            self._sidecar.write(self.sidecar())
         except OSError as e:
             if strict:
                 raise
             self.sidecar_write_errors += 1
             self.health.failed(Path(SIDECAR), e)
-            try:
-                tmp.unlink()
-            except OSError:
-                pass
             return False
         return True
 

@@ -53,11 +53,29 @@ def _imu_details(session: logs.SessionLog) -> dict:
             "missing_by_counter": int(gaps.sum())}
 
 
+def _sidecar_behind(sidecar: dict, last_stamp: float | None) -> dict | None:
+    """Whether records go on past the sidecar's last version by more than its
+    write period allows: then its state, counts and parts are older than the
+    records (its writes failed, e.g. on a full disk, and the logger was then
+    killed or never managed to write again)."""
+    written = sidecar.get("written")
+    if not isinstance(written, dict) or not isinstance(written.get("realtime"), (int, float)) or last_stamp is None:
+        return None
+    cfg = sidecar.get("config", {}).get("session", {}) if isinstance(sidecar.get("config"), dict) else {}
+    period = cfg.get("fsync_interval_s", 1.0) if isinstance(cfg.get("fsync_interval_s"), (int, float)) else 1.0
+    behind = last_stamp - float(written["realtime"])
+    if behind <= 2 * period + 1.0:
+        return None
+    return {"written": float(written["realtime"]), "last_record": last_stamp, "behind_s": behind}
+
+
 def session_summary(directory: str | Path) -> dict:
     session = logs.read_session(directory)
     out = {"session": str(session.directory), "sidecar": {k: session.sidecar.get(k) for k in
-                                                          ("host", "state", "start", "stop", "parts")},
+                                                          ("host", "state", "start", "stop", "written", "parts")},
            "sensors": {}}
+    lasts = [float(f.stamps[-1]) for f in session.sensors.values() if f.count]
+    out["sidecar"]["older_than_records"] = _sidecar_behind(session.sidecar, max(lasts) if lasts else None)
     for name, files in session.sensors.items():
         entry = {"device": files.device, **files.stats(), **_span(files.stamps),
                  "damage": [{"file": Path(s.path).name, "first_discarded_offset": s.stats.get("first_discarded_offset"),
@@ -126,6 +144,11 @@ def print_summary(summary: dict, out) -> None:
             print(f"{k:>22}: {v}", file=out)
         return
     print(f"session {summary['session']}", file=out)
+    side = summary.get("sidecar", {})
+    if side.get("older_than_records"):
+        print(f"  the sidecar is older than the records: last written {side['older_than_records']['behind_s']:.1f} s "
+              f"before the last record (state '{side.get('state')}'); its counts, parts and state are from then "
+              "(its writes failed, e.g. on a full disk)", file=out)
     for name, e in summary["sensors"].items():
         print(f"  {name} ({e['device']}): {e['records']} records, {e['bytes']} bytes, "
               f"{e['duration_s']:.1f} s; discarded {e['discarded_bytes']} bytes, "

@@ -1,0 +1,206 @@
+"""Issue 37, the daemon's part: faults that each cost a whole session on a vehicle, against the real daemon through
+ptys (and the recorder alone where stamps must be controlled): a nearly full disk at start.
+
+Every wait is on a condition with a generous deadline, so the tests hold on a loaded machine."""
+
+import contextlib
+import io
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from gpsins import dump, logs
+from gpsins.emulate import Emulators
+from gpsins.sources import StaticSource
+from gpsins_logger import bp3010
+from gpsins_logger.recorder import SensorInfo, Session
+from ptyrig import sent_ok, write_config
+
+
+# --- helpers ---------------------------------------------------------------------------------------------
+
+
+def wait_until(cond, timeout: float, step: float = 0.02):
+    """cond()'s first true value within timeout seconds, else None."""
+    deadline = time.monotonic() + timeout
+    while True:
+        v = cond()
+        if v or time.monotonic() > deadline:
+            return v
+        time.sleep(step)
+
+
+def wait_for(cond, timeout: float, what: str):
+    v = wait_until(cond, timeout)
+    assert v, f"no {what} within {timeout} s"
+    return v
+
+
+def read_json(path: Path):
+    """A sidecar as it is on disk now; None while it is missing."""
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+
+
+class Daemon:
+    """The real daemon in a subprocess, its log in a file (a pipe nobody reads could block it)."""
+
+    def __init__(self, cfg: Path, session_dir: Path, log: Path):
+        self.session_dir, self.log = session_dir, log
+        with open(log, "w") as err:
+            self.proc = subprocess.Popen([sys.executable, "-m", "gpsins_logger.daemon", "--config", str(cfg),
+                                          "--session-dir", str(session_dir)], stdout=subprocess.PIPE, stderr=err,
+                                         text=True)
+        assert self.proc.stdout.readline().strip() == str(session_dir), self.stderr()
+
+    def stderr(self) -> str:
+        return self.log.read_text() if self.log.exists() else ""
+
+    def stop(self, sig=signal.SIGINT) -> int:
+        if self.proc.poll() is None:
+            self.proc.send_signal(sig)
+        try:
+            return self.proc.wait(timeout=30)
+        finally:
+            self.close()
+
+    def close(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait()
+        self.proc.stdout.close()
+
+
+@contextlib.contextmanager
+def daemons():
+    """Daemons started in the block are killed at its end if still running."""
+    started: list[Daemon] = []
+    try:
+        yield started
+    finally:
+        for d in started:
+            d.close()
+
+
+def wait_streams_done(em, timeout: float) -> None:
+    assert em.wait(timeout), "emulators did not finish"
+
+
+def wait_all_written(side_path: Path, em, timeout: float = 10.0, lost_too: bool = False) -> None:
+    """Until the sidecar counts as many frames as were sent (written, or lost to the disk): the daemon caught up.
+    A frame that never comes shows in the asserts after this."""
+    def caught_up():
+        s = read_json(side_path)
+        return s and all(s["counts"][n]["frames_written"] + lost_too * s["counts"][n]["frames_lost_to_disk_errors"]
+                         >= len(sent_ok(getattr(em, n))) for n in ("gps", "imu"))
+    wait_until(caught_up, timeout)
+
+
+def dump_text(directory: Path) -> str:
+    out = io.StringIO()
+    dump.print_summary(dump.session_summary(directory), out)
+    return out.getvalue()
+
+
+# --- 7: a nearly full disk at start ----------------------------------------------------------------------
+
+
+@contextlib.contextmanager
+def tmpfs(path: Path, size_kb: int):
+    """A small tmpfs at path, or a clear skip where this test may not mount one (as in test_logger_faults)."""
+    path.mkdir(parents=True, exist_ok=True)
+    if os.geteuid() != 0 or not shutil.which("mount"):
+        pytest.skip("mounting a small tmpfs needs root")
+    r = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size_kb}k,mode=0755", "tmpfs", str(path)],
+                       capture_output=True, text=True)
+    if r.returncode:
+        pytest.skip(f"cannot mount a tmpfs here ({r.stderr.strip()})")
+    try:
+        yield path
+    finally:
+        subprocess.run(["umount", "-l", str(path)], capture_output=True)
+
+
+def leave_free(directory: Path, kb: int) -> None:
+    """Fill the file system to the last byte, then give back kb kilobytes."""
+    filler = directory / "filler"
+    fd = os.open(filler, os.O_WRONLY | os.O_CREAT, 0o644)
+    try:
+        for size in (1 << 16, 1 << 10, 1):
+            while True:
+                try:
+                    if os.write(fd, b"\0" * size) < size:
+                        break
+                except OSError:
+                    break
+        os.ftruncate(fd, max(0, os.fstat(fd).st_size - kb * 1024))
+    finally:
+        os.close(fd)
+
+
+def test_nearly_full_disk_at_start_keeps_the_sidecar_current(tmp_path):
+    """Started with 48 kB free: the records fill the disk in a few seconds. The sidecar used to stay at an
+    early version for the whole run (a new temporary needs free blocks); its versions now reuse their own
+    blocks, so the sidecar on disk follows the run to its stop, and its counts are the records on disk."""
+    dev, disk = tmp_path / "dev", tmp_path / "disk"
+    em = Emulators(dev, StaticSource(16.0, seed=1))
+    cfg = write_config(tmp_path / "logger.toml", dev, tmp_path / "sessions")
+    session = disk / "session"
+    with tmpfs(disk, 1024):
+        leave_free(disk, 48)
+        try:
+            with daemons() as ds:
+                d = Daemon(cfg, session, tmp_path / "daemon.log")
+                ds.append(d)
+                em.start()
+                full = wait_for(lambda: (s := read_json(session / "session.json")) and s["disk"]["state"] == "failing"
+                                and s, 40, "a sidecar on disk that says the disk is failing")
+                lost0 = full["counts"]["imu"]["frames_lost_to_disk_errors"]
+                # ...and it keeps following the run while the disk stays full.
+                wait_for(lambda: read_json(session / "session.json")["counts"]["imu"]["frames_lost_to_disk_errors"]
+                         > lost0 + 64, 20, "sidecar updates while the disk is full")
+                wait_streams_done(em, 60)
+                wait_all_written(session / "session.json", em, lost_too=True)
+                assert d.stop() == 0, d.stderr()
+        finally:
+            em.stop()
+        side = read_json(session / "session.json")
+        r = logs.read_session(session)
+        summary = dump.session_summary(session)
+    assert side["state"] == "stopped"
+    for name in ("gps", "imu"):
+        c = side["counts"][name]
+        assert c["frames_written"] == r.sensors[name].count, name
+        assert c["frames_written"] + c["frames_lost_to_disk_errors"] == len(sent_ok(getattr(em, name))), name
+    assert side["counts"]["imu"]["frames_lost_to_disk_errors"] > 0
+    assert summary["sidecar"]["older_than_records"] is None
+    print(f"written {[side['counts'][n]['frames_written'] for n in ('gps', 'imu')]}, lost to the full disk "
+          f"{[side['counts'][n]['frames_lost_to_disk_errors'] for n in ('gps', 'imu')]}; sidecar final")
+
+
+def test_dump_notes_a_sidecar_older_than_the_records(tmp_path):
+    """If no sidecar write got through after some point (a disk without room even for the reserved
+    versions, then a kill), dump says the sidecar is older than the records rather than trusting its counts."""
+    t0 = time.time()
+    s = Session(tmp_path / "s", {"imu": SensorInfo("bp3010", 1, settings={"rate_hz": 64})})
+    early = (tmp_path / "s" / "session.json").read_bytes()  # what a failing disk would have kept
+    frame = bp3010.ImuSample((0.0, 0.0, 0.0), (0.0, 0.0, -0.15)).encode()
+    for k in range(64 * 6):
+        s.record("imu", frame, t0 + k / 64)
+    s.close()
+    assert dump.session_summary(tmp_path / "s")["sidecar"]["older_than_records"] is None
+    (tmp_path / "s" / "session.json").write_bytes(early)
+    out = dump.session_summary(tmp_path / "s")
+    behind = out["sidecar"]["older_than_records"]
+    assert behind and 4.0 < behind["behind_s"] < 7.0, behind
+    assert out["sensors"]["imu"]["records"] == 64 * 6  # the records are all read anyway
+    assert "the sidecar is older than the records" in dump_text(tmp_path / "s")
