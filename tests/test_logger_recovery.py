@@ -1,5 +1,6 @@
 """Issue 37, the daemon's part: faults that each cost a whole session on a vehicle, against the real daemon through
-ptys (and the recorder alone where stamps must be controlled): a nearly full disk at start.
+ptys (and the recorder alone where stamps must be controlled): SIGKILL just after SIGHUP, a nearly full disk at
+start.
 
 Every wait is on a condition with a generous deadline, so the tests hold on a loaded machine."""
 
@@ -7,6 +8,7 @@ import contextlib
 import io
 import json
 import os
+import random
 import shutil
 import signal
 import subprocess
@@ -22,6 +24,8 @@ from gpsins.sources import StaticSource
 from gpsins_logger import bp3010
 from gpsins_logger.recorder import SensorInfo, Session
 from ptyrig import sent_ok, write_config
+
+IMU_RECORD = bp3010.FRAME_LEN + 8  # a BP3010 record: the frame and its stamp
 
 
 # --- helpers ---------------------------------------------------------------------------------------------
@@ -49,6 +53,13 @@ def read_json(path: Path):
         return json.loads(path.read_text())
     except (OSError, ValueError):
         return None
+
+
+def file_size(path: Path) -> int:
+    try:
+        return path.stat().st_size
+    except OSError:
+        return 0
 
 
 class Daemon:
@@ -109,6 +120,54 @@ def dump_text(directory: Path) -> str:
     out = io.StringIO()
     dump.print_summary(dump.session_summary(directory), out)
     return out.getvalue()
+
+
+# --- 5: SIGKILL just after SIGHUP ------------------------------------------------------------------------
+
+
+def _records_on_disk(directory: Path, sidecar: dict) -> dict[str, int]:
+    """Records in every record file on disk, found by name, listed or not."""
+    return {name: sum(logs.read_record_file(p, info["device"]).count for p in sorted(directory.glob(f"{name}-*.bin")))
+            for name, info in sidecar["sensors"].items()}
+
+
+@pytest.mark.parametrize("when", ["as_the_new_part_appears", "0_to_30_ms_after"])
+def test_sigkill_just_after_sighup_leaves_every_record_listed(tmp_path, when):
+    """The new part's files used to be created before the sidecar listed them: a SIGKILL in between (4 of 30
+    runs at 0-30 ms) left imu-001.bin unread. Now the sidecar names a part before its files exist."""
+    dev = tmp_path / "dev"
+    em = Emulators(dev, StaticSource(600.0, seed=1))
+    cfg = write_config(tmp_path / "logger.toml", dev, tmp_path / "sessions")
+    rng = random.Random(37)
+    runs = 5 if when == "as_the_new_part_appears" else 12
+    bad = []
+    try:
+        em.start()
+        for k in range(runs):
+            session = tmp_path / f"s{k}"
+            with daemons() as ds:
+                d = Daemon(cfg, session, tmp_path / f"daemon{k}.log")
+                ds.append(d)
+                wait_for(lambda: file_size(session / "imu-000.bin") >= 10 * IMU_RECORD, 30, "IMU records")
+                d.proc.send_signal(signal.SIGHUP)
+                if when == "as_the_new_part_appears":
+                    wait_until(lambda: any((session / f"{n}-001.bin").exists() for n in ("gps", "imu")), 10,
+                               step=0.0002)
+                else:
+                    time.sleep(rng.uniform(0.0, 0.03))
+                d.proc.kill()
+                d.proc.wait()
+            side = read_json(session / "session.json")
+            listed = {f for s in side["sensors"].values() for f in s["files"]}
+            on_disk = {p.name for p in session.glob("*.bin")}
+            readable = {n: f.count for n, f in logs.read_session(session).sensors.items()}
+            if not on_disk <= listed or readable != _records_on_disk(session, side):
+                bad.append((k, sorted(on_disk - listed), readable, _records_on_disk(session, side)))
+            # A killed daemon's sidecar is at most a write period behind: dump does not call it stale.
+            assert dump.session_summary(session)["sidecar"]["older_than_records"] is None
+    finally:
+        em.stop()
+    assert not bad, f"{len(bad)} of {runs} runs left records the sidecar does not list: {bad}"
 
 
 # --- 7: a nearly full disk at start ----------------------------------------------------------------------

@@ -278,10 +278,13 @@ class Session:
         try:
             self._clock = _AppendFile(self.directory / CLOCK_FILE, self.clock_counts)
             self._must(self._clock.write(b"realtime,monotonic\n"), CLOCK_FILE)
-            self._open_part()
             self._must(self.clock_pair(), CLOCK_FILE)
+            # The sidecar lists a part before its files exist: a crash at any moment
+            # leaves no record file the sidecar does not name.
+            self._parts.append({"index": self.part, "start": clock_pair()})
             self.write_sidecar(strict=True)
             self.write_sidecar(strict=True)  # the second version reserves the next temporary's blocks
+            self._open_part()
             self.sync()
             self._must(self.clock_counts.write_errors == 0, CLOCK_FILE)
         except OSError as e:
@@ -317,7 +320,7 @@ class Session:
         return {name: c.frames_lost_to_disk_errors for name, c in self.counts.items()}
 
     def _open_part(self) -> None:
-        self._parts.append({"index": self.part, "start": clock_pair()})
+        """Open the files of part self.part (already listed in the sidecar)."""
         for name, info in self.sensors.items():
             self._records[name] = _AppendFile(self.directory / part_name(name, self.part, "bin"), self.counts[name],
                                               self.health)
@@ -380,8 +383,19 @@ class Session:
         self._clock.sync()
 
     def rotate(self) -> None:
-        """Close this part's files and start the next part (SIGHUP). All
-        sensor locks are held throughout, so no record lands on a closed file."""
+        """Close this part's files and start the next part (SIGHUP). The new
+        part is in the sidecar on disk before its files are created (a crash
+        between the two leaves a listed part without files, which readers
+        skip); if that sidecar cannot be written the old part goes on. All
+        sensor locks are held while the files change, so no record lands on a
+        closed file; the sidecar's fsync is done before, not under them."""
+        nxt = self.part + 1
+        self._parts.append({"index": nxt, "start": clock_pair()})
+        if not self.write_sidecar():
+            self._parts.pop()
+            log.error("cannot write the sidecar listing part %d in %s; staying on part %d", nxt, self.directory,
+                      self.part)
+            return
         for name in self.sensors:
             self._locks[name].acquire()
         try:
@@ -389,7 +403,7 @@ class Session:
                 for f in files.values():
                     f.close()
             self._raws.clear()
-            self.part += 1
+            self.part = nxt
             try:
                 self._open_part()
             except OSError as e:  # the new part cannot be created: keep writing the old one
