@@ -1,6 +1,6 @@
 """Issue 37, the daemon's part: faults that each cost a whole session on a vehicle, against the real daemon through
-ptys (and the recorder alone where stamps must be controlled): SIGKILL just after SIGHUP, a nearly full disk at
-start.
+ptys (and the recorder alone where stamps must be controlled): the session directory deleted while logging,
+SIGKILL just after SIGHUP, a nearly full disk at start.
 
 Every wait is on a condition with a generous deadline, so the tests hold on a loaded machine."""
 
@@ -16,6 +16,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from gpsins import dump, logs
@@ -102,6 +103,10 @@ def daemons():
             d.close()
 
 
+def lines_with(text: str, needle: str) -> list[str]:
+    return [ln for ln in text.splitlines() if needle in ln]
+
+
 def wait_streams_done(em, timeout: float) -> None:
     assert em.wait(timeout), "emulators did not finish"
 
@@ -120,6 +125,71 @@ def dump_text(directory: Path) -> str:
     out = io.StringIO()
     dump.print_summary(dump.session_summary(directory), out)
     return out.getvalue()
+
+
+# --- 1: the session directory deleted or replaced while logging ------------------------------------------
+
+
+@pytest.mark.parametrize("how", ["deleted", "replaced"])
+def test_session_directory_gone_while_logging_goes_on_in_a_continuation(tmp_path, how):
+    """rm -rf of the session 2 s in (or the directory moved aside and another made in its place): the daemon
+    used to write on into deleted inodes for the rest of the run, exiting 0. Now it says so once, goes on in
+    <session>-cont1 and carries over the records since it last saw the directory, so no frame is lost."""
+    dev, session = tmp_path / "dev", tmp_path / "session"
+    em = Emulators(dev, StaticSource(6.0, seed=1))
+    cfg = write_config(tmp_path / "logger.toml", dev, tmp_path / "sessions")
+    cont = tmp_path / "session-cont1"
+    try:
+        with daemons() as ds:
+            d = Daemon(cfg, session, tmp_path / "daemon.log")
+            ds.append(d)
+            em.start()
+            wait_for(lambda: file_size(session / "imu-000.bin") >= 120 * IMU_RECORD, 30, "IMU records")
+            gone_at = time.time()
+            if how == "deleted":
+                subprocess.run(["rm", "-rf", str(session)])  # as on the vehicle; a race with the daemon may leave it
+            else:
+                os.rename(session, tmp_path / "moved")
+                session.mkdir()
+            wait_for(lambda: read_json(cont / "session.json"), 15, "continuation directory")
+            wait_streams_done(em, 60)
+            wait_all_written(cont / "session.json", em)
+            assert d.stop() == 0, d.stderr()
+            err = d.stderr()
+    finally:
+        em.stop()
+    assert "Traceback" not in err and not lines_with(err, "work again"), err
+    said = lines_with(err, "continuing in")
+    assert len(said) == 1 and str(cont) in said[0], err
+    side = read_json(cont / "session.json")
+    assert side["state"] == "stopped"
+    c = side["continues"]
+    assert c["previous"] == "session" and ("deleted" in c["reason"] if how == "deleted" else "replaced" in c["reason"])
+    # The 64 Hz IMU always has records between the last look at the directory and the one that found it gone.
+    assert (c["frames_carried_over"]["imu"] > 0) == (how == "deleted"), c
+    r = logs.read_session(cont)
+    for name in ("gps", "imu"):
+        ok = sent_ok(getattr(em, name))
+        got = r.sensors[name].frames()
+        assert got and got == ok[len(ok) - len(got):], f"{name}: the continuation is not the tail of what was sent"
+        # This directory's records are the run's counts less those in the previous one.
+        assert side["counts"][name]["frames_written"] - c["frames_before"][name] == len(got)
+        if how == "deleted":
+            # Every frame sent after the deletion is here, and the records since the directory was last seen.
+            after = sum(s.first_byte_realtime > gone_at for s in getattr(em, name).sent if s.fate == "ok")
+            assert len(got) >= after, f"{name}: {after - len(got)} frames sent after the deletion are lost"
+            carried = c["frames_carried_over"][name]
+            assert np.all(r.sensors[name].stamps[:carried] < c["noticed"]["realtime"]), name
+        else:
+            # Moved: the old files kept their records; the two directories together hold every frame once.
+            before = logs.read_session(tmp_path / "moved").sensors[name].frames()
+            assert before + got == ok, name
+            assert c["frames_carried_over"][name] == 0
+    print(f"{how}: frames lost after the directory went: 0; "
+          f"carried over {c['frames_carried_over']}, in the continuation "
+          f"{ {n: r.sensors[n].count for n in r.sensors} }")
+    text = dump_text(cont)
+    assert "continues session session" in text and ("deleted" in text if how == "deleted" else "replaced" in text)
 
 
 # --- 5: SIGKILL just after SIGHUP ------------------------------------------------------------------------

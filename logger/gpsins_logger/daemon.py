@@ -21,6 +21,8 @@ from .port import DEVICES, SensorThread
 from .recorder import SensorInfo, Session, StartupError, new_session_dir
 
 log = logging.getLogger("gpsins_logger")
+# How often the session directory is looked at, at least (a deleted one is continued elsewhere).
+DIRECTORY_CHECK_S = 1.0
 HEADER_LEN = {device: header_len for device, (_, header_len) in DEVICES.items()}
 
 
@@ -70,10 +72,12 @@ class Daemon:
             t.start()
         start = time.monotonic()
         next_clock = start + self.cfg.session.clock_pair_interval_s
+        next_sync = start + self.cfg.session.fsync_interval_s
         try:
             while not self._stop_requested:
                 now = time.monotonic()
-                timeout = min(self.cfg.session.fsync_interval_s, max(0.0, next_clock - now))
+                # The directory is checked at least every DIRECTORY_CHECK_S, whatever the fsync period.
+                timeout = max(0.0, min(next_sync, next_clock, now + DIRECTORY_CHECK_S) - now)
                 if duration_s is not None:
                     timeout = min(timeout, max(0.0, start + duration_s - now))
                 self._wake.wait(timeout)
@@ -81,15 +85,20 @@ class Daemon:
                 now = time.monotonic()
                 if duration_s is not None and now - start >= duration_s:
                     break
-                if self._rotate_requested:
+                rotated = self._rotate_requested
+                if rotated:
                     self._rotate_requested = False
                     self.session.rotate()
                 if now >= next_clock:
                     self.session.clock_pair()
                     next_clock = now + self.cfg.session.clock_pair_interval_s
-                self.session.check_free_space()
-                self.session.sync()
-                self.session.write_sidecar()
+                if now >= next_sync or rotated:
+                    self.session.check_free_space()
+                    self.session.sync()
+                    self.session.write_sidecar()  # checks the directory first
+                    next_sync = now + self.cfg.session.fsync_interval_s
+                else:
+                    self.session.check_directory()
         finally:
             self.shutdown()
         return 0

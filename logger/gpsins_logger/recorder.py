@@ -23,6 +23,7 @@ import errno
 import json
 import logging
 import os
+import re
 import socket
 import struct
 import threading
@@ -127,13 +128,18 @@ class DiskHealth:
 class _AppendFile:
     """An O_APPEND file written with one os.write per item. A write that
     fails is counted and undone (a short write is truncated away, so a full
-    disk never leaves half a record); the next write simply tries again."""
+    disk never leaves half a record); the next write simply tries again.
+    Opened readable: if the file is deleted under us, what was written since
+    it was last seen in place (`verified`) can still be read from its inode."""
 
     def __init__(self, path: Path, counts: FileCounts, health: DiskHealth | None = None):
         self.path = path
         self.counts = counts
         self.health = health
-        self._fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+        self._fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_APPEND, 0o644)
+        st = os.fstat(self._fd)
+        self.ident = (st.st_dev, st.st_ino)
+        self.size = self.verified = st.st_size  # bytes in the file; of those, seen in place
 
     def write(self, data: bytes) -> bool:
         try:
@@ -148,6 +154,7 @@ class _AppendFile:
             self.counts.frames_lost_to_disk_errors += 1
             return False
         self.counts.bytes_written += n
+        self.size += n
         if self.health is not None:
             self.health.succeeded()
         return True
@@ -173,6 +180,34 @@ class _AppendFile:
             os.close(self._fd)
         except OSError:
             pass
+
+    def moved_or_deleted(self) -> str | None:
+        """Why self.path no longer names this file, or None."""
+        try:
+            st = os.stat(self.path)
+        except FileNotFoundError:
+            return "deleted"
+        except OSError:
+            return None  # cannot tell: assume it is still there
+        return None if (st.st_dev, st.st_ino) == self.ident else "replaced"
+
+    def unlinked_tail(self) -> bytes | None:
+        """The bytes written since `verified` if the file has no name left
+        anywhere (deleted), else None (it still exists, e.g. moved with its
+        directory, and holds them itself)."""
+        try:
+            if os.fstat(self._fd).st_nlink > 0:
+                return None
+            out, off = bytearray(), self.verified
+            while off < self.size:
+                chunk = os.pread(self._fd, self.size - off, off)
+                if not chunk:
+                    break
+                out += chunk
+                off += len(chunk)
+            return bytes(out)
+        except OSError:
+            return b""
 
 
 class _SidecarFile:
@@ -274,7 +309,14 @@ class Session:
         self.start = clock_pair()
         self.stop: dict[str, float] | None = None
         self._last_offset: float | None = None
+        # A session whose directory went away goes on in a continuation (continue_elsewhere).
+        self.continues: dict | None = None  # what this directory continues, for the sidecar
+        self._seen = clock_pair()  # when the directory and files were last seen in place
+        self._seen_frames = {name: 0 for name in sensors}  # frames_written then
+        self._continue_failed = False
+        self._closed = False
         created = _make_dirs(self.directory)
+        self._dir_id = _ident(self.directory)
         try:
             self._clock = _AppendFile(self.directory / CLOCK_FILE, self.clock_counts)
             self._must(self._clock.write(b"realtime,monotonic\n"), CLOCK_FILE)
@@ -321,20 +363,30 @@ class Session:
 
     def _open_part(self) -> None:
         """Open the files of part self.part (already listed in the sidecar)."""
-        for name, info in self.sensors.items():
-            self._records[name] = _AppendFile(self.directory / part_name(name, self.part, "bin"), self.counts[name],
-                                              self.health)
-            if info.raw_capture:
-                self._raws[name] = _AppendFile(self.directory / part_name(name, self.part, "raw"),
-                                               self.raw_counts[name], self.health)
+        self._records, self._raws = self._part_files(self.directory)
+
+    def _part_files(self, directory: Path) -> tuple[dict, dict]:
+        records, raws = {}, {}
+        try:
+            for name, info in self.sensors.items():
+                records[name] = _AppendFile(directory / part_name(name, self.part, "bin"), self.counts[name],
+                                            self.health)
+                if info.raw_capture:
+                    raws[name] = _AppendFile(directory / part_name(name, self.part, "raw"), self.raw_counts[name],
+                                             self.health)
+        except OSError:
+            for f in (*records.values(), *raws.values()):
+                os.close(f._fd)
+            raise
+        return records, raws
 
     def record(self, sensor: str, frame: bytes, stamp: float) -> bool:
         h = self.sensors[sensor].header_len
         rec = frame[:h] + STAMP.pack(stamp) + frame[h:]
         with self._locks[sensor]:
             ok = self._records[sensor].write(rec)
-        if ok:
-            self.counts[sensor].frames_written += 1
+            if ok:  # under the lock: a continuation counts what it carries over
+                self.counts[sensor].frames_written += 1
         return ok
 
     def raw(self, sensor: str, data: bytes, monotonic: float, realtime: float) -> None:
@@ -389,10 +441,13 @@ class Session:
         skip); if that sidecar cannot be written the old part goes on. All
         sensor locks are held while the files change, so no record lands on a
         closed file; the sidecar's fsync is done before, not under them."""
+        self.check_directory()  # a directory gone meanwhile is continued first
         nxt = self.part + 1
-        self._parts.append({"index": nxt, "start": clock_pair()})
-        if not self.write_sidecar():
-            self._parts.pop()
+        entry = {"index": nxt, "start": clock_pair()}
+        self._parts.append(entry)
+        if not self.write_sidecar() or entry not in self._parts:  # (not listed if continued just now)
+            if entry in self._parts:
+                self._parts.remove(entry)
             log.error("cannot write the sidecar listing part %d in %s; staying on part %d", nxt, self.directory,
                       self.part)
             return
@@ -430,6 +485,150 @@ class Session:
                     log.error("cannot reopen %s: %s", part_name(name, self.part, ext), e.strerror or e)
                     files[name] = _DeadFile(counts[name], self.health, self.directory / part_name(name, self.part, ext))
 
+    # -- the directory going away -------------------------------------------------------
+    def _files(self) -> list["_AppendFile"]:
+        return [self._clock, *self._records.values(), *self._raws.values()]
+
+    def _gone(self) -> str | None:
+        """Why the session directory or one of its open files is no longer
+        where it was opened (compared by st_dev/st_ino), or None."""
+        try:
+            if _ident(self.directory) != self._dir_id:
+                return "was replaced (another directory now has its name)"
+        except FileNotFoundError:
+            return "was deleted"
+        except OSError:
+            return None  # cannot tell: keep going
+        for f in self._files():
+            why = f.moved_or_deleted()
+            if why:
+                return f"lost its file {f.path.name} ({why})"
+        return None
+
+    def check_directory(self) -> bool:
+        """True when the directory and the open files are in place (then what
+        was written so far counts as seen there). Otherwise the session goes
+        on in a continuation directory; False if that could not be made."""
+        why = self._gone()
+        if why is None:
+            seen = clock_pair()
+            for name in self.sensors:
+                with self._locks[name]:
+                    for files in (self._records, self._raws):
+                        if name in files:
+                            files[name].verified = files[name].size
+                    self._seen_frames[name] = self.counts[name].frames_written
+            self._clock.verified = self._clock.size
+            self._seen = seen
+            self._continue_failed = False
+            return True
+        if self._closed:
+            return False
+        return self.continue_elsewhere(why)
+
+    def continue_elsewhere(self, why: str) -> bool:
+        """Go on in <directory>-cont<k>: the records written since the old
+        directory was last seen are carried over from the deleted files'
+        inodes (we still hold them open), then new records follow. If the
+        old files still exist somewhere (the directory was moved), they keep
+        their records and nothing is carried over."""
+        old_dir = self.directory
+        new_dir = continuation_dir(old_dir)
+        try:
+            created = _make_dirs(new_dir)
+        except (StartupError, FileExistsError) as e:
+            return self._cannot_continue(old_dir, why, new_dir, e)
+        for name in self.sensors:
+            self._locks[name].acquire()
+        saved = (self._parts, self.continues)
+        old_doc = self.sidecar()
+        opened: list[_AppendFile] = []
+        failed: OSError | None = None
+        try:
+            carried, before, tails = {}, {}, []
+            for name in self.sensors:
+                for kind, files in (("bin", self._records), ("raw", self._raws)):
+                    if name in files:
+                        tail = files[name].unlinked_tail()
+                        tails.append((kind, name, tail))
+                        if kind == "bin":
+                            n = self.counts[name].frames_written - self._seen_frames[name] if tail is not None else 0
+                            carried[name] = n
+                before[name] = self.counts[name].frames_written - carried.get(name, 0)
+            self._parts = [{"index": self.part, "start": self._seen}]
+            self.continues = {
+                "previous": old_dir.name, "reason": f"the session directory {why}",
+                "noticed": clock_pair(), "previous_last_seen": self._seen,
+                # Frames in `counts` that are not in this directory (in the previous ones).
+                "frames_before": before,
+                "frames_carried_over": carried,
+                "carried_over": "the records written since the previous directory was last seen, read from its "
+                                "deleted files" if any(t is not None for _, _, t in tails) else
+                                "nothing: the previous files still exist (moved), their records are there",
+            }
+            side = _SidecarFile(new_dir)
+            side.write(self.sidecar())  # lists the part before its files exist
+            side.write(self.sidecar())
+            clock = _AppendFile(new_dir / CLOCK_FILE, self.clock_counts)
+            opened.append(clock)
+            head = (f"realtime,monotonic\n{self._seen['realtime']:.6f},{self._seen['monotonic']:.6f}\n")
+            if not clock.write(head.encode("ascii")):
+                raise OSError(errno.ENOSPC, "cannot write", str(clock.path))
+            records, raws = self._part_files(new_dir)
+            opened += [*records.values(), *raws.values()]
+            for kind, name, tail in tails:
+                f = (records if kind == "bin" else raws)[name]
+                if tail and os.write(f._fd, tail) != len(tail):
+                    raise OSError(errno.ENOSPC, "short write", str(f.path))
+                f.size = f.verified = f.size + len(tail or b"")
+        except OSError as e:  # undo: the old files go on, retried at the next check
+            failed = e
+            self._parts, self.continues = saved
+            for f in opened:
+                os.close(f._fd)
+            for p in new_dir.glob("*"):
+                p.unlink(missing_ok=True)
+            for d in reversed(created):
+                try:
+                    d.rmdir()
+                except OSError:
+                    pass
+        else:
+            old_files = self._files()
+            old_side = self._sidecar
+            self._records, self._raws, self._clock = records, raws, clock
+            self._clock.health = self.health
+            self.directory, self._dir_id, self._sidecar = new_dir, _ident(new_dir), side
+            self.health.directory = new_dir
+            self._seen = self.continues["noticed"]
+            self._seen_frames = {name: self.counts[name].frames_written for name in self.sensors}
+            self._continue_failed = False
+        finally:
+            for name in self.sensors:
+                self._locks[name].release()
+        if failed is not None:
+            return self._cannot_continue(old_dir, why, new_dir, failed)
+        for f in old_files:
+            f.close()
+        if not why.startswith(("was deleted", "was replaced")):  # the old directory is still ours: say where we went
+            try:
+                old_side.write({**old_doc, "state": "continued", "continued_in": new_dir.name})
+            except OSError:
+                pass
+        total = sum(carried.values())
+        log.error("session directory %s %s; continuing in %s%s", old_dir, why, new_dir,
+                  f" with the {total} records written since it was last seen ("
+                  + ", ".join(f"{k} {v}" for k, v in carried.items()) + ")"
+                  if any(t is not None for _, _, t in tails) else " (the files so far still exist elsewhere)")
+        return True
+
+    def _cannot_continue(self, old_dir: Path, why: str, new_dir: Path, e: Exception) -> bool:
+        if not self._continue_failed:
+            self._continue_failed = True
+            log.error("session directory %s %s, and the continuation %s cannot be written (%s); records go on "
+                      "into the lost files, retrying", old_dir, why, new_dir, getattr(e, "strerror", None) or e)
+        return False
+
     def sidecar(self) -> dict:
         sensors = {}
         for name, info in self.sensors.items():
@@ -460,6 +659,7 @@ class Session:
             "sensors": sensors,
             "parts": self._parts,
             "counts": counts,
+            "continues": self.continues,
             "clock_steps": self.clock_steps,
             "disk": {**self.health.as_dict(), "clock_write_errors": self.clock_counts.write_errors,
                      "sidecar_write_errors": self.sidecar_write_errors, "raw_paused_for_reserve": self.raw_paused},
@@ -469,18 +669,27 @@ class Session:
     def write_sidecar(self, strict: bool = False) -> bool:
         """Write-then-rename (_SidecarFile): a crash leaves the old or the new
         sidecar, never half of one. A failure is counted (raised only when
-        strict) and the last good version stays; the next call retries."""
+        strict) and the last good version stays; the next call retries.
+        First the directory is checked (check_directory)."""
+        if not strict and not self.check_directory():
+            self.sidecar_write_errors += 1  # gone, and no continuation yet: nowhere to write it
+            return False
         try:
             self._sidecar.write(self.sidecar())
         except OSError as e:
             if strict:
                 raise
             self.sidecar_write_errors += 1
+            if self._gone() is not None:  # deleted while we wrote (rm -rf under way): not a disk fault
+                self.check_directory()
+                return False
             self.health.failed(Path(SIDECAR), e)
             return False
         return True
 
     def close(self) -> None:
+        self.check_directory()  # a directory gone meanwhile: the last records go to the continuation
+        self._closed = True
         self.clock_pair()
         for name in self.sensors:
             with self._locks[name]:
@@ -497,6 +706,13 @@ class _DeadFile(_AppendFile):
 
     def __init__(self, counts: FileCounts, health: DiskHealth, path: Path):
         self.path, self.counts, self.health, self._fd = path, counts, health, -1
+        self.ident, self.size, self.verified = None, 0, 0
+
+    def moved_or_deleted(self) -> str | None:
+        return None
+
+    def unlinked_tail(self) -> bytes | None:
+        return None
 
     def write(self, data: bytes) -> bool:
         self.health.failed(self.path, OSError(errno.EBADF, "part file not open"))
@@ -537,6 +753,20 @@ def _make_dirs(directory: Path) -> list[Path]:
         raise StartupError(f"cannot create the session directory {directory}: {e.strerror or e}"
                            f"{' (' + e.filename + ')' if e.filename else ''}") from None
     return created
+
+
+def _ident(path: Path) -> tuple[int, int]:
+    st = os.stat(path)
+    return st.st_dev, st.st_ino
+
+
+def continuation_dir(directory: Path) -> Path:
+    """The first free <name>-cont<k> beside directory (<name> without an earlier -cont<k>)."""
+    m = re.fullmatch(r"(.+)-cont(\d+)", directory.name)
+    stem, k = (m.group(1), int(m.group(2)) + 1) if m else (directory.name, 1)
+    while (directory.parent / f"{stem}-cont{k}").exists():
+        k += 1
+    return directory.parent / f"{stem}-cont{k}"
 
 
 def new_session_dir(root: Path) -> Path:

@@ -72,7 +72,8 @@ def _sidecar_behind(sidecar: dict, last_stamp: float | None) -> dict | None:
 def session_summary(directory: str | Path) -> dict:
     session = logs.read_session(directory)
     out = {"session": str(session.directory), "sidecar": {k: session.sidecar.get(k) for k in
-                                                          ("host", "state", "start", "stop", "written", "parts")},
+                                                          ("host", "state", "start", "stop", "written", "parts",
+                                                           "continues", "continued_in")},
            "sensors": {}}
     lasts = [float(f.stamps[-1]) for f in session.sensors.values() if f.count]
     out["sidecar"]["older_than_records"] = _sidecar_behind(session.sidecar, max(lasts) if lasts else None)
@@ -145,6 +146,14 @@ def print_summary(summary: dict, out) -> None:
         return
     print(f"session {summary['session']}", file=out)
     side = summary.get("sidecar", {})
+    c = side.get("continues")
+    if isinstance(c, dict):
+        carried = c.get("frames_carried_over") or {}
+        print(f"  continues session {c.get('previous')}: {c.get('reason')}; carried over: "
+              + (", ".join(f"{k} {v} records" for k, v in carried.items()) if any(carried.values())
+                 else str(c.get("carried_over"))), file=out)
+    if side.get("continued_in"):
+        print(f"  continued in {side['continued_in']} (this directory lost files while logging)", file=out)
     if side.get("older_than_records"):
         print(f"  the sidecar is older than the records: last written {side['older_than_records']['behind_s']:.1f} s "
               f"before the last record (state '{side.get('state')}'); its counts, parts and state are from then "
