@@ -1,6 +1,6 @@
 """Issue 37, the daemon's part: faults that each cost a whole session on a vehicle, against the real daemon through
 ptys (and the recorder alone where stamps must be controlled): the session directory deleted while logging,
-SIGKILL just after SIGHUP, a nearly full disk at start.
+SIGKILL just after SIGHUP, a second daemon taking the devices over, a nearly full disk at start.
 
 Every wait is on a condition with a generous deadline, so the tests hold on a loaded machine."""
 
@@ -61,6 +61,11 @@ def file_size(path: Path) -> int:
         return path.stat().st_size
     except OSError:
         return 0
+
+
+def port_state(session_dir: Path, sensor: str) -> dict:
+    side = read_json(session_dir / "session.json")
+    return side["sensors"][sensor]["port_state"] if side else {}
 
 
 class Daemon:
@@ -238,6 +243,66 @@ def test_sigkill_just_after_sighup_leaves_every_record_listed(tmp_path, when):
     finally:
         em.stop()
     assert not bad, f"{len(bad)} of {runs} runs left records the sidecar does not list: {bad}"
+
+
+# --- 6: a second daemon taking over the devices ---------------------------------------------------------
+
+
+def has_last_frames(directory: Path, em) -> bool:
+    """Whether the session's files end with the last frame each emulator sent."""
+    for name, device in (("gps", "superstar2"), ("imu", "bp3010")):
+        files = sorted(directory.glob(f"{name}-*.bin"))
+        if not files or logs.read_record_file(files[-1], device).frames()[-1:] != sent_ok(getattr(em, name))[-1:]:
+            return False
+    return True
+
+
+def test_second_daemon_takes_over_the_devices_within_half_a_second(tmp_path):
+    """Daemon B starts while A holds both devices (locked), a third C too; A stops. B used to wait out its 5 s
+    retry period (a lock going away changes nothing on the node): 4.9 s lost. Now the locked device is tried
+    every 0.1 s. C, which never got a device, removes its empty session directory at exit."""
+    dev = tmp_path / "dev"
+    em = Emulators(dev, StaticSource(9.0, seed=1))
+    cfg = write_config(tmp_path / "logger.toml", dev, tmp_path / "sessions")  # the shipped retry: 5 s
+    a_dir, b_dir, c_dir = tmp_path / "a", tmp_path / "b", tmp_path / "c"
+    try:
+        with daemons() as ds:
+            a = Daemon(cfg, a_dir, tmp_path / "a.log")
+            ds.append(a)
+            em.start()
+            wait_for(lambda: file_size(a_dir / "imu-000.bin") >= 64 * IMU_RECORD, 30, "A's IMU records")
+            b = Daemon(cfg, b_dir, tmp_path / "b.log")
+            ds.append(b)
+            c = Daemon(cfg, c_dir, tmp_path / "c.log")
+            ds.append(c)
+            for x in (b_dir, c_dir):
+                for n in ("gps", "imu"):
+                    st = wait_for(lambda: (p := port_state(x, n)).get("state") == "unopenable" and p, 20,
+                                  f"{x.name}: {n} unopenable")
+                    assert "busy" in st["reason"], st
+            # C gives up first (so it cannot race B for the devices): it never had one.
+            assert c.stop() == 0, c.stderr()
+            c_err = c.stderr()
+            assert a.stop(signal.SIGTERM) == 0, a.stderr()
+            wait_streams_done(em, 60)
+            wait_until(lambda: has_last_frames(b_dir, em), 20)
+            assert b.stop() == 0, b.stderr()
+    finally:
+        em.stop()
+    ra, rb = logs.read_session(a_dir), logs.read_session(b_dir)
+    lost = {}
+    for name in ("gps", "imu"):
+        ok = sent_ok(getattr(em, name))
+        fa, fb = ra.sensors[name].frames(), rb.sensors[name].frames()
+        assert fa and fb and fa == ok[:len(fa)] and fb == ok[len(ok) - len(fb):], name
+        gap = rb.sensors[name].stamps[0] - ra.sensors[name].stamps[-1]
+        lost[name] = (len(ok) - len(fa) - len(fb), gap)
+    print("handover: " + ", ".join(f"{n} {k} frames lost, {g * 1e3:.0f} ms from A's last to B's first record"
+                                   for n, (k, g) in lost.items()))
+    # The IMU streams at 64 Hz: its gap is the handover. The GPS waits for its next 10 Hz slot after the requests.
+    assert lost["imu"][1] < 0.5 and lost["gps"][1] < 0.5 + 0.1, lost
+    assert not c_dir.exists(), sorted(os.listdir(c_dir))
+    assert len(lines_with(c_err, "removed the empty session directory")) == 1, c_err
 
 
 # --- 7: a nearly full disk at start ----------------------------------------------------------------------

@@ -86,6 +86,7 @@ class ReconnectConfig:
     max_backoff_s: float = 5.0
     poll_interval_s: float = 0.05  # how often an absent device's path is looked at
     unopenable_retry_s: float = 5.0  # retry period for a present device that cannot be opened
+    busy_poll_s: float = 0.1  # ...but a busy (locked) one is tried this often: a handover loses no more
     give_up_after_s: float = 0.0  # stop trying an unopenable device after this long; 0 = never
 
 
@@ -105,8 +106,9 @@ _TYPES = {"port": str, "baud": int, "link_open": bool, "raw_rate_hz": int, "mess
           "rate_hz": int, "root": str, "fsync_interval_s": (int, float), "clock_pair_interval_s": (int, float),
           "raw_reserve_mb": (int, float),
           "initial_backoff_s": (int, float), "max_backoff_s": (int, float), "poll_interval_s": (int, float),
-          "unopenable_retry_s": (int, float), "give_up_after_s": (int, float), "device": str, "generation": int,
-          "interface": str, "measurement_rate_hz": (int, float), "ack_timeout_s": (int, float), "poll_version": bool}
+          "unopenable_retry_s": (int, float), "busy_poll_s": (int, float), "give_up_after_s": (int, float),
+          "device": str, "generation": int, "interface": str, "measurement_rate_hz": (int, float),
+          "ack_timeout_s": (int, float), "poll_version": bool}
 
 
 def _section(cls, data: dict, name: str, where: str):
@@ -174,6 +176,8 @@ def from_dict(data: dict, where: str = "<config>", check_ports: bool = True) -> 
         raise ConfigError(f"{where}: 'reconnect.poll_interval_s' must be in (0, 1]")
     if cfg.reconnect.unopenable_retry_s <= 0:
         raise ConfigError(f"{where}: 'reconnect.unopenable_retry_s' must be positive")
+    if not 0 < cfg.reconnect.busy_poll_s <= 10:
+        raise ConfigError(f"{where}: 'reconnect.busy_poll_s' must be in (0, 10]")
     if cfg.reconnect.give_up_after_s < 0:
         raise ConfigError(f"{where}: 'reconnect.give_up_after_s' must be >= 0 (0 = never give up)")
     return cfg

@@ -54,7 +54,7 @@ class Daemon:
             SensorThread(name, device, sc.port, sc.baud, sc.requests(), self.session, sc.raw_capture,
                          cfg.reconnect.initial_backoff_s, cfg.reconnect.max_backoff_s, cfg.reconnect.poll_interval_s,
                          cfg.reconnect.unopenable_retry_s, cfg.reconnect.give_up_after_s,
-                         sc.setup() if device == "ublox" else None)
+                         sc.setup() if device == "ublox" else None, cfg.reconnect.busy_poll_s)
             for name, (device, sc) in settings_of.items()
         ]
 
@@ -113,6 +113,9 @@ class Daemon:
         self.session.close()
         counts = self.session.sidecar()["counts"]
         log.info("stopped; %s", ", ".join(f"{k}: {v['frames_written']} frames" for k, v in counts.items()))
+        if not any(t.ever_opened for t in self.threads) and self.session.remove_if_empty():
+            # E.g. a second logger started on devices another one holds: no empty session left per attempt.
+            log.info("no device was ever opened: removed the empty session directory %s", self.session.directory)
 
 
 def _config_record(cfg: config_mod.LoggerConfig) -> dict:

@@ -10,7 +10,9 @@ Port states (in the log and the sidecar's `port_state`):
   locked by another program). The reason is named; opening is retried every
   `unopenable_retry_s`, or at once when the path changes (a new device node
   or new permissions); with `give_up_after_s` > 0 the thread stops after
-  that long in this state (``gave_up``).
+  that long in this state (``gave_up``). A busy or locked device is tried
+  every `busy_poll_s` instead: a lock going away changes nothing on the
+  node, and a second logger taking over from a first should lose no more.
 
 A u-blox receiver is set up by a handshake after every open (ubx.Setup: each
 configuration message waits for its ACK, the read wakes every 0.1 s to time
@@ -60,7 +62,7 @@ class SensorThread(threading.Thread):
     def __init__(self, name: str, device: str, port: str, baud: int, requests: list[bytes], session: Session,
                  raw_capture: bool = False, initial_backoff_s: float = 0.2, max_backoff_s: float = 5.0,
                  poll_interval_s: float = 0.05, unopenable_retry_s: float = 5.0, give_up_after_s: float = 0.0,
-                 setup: ubx.Setup | None = None):
+                 setup: ubx.Setup | None = None, busy_poll_s: float = 0.1):
         super().__init__(name=f"sensor-{name}", daemon=True)
         self.sensor = name
         self.rule, self.header_len = DEVICES[device]
@@ -75,6 +77,8 @@ class SensorThread(threading.Thread):
         self.poll_interval_s = poll_interval_s
         self.unopenable_retry_s = unopenable_retry_s
         self.give_up_after_s = give_up_after_s
+        self.busy_poll_s = busy_poll_s
+        self.ever_opened = False  # a daemon that never got a device leaves no session behind
         self.counts = session.extra_counts[name]
         self.counts.update(reconnects=0, discarded_bytes=0, checksum_failures=0, lock_losses=0, unfinished_bytes=0,
                            bytes_read=0, stamps_clamped=0)
@@ -108,8 +112,10 @@ class SensorThread(threading.Thread):
             log.warning("%s: %s is absent%s; watching for it", self.sensor, self.port_name,
                         f" ({reason})" if reason else "")
         elif state == "unopenable":
-            log.error("%s: %s is present but cannot be opened: %s; retrying every %.0f s", self.sensor,
-                      self.port_name, reason, self.unopenable_retry_s)
+            busy = reason.startswith("busy")
+            log.error("%s: %s is present but cannot be opened: %s; retrying every %g s%s", self.sensor,
+                      self.port_name, reason, self.busy_poll_s if busy else self.unopenable_retry_s,
+                      " until it is free" if busy else "")
         elif state == "gave_up":
             log.error("%s: giving up on %s: %s", self.sensor, self.port_name, reason)
 
@@ -142,15 +148,18 @@ class SensorThread(threading.Thread):
                 now = time.monotonic()
                 unopenable_since = unopenable_since or now
                 reason = os.strerror(code) if code else str(e)
-                if code in (errno.EAGAIN, errno.EWOULDBLOCK) or "lock" in str(e).lower():
+                busy = code in (errno.EAGAIN, errno.EWOULDBLOCK, errno.EBUSY) or "lock" in str(e).lower()
+                if busy:
                     reason = "busy: locked by another program"
                 if self.give_up_after_s > 0 and now - unopenable_since >= self.give_up_after_s:
                     self._set_state("gave_up", f"{reason} for {now - unopenable_since:.0f} s")
                     return
                 self._set_state("unopenable", reason)
-                self._wait_for_change(self.unopenable_retry_s)
+                # Busy: the holder may go at any moment, and only trying to open tells.
+                self._wait_for_change(self.busy_poll_s if busy else self.unopenable_retry_s)
                 continue
             unopenable_since = None
+            self.ever_opened = True
             if not first:
                 self.counts["reconnects"] += 1
                 log.info("%s: reopened %s", self.sensor, self.port_name)

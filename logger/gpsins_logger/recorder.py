@@ -701,6 +701,31 @@ class Session:
         self.write_sidecar()
 
 
+    def remove_if_empty(self) -> bool:
+        """Remove a closed session that holds no record: its own files, then
+        its directory (kept if anything else is in it)."""
+        if any(c.bytes_written for c in (*self.counts.values(), *self.raw_counts.values())):
+            return False
+        names = {CLOCK_FILE, *(p.name for p in self._sidecar.names())}
+        for name, info in self.sensors.items():
+            for p in self._parts:
+                names.add(part_name(name, p["index"], "bin"))
+                if info.raw_capture:
+                    names.add(part_name(name, p["index"], "raw"))
+        for n in names:
+            try:
+                (self.directory / n).unlink()
+            except FileNotFoundError:
+                pass
+            except OSError:
+                return False
+        try:
+            self.directory.rmdir()
+        except OSError:
+            return False
+        return True
+
+
 class _DeadFile(_AppendFile):
     """A part file that could not be opened: every write counts as lost."""
 
