@@ -1,6 +1,7 @@
 """Issue 37, the daemon's part: faults that each cost a whole session on a vehicle, against the real daemon through
-ptys (and the recorder alone where stamps must be controlled): the session directory deleted while logging,
-SIGKILL just after SIGHUP, a second daemon taking the devices over, a nearly full disk at start.
+ptys (and the recorder or the u-blox set-up alone where a clock must be controlled): the session directory deleted
+while logging, a u-blox receiver refusing or ignoring its set-up, SIGKILL just after SIGHUP, a second daemon
+taking the devices over, a nearly full disk at start.
 
 Every wait is on a condition with a generous deadline, so the tests hold on a loaded machine."""
 
@@ -9,20 +10,22 @@ import io
 import json
 import os
 import random
+import re
 import shutil
 import signal
 import subprocess
 import sys
 import time
+import types
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from gpsins import dump, logs
-from gpsins.emulate import Emulators
+from gpsins.emulate import Emulators, UbloxEmulators
 from gpsins.sources import StaticSource
-from gpsins_logger import bp3010
+from gpsins_logger import bp3010, ubx
 from gpsins_logger.recorder import SensorInfo, Session
 from ptyrig import sent_ok, write_config
 
@@ -195,6 +198,125 @@ def test_session_directory_gone_while_logging_goes_on_in_a_continuation(tmp_path
           f"{ {n: r.sensors[n].count for n in r.sensors} }")
     text = dump_text(cont)
     assert "continues session session" in text and ("deleted" in text if how == "deleted" else "replaced" in text)
+
+
+# --- 2: a u-blox receiver that refuses or ignores its set-up ---------------------------------------------
+
+START = {"gps_week": 1590, "gps_tow_s": 419400.0, "lat_deg": 59.37, "lon_deg": 17.95, "height_m": 30.0,
+         "heading_deg": 160.0}
+
+
+def _ublox_source(seconds: float):
+    from gpsins import sim
+    from gpsins.sim.scenario import parse
+    from gpsins.sources import UbloxSimSource
+
+    sc = parse({"name": "stand", "start": START, "segment": [{"label": "stand", "duration_s": seconds,
+                                                               "speed_mps": 0}]})
+    return UbloxSimSource(sim.simulate(sc, seed=7))
+
+
+def _ublox_config(path: Path, devdir: Path, root: Path, extra: str) -> Path:
+    path.write_text(f"""
+[session]
+root = "{root}"
+fsync_interval_s = 0.2
+clock_pair_interval_s = 0.5
+[gps]
+device = "ublox"
+port = "{devdir / 'gps'}"
+baud = 460800
+messages = ["RXM-RAWX", "NAV-PVT", "NAV-TIMEGPS"]
+{extra}
+""")
+    return path
+
+
+@pytest.mark.parametrize("fault", ["nak", "silent"])
+def test_unconfigured_receiver_is_set_up_again_when_it_comes_round(tmp_path, fault):
+    """The receiver NAKs (or ignores) its CFG-VALSET for the first seconds. The daemon used to try once, then log
+    NMEA only for the whole drive with the port 'open'. Now the port state says 'unconfigured: NAK CFG-VALSET',
+    the set-up is sent again with back-off, and once the receiver acknowledges, UBX flows."""
+    dev, session = tmp_path / "dev", tmp_path / "session"
+    em = UbloxEmulators(dev, _ublox_source(14.0), gps_baud=460800, config_fault=fault)
+    cfg = _ublox_config(tmp_path / "logger.toml", dev, tmp_path / "sessions",
+                        "ack_timeout_s = 0.5\nsetup_retry_max_s = 2.0")
+    try:
+        with daemons() as ds:
+            d = Daemon(cfg, session, tmp_path / "daemon.log")
+            ds.append(d)
+            em.start()
+            state = wait_for(lambda: (p := port_state(session, "gps")).get("state") == "unconfigured" and p, 20,
+                             "'unconfigured' port state")
+            # Let it try a few more times before the receiver comes round.
+            wait_for(lambda: len(em.gps.config_log) >= 3, 20, "set-up retries")
+            fixed_at = time.time()
+            em.gps.config_fault = None  # the receiver answers now (booted, or no longer busy)
+            opened = wait_for(lambda: (p := port_state(session, "gps")).get("state") == "open" and p, 20,
+                              "the port 'open' again after the set-up was acknowledged")
+            wait_streams_done(em, 60)
+            assert d.stop() == 0, d.stderr()
+            err = d.stderr()
+    finally:
+        em.stop()
+    want = "NAK CFG-VALSET" if fault == "nak" else "no answer CFG-VALSET"
+    assert state["reason"] == want, state
+    assert opened["since"] >= fixed_at - 0.05
+    tries = [a for _, a in em.gps.config_log]
+    assert tries[-1] == "ack" and tries.count("ack") == 1 and len(tries) >= 4, tries
+    side = read_json(session / "session.json")
+    rec = side["sensors"]["gps"]["receiver"]
+    assert rec["configured"] and rec["attempts"] >= 4 and rec["configuration"][0]["result"] == "ack"
+    r = logs.read_session(session)
+    st, frames = r.sensors["gps"].stamps, r.sensors["gps"].frames()
+    rawx = st[[(f[2], f[3]) == ubx.RXM_RAWX for f in frames]]
+    # Set-up retried within its maximum back-off (2 s) plus the ACK timeout: RAWX at 10 Hz from then on.
+    assert len(rawx) >= 20 and rawx[0] - fixed_at < 2.0 + 0.5 + 1.5, (len(rawx), rawx[:1] - fixed_at)
+    # The retries are not logged one by one: the first failure, then a reminder a minute at most.
+    noisy = [ln for ln in err.splitlines() if re.search(r"refused|no ACK|incomplete|unconfigured", ln)]
+    assert len(noisy) <= 3, err
+    print(f"{fault}: {len(tries) - 1} refused attempts, first RAWX {rawx[0] - fixed_at:.2f} s after the receiver "
+          f"came round, {len(rawx)} RAWX logged (before: 0 for the whole drive)")
+
+
+def test_set_up_backs_off_to_its_maximum_and_reminds_once_a_minute(monkeypatch, caplog):
+    """The set-up's timing with a controlled clock: attempts 1, 2, 4, 8, then every 10 s (the default
+    maximum); one warning a minute while unconfigured; done once the receiver acknowledges."""
+    caplog.set_level("INFO", logger="gpsins_logger")
+    clock = [1000.0]
+    monkeypatch.setattr(ubx, "time", types.SimpleNamespace(monotonic=lambda: clock[0]))
+    steps = ubx.setup_steps(9, "uart1", 10.0, ["NAV-PVT"])
+    setup = ubx.Setup(steps, ack_timeout_s=1.0, poll_version=False)
+    assert setup.retry_max_s == 10.0
+    sent: list[float] = []
+    setup.start(lambda frame: sent.append(clock[0]))
+
+    def run_until(cond, limit_s: float) -> None:
+        end = clock[0] + limit_s
+        while not cond() and clock[0] < end:
+            clock[0] += 0.05
+            setup.tick()
+
+    run_until(lambda: False, 300.0)  # a silent receiver for five minutes
+    gaps = np.diff(sent)
+    # Attempts start 1, 2, 4, 8 s apart, then every 10 s (the first waits out its 1 s ACK timeout).
+    assert np.allclose(gaps[:4], [1.0, 2.0, 4.0, 8.0], atol=0.11), gaps[:6]
+    assert len(gaps) > 25 and np.all(np.abs(gaps[4:] - 10.0) < 0.11), gaps
+    assert setup.unconfigured() == "no answer CFG-VALSET" and not setup.done
+    reminders = [r.getMessage() for r in caplog.records if "still unconfigured" in r.getMessage()]
+    assert len(reminders) == 4, reminders  # minutes 1 to 5, at the first attempt a minute after the last warning
+    # The next attempt is refused: the reason says so. The one after is acknowledged: done, nothing more is sent.
+    n = len(sent)
+    run_until(lambda: len(sent) > n, 12.0)
+    assert setup.on_frame(ubx.encode_frame(ubx.ACK_NAK, bytes(ubx.CFG_VALSET)))
+    assert setup.unconfigured() == "NAK CFG-VALSET"
+    n = len(sent)
+    run_until(lambda: len(sent) > n, 12.0)
+    assert setup.on_frame(ubx.encode_frame(ubx.ACK_ACK, bytes(ubx.CFG_VALSET)))
+    assert setup.done and setup.unconfigured() == "" and setup.record()["configured"]
+    n = len(sent)
+    run_until(lambda: False, 100.0)
+    assert len(sent) == n
 
 
 # --- 5: SIGKILL just after SIGHUP ------------------------------------------------------------------------

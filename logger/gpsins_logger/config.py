@@ -49,6 +49,7 @@ class UbloxConfig:
     measurement_rate_hz: float = 10.0
     messages: list[str] = field(default_factory=lambda: ["RXM-RAWX", "RXM-SFRBX", "NAV-PVT", "NAV-TIMEGPS"])
     ack_timeout_s: float = 1.0
+    setup_retry_max_s: float = 10.0  # an unacknowledged set-up is sent again after 1 s, doubling up to this
     poll_version: bool = True
     raw_capture: bool = False
 
@@ -58,7 +59,7 @@ class UbloxConfig:
     def setup(self) -> ubx.Setup:
         """The set-up handshake the GPS thread runs after every (re)open."""
         steps = ubx.setup_steps(self.generation, self.interface, self.measurement_rate_hz, self.messages)
-        return ubx.Setup(steps, self.ack_timeout_s, self.poll_version)
+        return ubx.Setup(steps, self.ack_timeout_s, self.poll_version, retry_max_s=self.setup_retry_max_s)
 
 
 @dataclass
@@ -108,7 +109,7 @@ _TYPES = {"port": str, "baud": int, "link_open": bool, "raw_rate_hz": int, "mess
           "initial_backoff_s": (int, float), "max_backoff_s": (int, float), "poll_interval_s": (int, float),
           "unopenable_retry_s": (int, float), "busy_poll_s": (int, float), "give_up_after_s": (int, float),
           "device": str, "generation": int, "interface": str, "measurement_rate_hz": (int, float),
-          "ack_timeout_s": (int, float), "poll_version": bool}
+          "ack_timeout_s": (int, float), "setup_retry_max_s": (int, float), "poll_version": bool}
 
 
 def _section(cls, data: dict, name: str, where: str):
@@ -199,6 +200,8 @@ def _ublox(data: dict, where: str, check_ports: bool) -> UbloxConfig:
             raise ConfigError(f"{where}: 'gps.messages' entry {m!r} is not one of {', '.join(ubx.OUTPUT_MESSAGES)}")
     if not 0 < gps.ack_timeout_s <= 30:
         raise ConfigError(f"{where}: 'gps.ack_timeout_s' must be in (0, 30]")
+    if not 0 < gps.setup_retry_max_s <= 600:
+        raise ConfigError(f"{where}: 'gps.setup_retry_max_s' must be in (0, 600]")
     return gps
 
 

@@ -3,6 +3,8 @@
 Port states (in the log and the sidecar's `port_state`):
 
 - ``open``: reading.
+- ``unconfigured``: reading, but the receiver refused or did not answer its
+  set-up (u-blox); the reason names the messages. The set-up is retried.
 - ``absent``: the device path does not exist (unplugged). Its existence is
   polled every `poll_interval_s`, so a replugged device is reopened within
   about that time.
@@ -232,8 +234,7 @@ class SensorThread(threading.Thread):
         try:
             while s is not None and not self._stop_event.is_set():
                 data = s.read(1)  # blocks until a byte arrives, or cancel_read()
-                if self.setup is not None and not self.setup.done:
-                    self.setup.tick()
+                if self.setup is not None and not self.setup.done and self.setup.tick():
                     self._note_setup()
                 if not data:
                     continue
@@ -254,8 +255,7 @@ class SensorThread(threading.Thread):
                     self.counts.update(nmea_sentences=self.nmea.sentences, nmea_bytes=self.nmea.bytes)
                 for frame in finder.feed(data):
                     self.session.record(self.sensor, frame.data, self._stamp(frame.offset, reads))
-                    if self.setup is not None and not self.setup.done:
-                        self.setup.on_frame(frame.data)
+                    if self.setup is not None and not self.setup.done and self.setup.on_frame(frame.data):
                         self._note_setup()
                 if lost is not None:
                     raise lost
@@ -269,8 +269,14 @@ class SensorThread(threading.Thread):
             self.counts["unfinished_bytes"] += finder.stats.tail_bytes
 
     def _note_setup(self) -> None:
-        """The receiver's version and the configuration's answers, for the sidecar."""
+        """The receiver's version and the configuration's answers, for the sidecar;
+        the port state says when the receiver is not configured."""
         self.session.sensors[self.sensor].settings["receiver"] = self.setup.record()
+        bad = self.setup.unconfigured()
+        if bad:
+            self._set_state("unconfigured", bad)
+        elif self._state == "unconfigured":
+            self._set_state("open")
 
     def _stamp(self, offset: int, reads) -> float:
         best, offset_real = float("inf"), 0.0

@@ -8,8 +8,12 @@ Set-up after every (re)open (:class:`Setup`): MON-VER is polled (the sidecar
 keeps the answer), then each configuration message is sent alone and must be
 answered by ACK-ACK within a timeout. A NAK or silence is logged and noted,
 and the set-up goes on with the next message; the port logs whatever comes
-throughout. Generation 9 receivers (F9P, F9R) are set with CFG-VALSET in the
-RAM layer (lost at power-off, so the receiver's stored configuration is never
+throughout. What was not acknowledged is sent again after a back-off (1 s,
+doubling up to `retry_max_s`) for as long as the port is open: a receiver
+still booting, or one that was busy, is configured when it comes round,
+not left silent for the drive. While unconfigured, a warning every minute.
+Generation 9 receivers (F9P, F9R) are set with CFG-VALSET in the RAM layer
+(lost at power-off, so the receiver's stored configuration is never
 changed); generation 8 (M8T, NEO-M8L) with CFG-RATE and CFG-MSG.
 """
 
@@ -247,6 +251,11 @@ class ConfigStep:
     settings: dict  # readable: key name or message -> value
     result: str = "pending"  # ack, nak, no answer
 
+    @property
+    def label(self) -> str:
+        """The message, and for CFG-MSG the message it enables."""
+        return f"{self.what} {next(iter(self.settings))}" if self.what == "CFG-MSG" else self.what
+
     def record(self) -> dict:
         return {"message": self.what, "settings": self.settings, "frame_hex": self.frame.hex(), "result": self.result}
 
@@ -266,49 +275,89 @@ def setup_steps(generation: int, interface: str, measurement_rate_hz: float, mes
 @dataclass
 class Setup:
     """The set-up handshake, driven by the port thread: start() after the
-    open, on_frame() for every frame read, tick() when the line is quiet.
-    Each step waits for its ACK/NAK up to ack_timeout_s; MON-VER too."""
+    open, on_frame() for every frame read, tick() when the line is quiet
+    (both return True when the record changed). Each step waits for its
+    ACK/NAK up to ack_timeout_s; MON-VER too. Unacknowledged steps are
+    retried with back-off; `done` is True once all are acknowledged."""
 
     steps: list[ConfigStep]
     ack_timeout_s: float = 1.0
     poll_version: bool = True
     sensor: str = "gps"
     version: dict | None = None
+    retry_max_s: float = 10.0  # longest wait between set-up attempts
+    REMINDER_S = 60.0  # while unconfigured, one warning this often
+    attempts: int = 0
     _queue: list = field(default_factory=list)
     _waiting: object = None  # the step (or "MON-VER") awaiting an answer
     _deadline: float = 0.0
+    _retry_at: float | None = None  # when the unacknowledged steps go again
+    _backoff: float = 1.0
+    _since: float = 0.0  # when this open's set-up began
+    _began: float = 0.0  # when this attempt began
+    _reminded: float = 0.0
 
     def start(self, write) -> None:
         self._write = write
         for s in self.steps:
             s.result = "pending"
-        self._queue = (["MON-VER"] if self.poll_version else []) + list(self.steps)
+        self.attempts = 0
+        self._backoff = min(1.0, self.retry_max_s)
+        self._retry_at = None
+        self._since = self._reminded = time.monotonic()
+        self._begin(["MON-VER"] if self.poll_version else [])
+
+    def _begin(self, first: list) -> None:
+        self.attempts += 1
+        self._began = time.monotonic()
+        self._queue = first + [s for s in self.steps if s.result != "ack"]
         self._waiting = None
         self._next()
 
     @property
     def done(self) -> bool:
-        return self._waiting is None and not self._queue
+        return self._waiting is None and not self._queue and self._retry_at is None
+
+    def unconfigured(self) -> str:
+        """What the receiver last said to the steps not acknowledged ("NAK
+        CFG-VALSET"), or "" when all are acknowledged or still first asked."""
+        return ", ".join(f"{'NAK' if s.result == 'nak' else s.result} {s.label}" for s in self.steps
+                         if s.result not in ("ack", "pending"))
 
     def _next(self) -> None:
         if not self._queue:
             self._waiting = None
             if self.steps:
-                bad = [s for s in self.steps if s.result != "ack"]
-                if bad:
-                    log.error("%s: receiver set-up incomplete: %s; logging what the receiver sends", self.sensor,
-                              ", ".join(f"{s.what} {s.result}" for s in bad))
-                else:
-                    log.info("%s: receiver set-up acknowledged (%d message(s))", self.sensor, len(self.steps))
+                self._attempt_over()
             return
         item = self._queue.pop(0)
         self._waiting = item
         self._deadline = time.monotonic() + self.ack_timeout_s
         self._write(poll(MON_VER) if item == "MON-VER" else item.frame)
 
-    def on_frame(self, frame: bytes) -> None:
-        if self._waiting is None or len(frame) < 8:
+    def _attempt_over(self) -> None:
+        bad = [s for s in self.steps if s.result != "ack"]
+        now = time.monotonic()
+        if not bad:
+            self._retry_at = None
+            log.info("%s: receiver set-up acknowledged (%d message(s))%s", self.sensor, len(self.steps),
+                     f" at attempt {self.attempts}, {now - self._since:.0f} s after the open"
+                     if self.attempts > 1 else "")
             return
+        # Attempts start back-off seconds apart (1, 2, 4, ... retry_max_s), never overlapping.
+        self._retry_at = max(now, self._began + self._backoff)
+        self._backoff = min(2 * self._backoff, self.retry_max_s)
+        if self.attempts == 1:
+            log.error("%s: receiver set-up incomplete: %s; logging what the receiver sends, trying again every "
+                      "%g s at most", self.sensor, ", ".join(f"{s.what} {s.result}" for s in bad), self.retry_max_s)
+        elif now - self._reminded >= self.REMINDER_S:
+            self._reminded = now
+            log.warning("%s: receiver still unconfigured after %d attempts in %.0f s (%s); trying again every %g s",
+                        self.sensor, self.attempts, now - self._since, self.unconfigured(), self.retry_max_s)
+
+    def on_frame(self, frame: bytes) -> bool:
+        if self._waiting is None or len(frame) < 8:
+            return False
         cls_id = (frame[2], frame[3])
         if self._waiting == "MON-VER":
             if cls_id == MON_VER:
@@ -319,24 +368,38 @@ class Setup:
                 except ProtocolError:
                     pass
                 self._next()
-            return
+                return True
+            return False
         step = self._waiting
         if cls_id in (ACK_ACK, ACK_NAK) and len(frame) >= 10 and tuple(frame[6:8]) == BY_NAME[step.what]:
             step.result = "ack" if cls_id == ACK_ACK else "nak"
-            if step.result == "nak":
+            if step.result == "nak" and self.attempts == 1:  # retries are summed up by the reminder
                 log.error("%s: the receiver refused (ACK-NAK) %s %s", self.sensor, step.what, step.settings)
             self._next()
+            return True
+        return False
 
-    def tick(self) -> None:
-        if self._waiting is None or time.monotonic() < self._deadline:
-            return
+    def tick(self) -> bool:
+        now = time.monotonic()
+        if self._waiting is None:
+            if self._retry_at is None or now < self._retry_at:
+                return False
+            self._retry_at = None
+            self._begin(["MON-VER"] if self.poll_version and self.version is None else [])
+            return True
+        if now < self._deadline:
+            return False
         if self._waiting == "MON-VER":
-            log.warning("%s: no MON-VER answer within %.1f s (version unknown)", self.sensor, self.ack_timeout_s)
+            if self.attempts == 1:
+                log.warning("%s: no MON-VER answer within %.1f s (version unknown)", self.sensor, self.ack_timeout_s)
         else:
             self._waiting.result = "no answer"
-            log.error("%s: no ACK for %s within %.1f s: is the baud rate right, is it a u-blox receiver?",
-                      self.sensor, self._waiting.what, self.ack_timeout_s)
+            if self.attempts == 1:
+                log.error("%s: no ACK for %s within %.1f s: is the baud rate right, is it a u-blox receiver?",
+                          self.sensor, self._waiting.what, self.ack_timeout_s)
         self._next()
+        return True
 
     def record(self) -> dict:
-        return {"version": self.version, "configuration": [s.record() for s in self.steps]}
+        return {"version": self.version, "configured": all(s.result == "ack" for s in self.steps),
+                "attempts": self.attempts, "configuration": [s.record() for s in self.steps]}
