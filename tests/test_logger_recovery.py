@@ -508,15 +508,18 @@ def test_dump_notes_a_sidecar_older_than_the_records(tmp_path):
     versions, then a kill), dump says the sidecar is older than the records rather than trusting its counts."""
     t0 = time.time()
     s = Session(tmp_path / "s", {"imu": SensorInfo("bp3010", 1, settings={"rate_hz": 64})})
-    early = (tmp_path / "s" / "session.json").read_bytes()  # what a failing disk would have kept
+    early = json.loads((tmp_path / "s" / "session.json").read_text())  # what a failing disk would have kept
     frame = bp3010.ImuSample((0.0, 0.0, 0.0), (0.0, 0.0, -0.15)).encode()
-    for k in range(64 * 6):
+    for k in range(64):
         s.record("imu", frame, t0 + k / 64)
     s.close()
     assert dump.session_summary(tmp_path / "s")["sidecar"]["older_than_records"] is None
-    (tmp_path / "s" / "session.json").write_bytes(early)
+    # That version as if written 30 s before these records (the session went on, its sidecar writes failing).
+    for key in ("start", "written"):
+        early[key]["realtime"] -= 30.0
+    (tmp_path / "s" / "session.json").write_text(json.dumps(early))
     out = dump.session_summary(tmp_path / "s")
     behind = out["sidecar"]["older_than_records"]
-    assert behind and 4.0 < behind["behind_s"] < 7.0, behind
-    assert out["sensors"]["imu"]["records"] == 64 * 6  # the records are all read anyway
+    assert behind and 30.0 < behind["behind_s"] < 32.0, behind
+    assert out["sensors"]["imu"]["records"] == 64  # the records are all read anyway
     assert "the sidecar is older than the records" in dump_text(tmp_path / "s")

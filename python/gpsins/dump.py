@@ -53,18 +53,23 @@ def _imu_details(session: logs.SessionLog) -> dict:
             "missing_by_counter": int(gaps.sum())}
 
 
+# Records this long past the sidecar's version (or 3 write periods, if longer) mean its writes were
+# failing. Less is normal for a killed logger: on a loaded machine a rotation's fsyncs alone took 2.2 s.
+SIDECAR_STALE_S = 10.0
+
+
 def _sidecar_behind(sidecar: dict, last_stamp: float | None) -> dict | None:
     """Whether records go on past the sidecar's last version by more than its
-    write period allows: then its state, counts and parts are older than the
-    records (its writes failed, e.g. on a full disk, and the logger was then
-    killed or never managed to write again)."""
+    writes allow: then its state, counts and parts are older than the records
+    (its writes failed, e.g. on a full disk, and the logger was then killed
+    or never managed to write again)."""
     written = sidecar.get("written")
     if not isinstance(written, dict) or not isinstance(written.get("realtime"), (int, float)) or last_stamp is None:
         return None
     cfg = sidecar.get("config", {}).get("session", {}) if isinstance(sidecar.get("config"), dict) else {}
     period = cfg.get("fsync_interval_s", 1.0) if isinstance(cfg.get("fsync_interval_s"), (int, float)) else 1.0
     behind = last_stamp - float(written["realtime"])
-    if behind <= 2 * period + 1.0:
+    if behind <= max(SIDECAR_STALE_S, 3 * period):
         return None
     return {"written": float(written["realtime"]), "last_record": last_stamp, "behind_s": behind}
 
