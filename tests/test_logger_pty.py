@@ -4,7 +4,6 @@ import os
 import signal
 import subprocess
 import sys
-import time
 
 import numpy as np
 import pytest
@@ -12,7 +11,7 @@ import pytest
 from gpsins import logs
 from gpsins.emulate import Faults
 from gpsins_logger import superstar2 as ss2
-from ptyrig import faulted_bytes, run_rig, sent_ok
+from ptyrig import faulted_bytes, file_size, run_rig, sent_ok, unplug
 
 
 def test_frames_arrive_byte_for_byte_at_nominal_rates(tmp_path):
@@ -56,8 +55,18 @@ def test_every_intact_frame_survives_faults(tmp_path, fault):
 
 
 def test_unplugged_port_is_reopened_while_the_other_keeps_logging(tmp_path):
-    r = run_rig(tmp_path, seconds=5.0, imu_faults=Faults(disconnects=[(1.5, 0.6)]),
-                gps_faults=Faults(disconnects=[(2.5, 0.4)]))
+    def during(proc, em):
+        # Each unplug once the daemon is seen logging both (not at a fixed time a loaded daemon may not have reached).
+        proc.wait_for_frames({"gps": 5, "imu": 32})
+        unplug(em.imu, 0.6)
+        proc.wait_for(lambda: proc.count("imu", "reconnects") == 1 and proc.port_state("imu").get("state") == "open",
+                      "the IMU reopened after its unplug")
+        unplug(em.gps, 0.4)
+        proc.wait_for(lambda: proc.count("gps", "reconnects") == 1 and proc.port_state("gps").get("state") == "open",
+                      "the GPS reopened after its unplug")
+        assert not (em.gps.done.is_set() or em.imu.done.is_set()), "the streams ended before both ports were back"
+
+    r = run_rig(tmp_path, seconds=5.0, during=during)
     assert r.returncode == 0, r.stderr
     for name, em in (("gps", r.emulators.gps), ("imu", r.emulators.imu)):
         assert em.disconnect_count == 1
@@ -87,9 +96,14 @@ def test_clean_stop_on_each_signal(tmp_path, sig):
 
 
 def test_sighup_starts_a_new_part(tmp_path):
+    record = 1 + 8 + 15  # a BP3010 record: header byte, stamp, the rest of the 16-byte frame
+
     def hup(proc, em):
-        time.sleep(1.5)
+        proc.wait_for_frames({"imu": 21})
         proc.send_signal(signal.SIGHUP)
+        second = proc.session_dir / "imu-001.bin"
+        proc.wait_for(lambda: file_size(second) > 20 * record or em.imu.done.is_set(), "21 IMU records in part 1")
+        assert file_size(second) > 20 * record, "the IMU stream ended before part 1 had 21 records"
 
     r = run_rig(tmp_path, seconds=3.0, during=hup)
     assert r.returncode == 0, r.stderr
@@ -101,7 +115,7 @@ def test_sighup_starts_a_new_part(tmp_path):
 
 def test_sigkill_leaves_files_the_reader_accepts(tmp_path):
     def kill(proc, em):
-        time.sleep(1.5)
+        proc.wait_for_frames({"gps": 10, "imu": 32})  # mid-stream, with records in both files
         proc.kill()
 
     r = run_rig(tmp_path, seconds=2.5, during=kill)
