@@ -3,7 +3,6 @@ unwritable session root, unplugged, locked and forbidden devices, a port closing
 
 import contextlib
 import fcntl
-import json
 import os
 import re
 import shutil
@@ -18,10 +17,10 @@ import pytest
 
 from corpora import bp_frames
 from gpsins import logs
-from gpsins.emulate import Faults, PtyLink
+from gpsins.emulate import PtyLink
 from gpsins_logger.port import SensorThread
 from gpsins_logger.recorder import SensorInfo, Session
-from ptyrig import run_rig, sent_ok, write_config
+from ptyrig import file_size, run_rig, sent_ok, unplug, wait_until, write_config
 
 
 @contextlib.contextmanager
@@ -70,6 +69,27 @@ def lines_with(text: str, needle: str) -> list[str]:
     return [ln for ln in text.splitlines() if needle in ln]
 
 
+IMU_RECORD = 1 + 8 + 15  # a BP3010 record: header byte, stamp, the rest of the 16-byte frame
+
+
+def imu_losing(proc, em, imu_file, frames: int = 32):
+    """A condition: the IMU has lost frames to the full disk. The sidecar says so where it can
+    still be written; else the IMU file has not grown while the IMU sent `frames` intact frames
+    and the daemon has read all the IMU sent (so it tried to write them)."""
+    last = {"size": -1, "sent": 0}
+
+    def losing() -> bool:
+        if proc.count("imu", "frames_lost_to_disk_errors") > 0:
+            return True
+        size, sent = file_size(imu_file), len(sent_ok(em.imu))
+        if size != last["size"]:
+            last.update(size=size, sent=sent)
+            return False
+        return sent - last["sent"] >= frames and em.imu.pty.unread_bytes() == 0
+
+    return losing
+
+
 # --- disk --------------------------------------------------------------------------------------------
 
 
@@ -79,12 +99,25 @@ def test_full_disk_mid_run_is_survived_and_logging_resumes(tmp_path):
         marks = {}
 
         def during(proc, em):
-            time.sleep(1.5)
+            imu_file = proc.session_dir / "imu-000.bin"
+            proc.wait_for_frames({"gps": 5, "imu": 32})
+            # Fill when the IMU file's last page is nearly used (that page still takes records on a full
+            # disk): then the IMU loses frames soon after, not up to a page of records (2.7 s) later.
+            page = os.sysconf("SC_PAGE_SIZE")
+            proc.wait_for(lambda: 8 * IMU_RECORD <= -file_size(imu_file) % page <= 24 * IMU_RECORD,
+                          "the IMU file's last page to be nearly full")
             marks["full"] = time.time()
             fill(disk / "filler")
-            time.sleep(2.0)
+            proc.wait_for(imu_losing(proc, em, imu_file), "the IMU to lose frames on the full disk")
             (disk / "filler").unlink()
             marks["free"] = time.time()
+            proc.wait_for_log("work again")
+
+            def late():
+                return any(s.fate == "ok" and s.first_byte_realtime > marks["free"] + 0.5 for s in em.imu.sent)
+
+            proc.wait_for(lambda: late() or em.imu.done.is_set(), "IMU frames sent 0.5 s after the disk was freed")
+            assert late(), "the IMU stream ended within 0.5 s of the disk being freed"
 
         r = run_rig(tmp_path, seconds=6.0, during=during, session_dir=disk / "session",
                     session_extra="raw_reserve_mb = 0")
@@ -168,9 +201,19 @@ def test_unwritable_session_root_exits_2(tmp_path):
 
 def test_replug_is_noticed_within_half_a_second(tmp_path):
     # The shipped back-off settings: a doubling back-off used to wait up to 3.2 s after a replug.
-    r = run_rig(tmp_path, seconds=7.0, imu_faults=Faults(disconnects=[(1.5, 2.5)]),
-                gps_faults=Faults(disconnects=[(2.0, 2.5)]),
-                reconnect_extra="initial_backoff_s = 0.2\nmax_backoff_s = 5.0")
+    def during(proc, em):
+        # Unplugged once the daemon is seen logging both (not at fixed times a loaded daemon may not have
+        # reached), each for 2.5 s, the GPS while the IMU is away.
+        proc.wait_for_frames({"gps": 5, "imu": 32})
+        unplug(em.imu, 2.5)
+        proc.wait_for_state("imu", "absent")
+        unplug(em.gps, 2.5)
+        for name in ("gps", "imu"):
+            proc.wait_for(lambda: proc.count(name, "reconnects") == 1 and proc.port_state(name).get("state") == "open",
+                          f"the {name} port reopened after its unplug")
+        assert not (em.gps.done.is_set() or em.imu.done.is_set()), "the streams ended before both ports were back"
+
+    r = run_rig(tmp_path, seconds=7.0, during=during, reconnect_extra="initial_backoff_s = 0.2\nmax_backoff_s = 5.0")
     assert r.returncode == 0, r.stderr
     for name in ("gps", "imu"):
         em = getattr(r.emulators, name)
@@ -186,10 +229,6 @@ def test_replug_is_noticed_within_half_a_second(tmp_path):
     assert lines_with(r.stderr, "is absent")
 
 
-def _imu_state(tmp_path):
-    return json.loads((tmp_path / "session" / "session.json").read_text())["sensors"]["imu"]["port_state"]
-
-
 def test_forbidden_device_is_named_and_retried_when_its_mode_changes(tmp_path):
     prefix = without_privileges()
     seen = {}
@@ -198,8 +237,7 @@ def test_forbidden_device_is_named_and_retried_when_its_mode_changes(tmp_path):
         os.chmod(os.path.realpath(em.imu.pty.link), 0)
 
     def during(proc, em):
-        time.sleep(1.5)
-        seen["state"] = _imu_state(tmp_path)
+        seen["state"] = proc.wait_for_state("imu", "unopenable")
         os.chmod(os.path.realpath(em.imu.pty.link), 0o660)
         seen["fixed"] = time.time()
 
@@ -227,8 +265,7 @@ def test_busy_device_is_retried_on_the_slow_period(tmp_path):
         held["fd"] = _lock(em.imu.pty.link)
 
     def during(proc, em):
-        time.sleep(1.5)
-        held["state"] = _imu_state(tmp_path)
+        held["state"] = proc.wait_for_state("imu", "unopenable")
         os.close(held.pop("fd"))
         held["released"] = time.time()
 
@@ -252,8 +289,8 @@ def test_config_may_give_up_on_an_unopenable_device(tmp_path):
         held["fd"] = _lock(em.imu.pty.link)
 
     try:
-        r = run_rig(tmp_path, seconds=2.5, before=before, reconnect_extra="unopenable_retry_s = 0.2\n"
-                                                                           "give_up_after_s = 0.5")
+        r = run_rig(tmp_path, seconds=2.5, before=before, during=lambda proc, em: proc.wait_for_state("imu", "gave_up"),
+                    reconnect_extra="unopenable_retry_s = 0.2\ngive_up_after_s = 0.5")
     finally:
         os.close(held["fd"])
     assert r.returncode == 0, r.stderr
@@ -276,19 +313,15 @@ def test_frame_pending_confirmation_is_kept_when_the_port_closes(tmp_path):
     frames = bp_frames(12)
     try:
         thread.start()
-        deadline = time.monotonic() + 10
-        while session.port_state["imu"]["state"] != "open" and time.monotonic() < deadline:
-            time.sleep(0.01)
-        time.sleep(0.1)
+        wait_until(lambda: session.port_state["imu"]["state"] == "open", "the port opened")
         data = b"".join(frames[:10]) + bytes(range(1, 21)) + frames[10]
         for k in range(0, len(data), 16):
             os.write(pty.master, data[k:k + 16])
-            time.sleep(0.005)
-        time.sleep(0.3)
+            time.sleep(0.005)  # the line's pace: 16 bytes at a time
+        wait_until(lambda: session.extra_counts["imu"]["bytes_read"] == len(data), f"all {len(data)} bytes read",
+                   detail=lambda: f"read {session.extra_counts['imu']['bytes_read']}")
         pty.remove()  # unplug
-        deadline = time.monotonic() + 10
-        while session.port_state["imu"]["state"] != "absent" and time.monotonic() < deadline:
-            time.sleep(0.01)
+        wait_until(lambda: session.port_state["imu"]["state"] == "absent", "the port seen absent")
     finally:
         thread.stop()
         thread.join(10)
