@@ -35,6 +35,8 @@ from gpsins_logger.framing import FrameFinder
 from .sources import MessageSource
 
 BITS_PER_BYTE = 10
+DRAIN_WAIT_S = 0.25  # longest wait for the host to read a frame before an overlapping one follows
+DRAIN_POLL_S = 0.0002
 
 
 @dataclass
@@ -97,6 +99,17 @@ class PtyLink:
         except OSError:
             return 0
 
+    def host_has_unread(self) -> bool:
+        """Whether the host has bytes to read. Written bytes reach its queue through a kernel work
+        item, milliseconds later on a loaded machine; polling the queue's end (select) finishes
+        that first, so the answer holds for everything written."""
+        if self.slave < 0:
+            return False
+        try:
+            return bool(select.select([self.slave], [], [], 0)[0])
+        except (OSError, ValueError):
+            return False
+
     def remove(self) -> None:
         self.close()
         if self.link.is_symlink():
@@ -130,6 +143,17 @@ class PtyLink:
             raise
 
 
+def _tight_timers() -> None:
+    """This thread's sleeps end on time (Linux: timer slack 1 us instead of 50 us). A device that
+    wakes late delays its bytes, which a drive served S times faster shows S times larger."""
+    try:
+        import ctypes
+
+        ctypes.CDLL(None, use_errno=True).prctl(29, 1000, 0, 0, 0)  # PR_SET_TIMERSLACK, ns
+    except (OSError, AttributeError):
+        pass
+
+
 class DeviceEmulator(threading.Thread):
     """Common machinery: pacing, faults, disconnects, host input."""
 
@@ -142,6 +166,7 @@ class DeviceEmulator(threading.Thread):
         self.source = source
         self.speed = speed
         self.byte_time_s = BITS_PER_BYTE / baud / speed
+        self.line_byte_s = BITS_PER_BYTE / baud  # the configured line's byte time, as the host counts it
         self.faults = faults or Faults()
         self.chunk_bytes = chunk_bytes
         self.rng = np.random.default_rng([self.faults.seed, 1 if self.device == "superstar2" else 2])
@@ -152,7 +177,9 @@ class DeviceEmulator(threading.Thread):
         self._inflight: tuple[SentFrame, int] | None = None  # the frame being written, bytes written so far
         self._stop_event = threading.Event()
         self._line_free = 0.0
+        self._line_done = -np.inf  # when the configured line would have carried the last frame's bytes
         self._start_mono = 0.0
+        self.start_mono: float | None = None  # a run start shared with other devices (set before start())
         self._mono_to_real = 0.0
         self._online = True
         self._pending_disconnects = sorted(self.faults.disconnects)
@@ -252,14 +279,24 @@ class DeviceEmulator(threading.Thread):
             self.garbage_bytes += len(garbage)
         data = garbage + wire
         start = max(self._mono_at(t), self._line_free)
-        first_byte = start + len(garbage) * self.byte_time_s
+        # The host dates a frame's first byte back from when it read the frame, at its configured
+        # byte time. Served S times faster, bytes on the sped-up line would make that date early by
+        # (length - 1) byte times (1 - 1/S), a length-dependent error the alignment cannot see. So
+        # the first byte takes the sped-up byte time and the rest of the frame follows at the
+        # line's own: the host's date is then the first byte's end at every speed.
+        first_byte = start + len(garbage) * self.line_byte_s
         record = SentFrame(frame, fate, first_byte + self._mono_to_real, len(garbage), len(wire))
         self.sent.append(record)
         generation = self.pty.generation
         self._inflight = (record, 0)
+        # Faster than the line can carry, this frame starts before the last one would have left it;
+        # read together, the last one would be dated back over this one's bytes too (early). So the
+        # host reads it first (waited for ahead of the write, which then goes out on time).
+        if start < self._line_done and not self._wait_for_host_read(time.monotonic() + DRAIN_WAIT_S):
+            return
         for k in range(0, len(data), self.chunk_bytes):
             chunk = data[k:k + self.chunk_bytes]
-            if not self._wait_until(start + (k + len(chunk)) * self.byte_time_s):
+            if not self._wait_until(start + self.byte_time_s + (k + len(chunk) - 1) * self.line_byte_s):
                 return
             if self.pty.generation != generation or not self._online or not self.pty.write_all(
                     chunk, time.monotonic() + 1.0):
@@ -268,6 +305,15 @@ class DeviceEmulator(threading.Thread):
             self._inflight = (record, k + len(chunk))
         self._inflight = None
         self._line_free = start + len(data) * self.byte_time_s
+        self._line_done = start + len(data) * self.line_byte_s
+
+    def _wait_for_host_read(self, deadline: float) -> bool:
+        """Serve host input until the host has read every byte written (or the deadline); False when stopping."""
+        while self._online and time.monotonic() < deadline and self.pty.host_has_unread():
+            if self._stop_event.is_set():
+                return False
+            self._service(DRAIN_POLL_S)
+        return not self._stop_event.is_set()
 
     # -- hooks --------------------------------------------------------------------
     def host_present(self) -> bool:
@@ -280,8 +326,9 @@ class DeviceEmulator(threading.Thread):
         pass
 
     def run(self) -> None:
-        self._start_mono = time.monotonic()
-        self._mono_to_real = time.time() - self._start_mono
+        _tight_timers()
+        self._start_mono = time.monotonic() if self.start_mono is None else self.start_mono
+        self._mono_to_real = time.time() - time.monotonic()
         self._line_free = self._start_mono
         try:
             self.stream()
@@ -414,6 +461,11 @@ class Emulators:
         return [self.gps, self.imu]
 
     def start(self) -> None:
+        # One run start for all devices: threads start a fraction of a millisecond apart, which a
+        # drive served S times faster would turn into S times that offset between the streams.
+        t0 = time.monotonic() + 0.01
+        for d in self.devices:
+            d.start_mono = t0
         for d in self.devices:
             d.start()
 
