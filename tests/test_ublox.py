@@ -8,9 +8,6 @@ import json
 import math
 import signal
 import struct
-import subprocess
-import sys
-import time
 from collections import Counter
 from pathlib import Path
 
@@ -28,6 +25,7 @@ from gpsins.sources import UbloxSimSource, UbxCaptureSource
 from gpsins_logger import config as logger_config
 from gpsins_logger import ubx
 from gpsins_logger.framing import FrameFinder
+from ptyrig import host_wrote, start_daemon, wait_until_quiet
 
 START = {"gps_week": 1590, "gps_tow_s": 419400.0, "lat_deg": 59.37, "lon_deg": 17.95, "height_m": 30.0,
          "heading_deg": 160.0}
@@ -231,22 +229,33 @@ def _record(tmp: Path, source, *, speed=1.0, baud=460800, faults=None, config_fa
                         config_fault=config_fault, serve_all=serve_all)
     cfg = _config(tmp / "logger.toml", tmp / "dev", tmp / "sessions", baud, extra, bp3010)
     session = tmp / "session"
-    proc = subprocess.Popen([sys.executable, "-m", "gpsins_logger.daemon", "--config", str(cfg), "--session-dir",
-                             str(session)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = None
     try:
-        assert proc.stdout.readline().strip() == str(session)
+        proc = start_daemon(cfg, session)
+        # The receiver sends NMEA from its start whether or not anyone listens (the first GGA 30 ms in at
+        # speed 2): it starts once the daemon has opened its ports and written to them (the open flushes
+        # what came before), not at once, where a loaded daemon's late open lost the first sentence.
+        proc.wait_for(lambda: all(host_wrote(d) for d in em.devices), "the daemon's first request on every port")
         em.start()
         assert em.wait(source.duration_s / speed + 60), "emulators did not finish"
-        time.sleep(0.5)  # the last frames through the logger
+        # The last frames through the logger: the set-up handshake answered (or timed out), then everything read
+        # (the receiver's NMEA does not wait for the host, so the bytes sent are not all the daemon can read).
+        proc.wait_for(lambda: _handshake_done(proc.sidecar()), "the receiver set-up to finish")
+        wait_until_quiet(proc, {"gps": em.gps, **({"imu": em.imu} if em.imu else {})})
         proc.send_signal(signal.SIGINT)
-        _, err = proc.communicate(timeout=30)
+        err = proc.finish(timeout=30)
     finally:
-        if proc.poll() is None:
+        if proc is not None and proc.poll() is None:
             proc.kill()
             proc.wait()
         em.stop()
     assert proc.returncode == 0, err
     return em, logs.read_session(session), json.loads((session / "session.json").read_text()), err
+
+
+def _handshake_done(sidecar: dict) -> bool:
+    rec = sidecar.get("sensors", {}).get("gps", {}).get("receiver")
+    return bool(rec) and all(step["result"] != "pending" for step in rec["configuration"])
 
 
 def _sent(em, kind="ubx"):
