@@ -95,9 +95,6 @@ def test_damaged_tags_and_streams_are_named(tmp_path):
     _write_tag(tag, [(10, 30), (20, 16)])
     with pytest.raises(ReaderError, match=r"offset \d+\): offset: stream offset goes back"):
         rtklib_tag.read(tag)
-    _write_tag(tag, [(10, 16)], magic=b"NOT A TAG")
-    with pytest.raises(ReaderError, match="offset 0"):
-        rtklib_tag.read(tag)
     csv.write_text("x\n0,0,1,0,0,0,100\n0,0,1,0,0,0,90\n0,0,1,0,0,0,96\n")
     with pytest.raises(ReaderError, match=r"imu.csv:3: counter: the counter does not increase"):
         imu_csv.read_counter_rows(csv, COLUMNS)
@@ -118,3 +115,104 @@ def test_raw_walk_data_set_reads_the_counter_times():
               for x in (ds.imu, sf)]
     print("specific force change per sample, raw / filtered (m/s^2):", jitter[0].round(3), jitter[1].round(3))
     assert jitter[0][2] > 1.8 * jitter[1][2] and np.all(jitter[0] > jitter[1])
+
+
+# --- the layout from the file's structure, whatever its label -------------------------------------------------
+
+def _walk_tags_as(layout: rtklib_tag.Layout, label: bytes) -> bytes:
+    """The walk's tag file rewritten in another layout (and label), the same start time, ticks and offsets."""
+    data = (WALK / "imu_1730.csv.tag").read_bytes()
+    tick_f, seconds, fraction = struct.unpack_from("<IId", data, rtklib_tag.TEXT_BYTES)
+    pairs = np.frombuffer(data, rtklib_tag.PAIR, offset=rtklib_tag.HEADER_BYTES).astype(layout.pair)
+    time = struct.pack("<Id", seconds, fraction) if layout.time_bytes == 12 else struct.pack("<qd", seconds, fraction)
+    return label.ljust(rtklib_tag.TEXT_BYTES, b"\0") + struct.pack("<I", tick_f) + time + pairs.tobytes()
+
+
+@pytest.fixture(scope="module")
+def walk_tags():
+    return rtklib_tag.read(WALK / "imu_1730.csv.tag")
+
+
+def _same_tags(a, b):
+    assert a.start_t_abs == b.start_t_abs
+    np.testing.assert_array_equal(a.tick_ms, b.tick_ms)
+    np.testing.assert_array_equal(a.offset, b.offset)
+
+
+@pytest.mark.parametrize("label", [b"TIMETAG RTKLIB demo5 b34k", b"TIMETAG RTKLIB 2.4.3 b34", b"imu logger, run 7",
+                                   b""], ids=["demo5", "2.4.3", "arbitrary", "empty"])
+def test_a_relabelled_tag_file_reads_as_the_original(tmp_path, walk_tags, label):
+    data = (WALK / "imu_1730.csv.tag").read_bytes()
+    tag = tmp_path / "imu_1730.csv.tag"
+    tag.write_bytes(label.ljust(rtklib_tag.TEXT_BYTES, b"\0") + data[rtklib_tag.TEXT_BYTES:])
+    got = rtklib_tag.read(tag)
+    _same_tags(got, walk_tags)
+    assert got.label == label.decode() and got.layout == walk_tags.layout == rtklib_tag.LAYOUTS[0].name
+    assert walk_tags.label == "TIMETAG RTKLIB EX"
+
+
+@pytest.mark.parametrize("layout", rtklib_tag.LAYOUTS[1:], ids=lambda x: x.name.split(" (")[0])
+def test_the_other_layouts_give_the_same_tags(tmp_path, walk_tags, layout):
+    """16-byte start times (gtime_t as it lies in memory) and 8-byte offsets (::P=8), each labelled as the walk's
+    EX file is: the label does not choose, the structure does."""
+    tag = tmp_path / "imu.tag"
+    tag.write_bytes(_walk_tags_as(layout, b"TIMETAG RTKLIB EX"))
+    got = rtklib_tag.read(tag)
+    assert got.layout == layout.name
+    _same_tags(got, walk_tags)
+
+
+def test_a_handful_of_tags_that_fill_two_layouts_read_as_the_one_with_a_streams_offsets(tmp_path):
+    """Three tags with 4-byte offsets after a 16-byte start time fill the file as two with 8-byte offsets too, and
+    both read monotonic: (5, 20 + 9 * 2^32), (40, 30 + 64 * 2^32). The stream's own offsets are the small ones."""
+    lay = rtklib_tag.LAYOUTS[3]
+    data = b"x".ljust(60, b"\0") + struct.pack("<Iqd", 7, 1756402240, 0.25) + \
+        np.array([(5, 20), (9, 40), (30, 64)], lay.pair).tobytes()
+    assert len(data) - rtklib_tag.LAYOUTS[1].header_bytes == 2 * rtklib_tag.LAYOUTS[1].pair.itemsize
+    path = tmp_path / "s.tag"
+    path.write_bytes(data)
+    got = rtklib_tag.read(path)
+    assert got.layout == lay.name and got.tick_ms.tolist() == [5, 9, 30] and got.offset.tolist() == [20, 40, 64]
+    assert got.start_t_abs == 1756402240.25 - UNIX_TO_GPS_S
+
+
+def test_a_tag_file_cut_mid_pair_reads_without_its_last_pair(tmp_path, walk_tags):
+    tag = tmp_path / "cut.tag"
+    tag.write_bytes((WALK / "imu_1730.csv.tag").read_bytes()[:-3])
+    got = rtklib_tag.read(tag)
+    assert got.cut_bytes == 5 and got.layout == walk_tags.layout and walk_tags.cut_bytes == 0
+    np.testing.assert_array_equal(got.offset, walk_tags.offset[:-1])
+    np.testing.assert_array_equal(got.tick_ms, walk_tags.tick_ms[:-1])
+
+
+def _refusal(tmp_path, data: bytes, stream: bytes | None = None) -> str:
+    tag, beside = tmp_path / "bad.csv.tag", tmp_path / "bad.csv"
+    tag.write_bytes(data)
+    beside.unlink(missing_ok=True)
+    if stream is not None:
+        beside.write_bytes(stream)
+    with pytest.raises(ReaderError) as e:
+        rtklib_tag.read(tag)
+    msg = str(e.value)
+    assert msg.startswith(str(tag)) and "\n" not in msg and e.value.offset is not None and e.value.field
+    return msg
+
+
+def test_a_file_that_fits_no_layout_is_refused_saying_why(tmp_path):
+    walk = (WALK / "imu_1730.csv.tag").read_bytes()
+    csv = (WALK / "imu_1730.csv").read_bytes()[:20000]
+    head = walk[:rtklib_tag.HEADER_BYTES]
+    assert "shorter than the 76-byte header" in _refusal(tmp_path, walk[:70])
+    # The IMU's own CSV given as its tag file: its text label passes, its "start fraction" (ASCII digits read as
+    # a double, 1e-100 or so) does not, and no layout's does.
+    msg = _refusal(tmp_path, csv[:76 + 8 * 100])
+    assert "start time: start fraction 1.1" in msg and "is not a clock's fraction of a second" in msg
+    assert "no text label (byte 0x01)" in _refusal(tmp_path, b"\x01" + walk[1:])
+    bad_fraction = head[:68] + struct.pack("<d", 1.5) + walk[76:]
+    assert "start time: start fraction 1.5 is not a clock's fraction of a second" in _refusal(tmp_path, bad_fraction)
+    # Offsets beyond the stream file beside the tag (a tag file of another, longer stream).
+    assert "beyond the stream file's 1000 bytes" in _refusal(tmp_path, walk, stream=bytes(1000))
+    # Ticks that go back at every other tag: no host clock.
+    pairs = np.frombuffer(walk, rtklib_tag.PAIR, offset=76).copy()
+    pairs["tick_ms"][1::2] = 3
+    assert "tick: host ticks go back at" in _refusal(tmp_path, head + pairs.tobytes())
