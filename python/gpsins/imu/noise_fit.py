@@ -5,13 +5,35 @@
 
 Q quantisation (rad or m/s), N white rate noise (rad/sqrt(s), m/s/sqrt(s)), B bias
 instability (rad/s, m/s^2), K rate random walk (rad/s/sqrt(s), m/s^2/sqrt(s)), R
-rate ramp (rad/s^2, m/s^3). Fitted by non-negative least squares on the variance,
-each point weighted by its relative uncertainty (sqrt(edf / 2) / AVAR of the model,
-iterated from the data's AVAR), terms switchable. The slope read-outs of the report (N on the -1/2 line at tau = 1, K on
-the +1/2 line at tau = 3, B = minimum / 0.664) are given for comparison, but only
-from taus with at least MIN_EDF equivalent degrees of freedom: at the last taus of
-a record (2-3 degrees of freedom) the curve scatters by tens of percent and its
-minimum is picked where it scattered low.
+rate ramp (rad/s^2, m/s^3); terms switchable.
+
+The sensor's own output filter. A sensor that low-passes its samples (the ADIS16405's
+Bartlett FIR, any anti-alias filter) makes them correlated: with g_k the autocovariance
+of the white part at lag k (zero beyond L samples), the second difference of m >= L
+samples gives exactly
+
+    AVAR(tau) = N^2 / tau - 3 F^2 / tau^2,   N^2 = tau0 sum_k g_k,   F^2 = tau0^2 sum_{k>=1} k g_k,
+
+a white-phase term of negative sign (a first-order filter of time constant T: F^2 = N^2 T / 2).
+So the 1/tau^2 coefficient is fitted with either sign: positive is quantisation (Q),
+negative the filter (reported as F); ADEV alone cannot tell the two apart where both act.
+Without it the bend of the shortest taus, which hold by far the most degrees of freedom,
+was taken up by B: a synthetic 2.78 h, 100 Hz record through a 40 Hz low-pass got B twice
+its read-out and a curve above the data from 0.1 s on, as the issue's ADIS16405 log did.
+
+Fitted by least squares in log AVAR (coefficients >= 0 but the 1/tau^2 one), each tau
+weighted by the chi-square spread of its estimate: log(chi2_nu / nu) has mean
+psi(nu/2) - ln(nu/2) (subtracted) and variance psi'(nu/2), nu the equivalent degrees of
+freedom. In logs a last tau with two degrees of freedom whose ADEV scattered ten times low
+is a three-sigma point, not one that drags the fit down. Taus shorter than the filter's length
+follow no term: the shortest taus are left out while the fit misses the shortest one kept
+by more than TRIM_SIGMA (within the first decade; `fitted_from_tau_s` says where it starts).
+
+The slope read-outs of the report (N on the -1/2 line at tau = 1, K on the +1/2 line at
+tau = 3, B = minimum / 0.664) are given for comparison, but only from taus with at least
+MIN_EDF equivalent degrees of freedom: at the last taus of a record (2-3 degrees of
+freedom) the curve scatters by tens of percent and its minimum is picked where it
+scattered low.
 """
 
 from __future__ import annotations
@@ -20,10 +42,13 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import nnls
+from scipy.optimize import least_squares, nnls
+from scipy.special import digamma, polygamma
 
 TERMS = ("Q", "N", "B", "K", "R")
 MIN_EDF = 10.0  # slope read-outs use only taus with this many equivalent degrees of freedom
+TRIM_SIGMA = 5.0  # a shortest tau missed by more than this many sigmas of its log AVAR is left out
+EDF_UNKNOWN = 200.0  # degrees of freedom assumed per tau when none are given (10 % in AVAR)
 FLAT = math.sqrt(2.0 * math.log(2.0) / math.pi)  # 0.664: ADEV floor per unit B
 
 # Unit conversions to the report's table units.
@@ -50,6 +75,7 @@ class NoiseFit:
     sigma: dict  # 1-sigma uncertainty of each coefficient
     model_adev: np.ndarray
     slope_readouts: dict = field(default_factory=dict)
+    fitted_from_tau_s: float = 0.0  # the shortest tau the fit used (shorter ones: the sensor's filter)
 
 
 def fit(tau: np.ndarray, adev: np.ndarray, edf: np.ndarray | None = None, terms=("Q", "N", "B", "K"),
@@ -57,26 +83,72 @@ def fit(tau: np.ndarray, adev: np.ndarray, edf: np.ndarray | None = None, terms=
     tau = np.asarray(tau, dtype=float)
     av = np.asarray(adev, dtype=float) ** 2
     a = basis(tau, terms, gm_tau_s)
-    rel = np.sqrt(2.0 / np.asarray(edf, dtype=float)) if edf is not None else np.full(len(tau), 0.1)
-    w = 1.0 / (rel * av)
-    coef, _ = nnls(a * w[:, None], av * w)
-    # Reweight by the model, not the data: a point that scattered low (the last taus, a few degrees
-    # of freedom) would otherwise get a weight 1 / AVAR large enough to drag the whole fit down.
-    for _ in range(4):
-        model = np.maximum(a @ coef, 1e-300)
-        w = 1.0 / (rel * model)
-        coef, _ = nnls(a * w[:, None], av * w)
+    nu = np.full(len(tau), EDF_UNKNOWN) if edf is None else np.maximum(np.asarray(edf, dtype=float), 1.0)
+    y = np.log(av) - (digamma(nu / 2) - np.log(nu / 2))  # unbiased log AVAR
+    sd = np.sqrt(polygamma(1, nu / 2))
     names = list(terms) + [f"GM{T:g}" for T in gm_tau_s]
-    # Uncertainty from the weighted normal matrix of the active terms.
-    active = coef > 0
+    signed = np.array([n == "Q" for n in names])
+    # Unknowns are each term's share of the data (coefficient / scale): all of order one.
+    scale = np.array([np.median(av / a[:, j]) for j in range(a.shape[1])])
+    b = a * scale
+    # Start: every tau weighted alike in relative terms, the signed term as two columns.
+    z, _ = nnls(np.column_stack([b, -b[:, signed]]) / av[:, None], np.ones(len(tau)))
+    x0 = z[:len(names)].copy()
+    x0[signed] -= z[len(names):]
+    x0 = np.where(signed, x0, np.maximum(x0, 1e-6))
+
+    def model(x):
+        return b @ x
+
+    def resid(x):
+        m = model(x)
+        return (np.log(np.maximum(m, 1e-12 * av)) - y) / sd
+
+    def jac(x):
+        m = model(x)
+        j = b / (m * sd)[:, None]
+        j[m <= 1e-12 * av] = 0.0  # a negative model there: a constant penalty, no gradient
+        return j
+
+    lo = np.where(signed, -np.inf, 0.0)
+
+    def solve(x, used):
+        return least_squares(lambda v: resid(v)[used], x, jac=lambda v: jac(v)[used], bounds=(lo, np.inf),
+                             method="trf", x_scale="jac", xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=500).x
+
+    # The shortest taus go while the fit misses the shortest one kept by more than TRIM_SIGMA: below
+    # the length of a sensor's output filter no term describes the curve, and these taus hold the
+    # most degrees of freedom. Only within the first decade of taus, and never below p + 3 taus.
+    first = 0
+    x = solve(x0, slice(0, None))
+    last_first = min(int(np.searchsorted(tau, 10.0 * tau[0])), len(tau) - len(names) - 3)
+    while first < last_first and abs(resid(x)[first]) > TRIM_SIGMA:
+        first += 1
+        x = solve(x, slice(first, None))
+    used = np.arange(len(tau)) >= first
+    x = np.where(signed | (x > 1e-9), x, 0.0)  # a term at its bound: absent (the solver stops just above)
+    coef = x * scale
+    # Uncertainty from the normal matrix of the active terms over the taus used, widened by the
+    # scatter when the model misses by more than the chi-square allows.
+    r = resid(x)[used]
+    active = (coef != 0) & ((coef > 0) | signed)
     cov = np.zeros((len(coef), len(coef)))
     if active.any():
-        j = (a * w[:, None])[:, active]
-        cov_a = np.linalg.pinv(j.T @ j)
-        cov[np.ix_(active, active)] = cov_a
+        j = jac(x)[used][:, active]
+        dof = max(int(used.sum()) - int(active.sum()), 1)
+        birge = max(1.0, float(np.sum(r ** 2)) / dof)
+        sa = scale[active]
+        cov[np.ix_(active, active)] = np.linalg.pinv(j.T @ j) * np.outer(sa, sa) * birge
     value, sigma = {}, {}
+    out_names = list(names)
     for i, n in enumerate(names):
-        c = math.sqrt(coef[i])
+        c = coef[i]
+        if n == "Q" and c < 0:
+            value["Q"], sigma["Q"] = 0.0, 0.0
+            value["F"], sigma["F"] = math.sqrt(-c), math.sqrt(cov[i, i]) / (2.0 * math.sqrt(-c))
+            out_names.append("F")
+            continue
+        c = math.sqrt(max(c, 0.0))
         value[n] = c
         sigma[n] = math.sqrt(cov[i, i]) / (2.0 * c) if c > 0 else math.sqrt(math.sqrt(max(cov[i, i], 0.0)))
     ro = slope_readouts(tau, np.sqrt(av), edf, min_edf)
@@ -84,10 +156,11 @@ def fit(tau: np.ndarray, adev: np.ndarray, edf: np.ndarray | None = None, terms=
         # The minimum also holds the white noise, random walk and quantisation there (the curve of a
         # MEMS gyro rarely flattens): less the fitted other terms, the read-out is comparable with B.
         t = np.array([ro["tau_at_min_s"]])
-        others = sum(value.get(k, 0.0) ** 2 * basis(t, (k,))[0, 0] for k in ("Q", "N", "K", "R") if k in terms)
+        keep = [i for i, n in enumerate(names) if n in ("Q", "N", "K", "R")]
+        others = float(basis(t, terms, gm_tau_s)[0, keep] @ coef[keep]) if keep else 0.0
         left = (ro["B_min_over_0.664"] * FLAT) ** 2 - others
         ro["B_min_less_other_terms"] = float(math.sqrt(left) / FLAT) if left > 0 else 0.0
-    return NoiseFit(tuple(names), value, sigma, np.sqrt(a @ coef), ro)
+    return NoiseFit(tuple(out_names), value, sigma, np.sqrt(np.maximum(a @ coef, 0.0)), ro, float(tau[first]))
 
 
 def slope_readouts(tau: np.ndarray, adev: np.ndarray, edf: np.ndarray | None = None,
@@ -115,6 +188,14 @@ def slope_readouts(tau: np.ndarray, adev: np.ndarray, edf: np.ndarray | None = N
             "taus_used": int(ok.sum()), "max_tau_used_s": float(tau[-1])}
 
 
+RATE_UNITS = {"gyro": "rad/s", "accel": "m/s^2"}
+
+
+def rate_unit(name: str) -> str:
+    """SI unit of a column's rate from its name (gyro_x, accel, ...); 'u' when the name does not say."""
+    return RATE_UNITS.get(name.split("_")[0], "u")
+
+
 def table_units(kind: str, fitres: NoiseFit) -> dict:
     """Coefficients in the report's table units: gyro deg/sqrt(h), deg/h, deg/h/sqrt(h);
     accelerometer m/s/sqrt(h), m/s^2, m/s^2/sqrt(h)."""
@@ -128,9 +209,9 @@ def table_units(kind: str, fitres: NoiseFit) -> dict:
 
 
 def fit_term_curve(tau: np.ndarray, f: NoiseFit, term: str) -> np.ndarray | None:
-    """ADEV of one fitted term alone (for plots)."""
+    """ADEV of one fitted term alone (for plots); None for F, which only takes variance away."""
     c = f.value.get(term, 0.0)
-    if c <= 0:
+    if c <= 0 or term == "F":
         return None
     if term.startswith("GM"):
         return c * np.sqrt(basis(tau, (), (float(term[2:]),))[:, 0])
