@@ -97,3 +97,32 @@ def test_fit_follows_an_adis_shaped_record(filtered):
     if filtered:
         assert v["F"] == pytest.approx(math.sqrt(3.0 / 8.0 / RATE_HZ) * N, rel=0.05)
 
+
+def _ylabels(monkeypatch) -> list[str]:
+    import matplotlib.axes
+
+    seen = []
+    original = matplotlib.axes.Axes.set_ylabel
+    monkeypatch.setattr(matplotlib.axes.Axes, "set_ylabel",
+                        lambda self, label, *a, **k: (seen.append(label), original(self, label, *a, **k))[1])
+    return seen
+
+
+def test_one_undeclared_column_is_analysed_in_its_own_unit(tmp_path, monkeypatch, capsys):
+    from gpsins import cli
+
+    y = np.random.default_rng(1).normal(0.0, 1e-3 * math.sqrt(10.0), 20_000)  # N = 1e-3 u sqrt(s)
+    np.savetxt(tmp_path / "one.csv", y[:, None], delimiter=",")
+    seen = _ylabels(monkeypatch)
+    assert cli.main(["allan", str(tmp_path / "one.csv"), "--rate", "10", "--json", str(tmp_path / "a.json"),
+                     "--out", str(tmp_path / "out")]) == 0
+    err = capsys.readouterr().err
+    assert "one undeclared column" in err and "--columns gyro_x" in err
+    import json
+
+    doc = json.loads((tmp_path / "a.json").read_text())
+    assert list(doc["axes"]) == ["col"] and doc["axes"]["col"]["units"]["rate"] == "u"
+    assert doc["axes"]["col"]["fit"]["N"] == pytest.approx(1e-3, rel=0.05)
+    assert seen == ["Allan deviation (u)", "one-sided PSD ((u)^2/Hz)"]
+    assert (tmp_path / "out" / "allan_col.png").exists() and not (tmp_path / "out" / "imu_noise.toml").exists()
+

@@ -147,10 +147,15 @@ def test_rate_table_and_up_down_recover_simulated_truth():
     assert printed == pytest.approx(-2.0, abs=0.01)
 
 
-def test_allan_cli_writes_json_plots_and_filter_files(tmp_path, capsys):
+def test_allan_cli_writes_json_plots_and_filter_files(tmp_path, capsys, monkeypatch):
+    import matplotlib.axes
+
     y, _ = synthetic_imu(hours=0.5)
     data = np.column_stack([y, 0.5 * y, y, 10 * y, 10 * y, 10 * y])
     np.save(tmp_path / "rates.npy", data)
+    labels, set_ylabel = [], matplotlib.axes.Axes.set_ylabel
+    monkeypatch.setattr(matplotlib.axes.Axes, "set_ylabel",
+                        lambda self, label, *a, **k: (labels.append(label), set_ylabel(self, label, *a, **k))[1])
     assert cli.main(["allan", str(tmp_path / "rates.npy"), "--rate", "64", "--json", str(tmp_path / "a.json"),
                      "--out", str(tmp_path / "out")]) == 0
     doc = json.loads((tmp_path / "a.json").read_text())
@@ -158,6 +163,8 @@ def test_allan_cli_writes_json_plots_and_filter_files(tmp_path, capsys):
     gx, gy = doc["axes"]["gyro_x"], doc["axes"]["gyro_y"]
     assert gy["fit"]["N"] == pytest.approx(0.5 * gx["fit"]["N"], rel=1e-6)
     assert (tmp_path / "out" / "allan_gyro.png").stat().st_size > 10_000
+    assert labels == ["Allan deviation (rad/s)", "one-sided PSD ((rad/s)^2/Hz)",
+                      "Allan deviation (m/s^2)", "one-sided PSD ((m/s^2)^2/Hz)"]  # the sensors' units, not "SI"
     import tomllib
     noise = tomllib.loads((tmp_path / "out" / "imu_noise.toml").read_text())["imu_noise"]
     assert noise["gyro_arw_rad_per_sqrt_s"][0] == pytest.approx(gx["fit"]["N"])

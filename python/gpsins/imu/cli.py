@@ -21,17 +21,56 @@ def _error(message: str) -> Exception:
     return CommandError(message)
 
 
+GENERIC = "col"  # the name of a single undeclared column
+
+
+def _one_column(source: str) -> bool:
+    """A CSV/NPY file of one column (read as records.load reads it: NPY, CSV by commas, else blanks)."""
+    p = Path(source)
+    if not p.is_file():
+        return False
+    try:
+        if p.suffix == ".npy":
+            shape = np.load(p, mmap_mode="r").shape
+            return len(shape) == 1 or (len(shape) == 2 and shape[1] == 1)
+        with p.open(encoding="utf-8", errors="replace") as fh:
+            for line in fh:
+                line = line.split("#", 1)[0].strip()
+                if line:
+                    return len(line.split(",") if p.suffix == ".csv" else line.split()) == 1
+    except (OSError, ValueError):
+        return False  # records.load says what is wrong with it
+    return False
+
+
 def load_rates(source: str, rate_hz: float | None, columns: str | None = None, start_s: float | None = None,
                end_s: float | None = None) -> tuple[np.ndarray, float, tuple[str, ...]]:
     """(n, k) rate samples: a session's IMU (gyro rad/s then accel m/s^2) or a CSV/NPY file whose
-    columns are declared (six columns default to gyro x y z, accel x y z)."""
+    columns are declared (six columns default to gyro x y z, accel x y z). One undeclared column
+    is analysed as it is, named GENERIC: whether it is rad/s or m/s^2 the file cannot say, and the
+    numbers and axes are then in the column's own unit."""
+    generic = columns is None and _one_column(source)
     try:
-        rec = records.load(source, rate_hz, columns, start_s, end_s)
+        # records knows only sensor kinds: a gyro column without a unit (factor 1) reads it unchanged.
+        rec = records.load(source, rate_hz, "gyro_x" if generic else columns, start_s, end_s)
     except records.RecordError as e:
         raise _error(str(e)) from None
     for note in rec.notes:
         print(f"gpsins allan: warning: {source}: {note}", file=sys.stderr)
+    if generic:
+        print(f"gpsins allan: note: {source}: one undeclared column, analysed in its own unit (u below: rad/s "
+              f"for a gyro, m/s^2 for an accelerometer, if it is in SI); --columns gyro_x or accel_x (a unit after "
+              f"a colon, e.g. gyro_x:deg/s) names it and gives the report's units", file=sys.stderr)
+        return rec.rates, rec.rate_hz, (GENERIC,)
     return rec.rates, rec.rate_hz, rec.columns
+
+
+def units(name: str) -> dict:
+    """Units of a column's rate and of its fitted terms (u for an undeclared column)."""
+    r = noise_fit.rate_unit(name)
+    i = {"rad/s": "rad", "m/s^2": "m/s"}.get(r, "u s")  # the integrated rate
+    n = f"{i}/sqrt(s)" if r != "u" else "u sqrt(s)"
+    return {"rate": r, "psd": f"({r})^2/Hz", "N": n, "B": r, "K": f"{r}/sqrt(s)", "Q": i, "F": i}
 
 
 def run_allan(args) -> int:
@@ -58,6 +97,10 @@ def run_allan(args) -> int:
             f = noise_fit.fit(r.tau, r.adev, r.edf, min_edf=min_edf)
             results[name], fits[name] = r, f
             bar.advance(task)
+    for name, f in fits.items():
+        if f.fitted_from_tau_s > results[name].tau[0]:
+            print(f"gpsins allan: note: {name}: fitted from tau = {f.fitted_from_tau_s:g} s; the shorter taus follow "
+                  f"the sensor's output filter, which no term describes", file=sys.stderr)
     print(f"{len(data)} samples at {rate:g} Hz ({len(data) / rate / 3600:.2f} h), {estimator} Allan deviation")
     short = int((next(iter(results.values())).edf < min_edf).sum())
     if short:
@@ -66,13 +109,17 @@ def run_allan(args) -> int:
     if moved:
         print("noise terms withheld: the record moved (see the warning); trim it with --start-s / --end-s")
     else:
-        print(f"{'axis':8s} {'N (SI)':>11s} {'B (SI)':>11s} {'K (SI)':>11s} {'Q (SI)':>11s}  report units")
+        print(f"{'axis':8s} {'N':>11s} {'B':>11s} {'K':>11s} {'Q':>11s} {'F':>11s}  report units")
         for name in names:
             f = fits[name]
-            kind = "gyro" if name.startswith("gyro") else "accel"
-            tu = noise_fit.table_units(kind, f)
-            print(f"{name:8s} " + " ".join(f"{f.value.get(t, 0):11.3e}" for t in ("N", "B", "K", "Q")) + "  " +
-                  ", ".join(f"{k} {v:.4g}" for k, v in tu.items()))
+            kind = name.split("_")[0]
+            tu = noise_fit.table_units(kind, f) if kind in ("gyro", "accel") else {}
+            print(f"{name:8s} " + " ".join(f"{f.value.get(t, 0):11.3e}" for t in ("N", "B", "K", "Q", "F")) + "  " +
+                  (", ".join(f"{k} {v:.4g}" for k, v in tu.items()) or "-"))
+        for kind in dict.fromkeys(n.split("_")[0] for n in names):
+            u = units(kind)
+            print(f"  {kind}: N {u['N']}, B {u['B']}, K {u['K']}, Q {u['Q']}, F {u['F']} (F: the 1/tau^2 term when "
+                  f"negative, the sensor's output filter)")
     if args.json:
         doc = {"rate_hz": rate, "samples": len(data), "estimator": estimator, "min_edf": min_edf,
                "moved": moved, "axes": {}}
@@ -84,14 +131,17 @@ def run_allan(args) -> int:
                                  "eq59_rel_sigma": np.broadcast_to(r.rel_sigma_eq59, r.tau.shape).tolist(),
                                  "eq59_lo": r.eq59_lo.tolist(), "eq59_hi": r.eq59_hi.tolist(),
                                  "fit": None if moved else f.value, "fit_sigma": None if moved else f.sigma,
+                                 "fitted_from_tau_s": None if moved else f.fitted_from_tau_s,
+                                 "units": units(name),
                                  "slope_readouts": None if moved else f.slope_readouts}
         Path(args.json).write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
     if out:
         out.mkdir(parents=True, exist_ok=True)
         _plots(out, names, results, fits, data, rate)
-        if tuple(names) == AXES and not moved:
+        files = tuple(names) == AXES and not moved
+        if files:
             _filter_files(out, fits, rate)
-        print(f"figures{'' if moved else ' and parameter files'} in {out}")
+        print(f"figures{' and parameter files' if files else ''} in {out}")
     return 0
 
 
@@ -101,7 +151,7 @@ def _plots(out: Path, names, results, fits, data, rate) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    for group in ("gyro", "accel", "col"):
+    for group in ("gyro", "accel", GENERIC):
         cols = [n for n in names if n.startswith(group)]
         if not cols:
             continue
@@ -113,7 +163,8 @@ def _plots(out: Path, names, results, fits, data, rate) -> None:
             axs[0].fill_between(r.tau, r.lo, r.hi, alpha=0.2, color=color, lw=0)
             axs[0].loglog(r.tau, r.eq59_lo, "--", lw=0.6, color=color)
             axs[0].loglog(r.tau, r.eq59_hi, "--", lw=0.6, color=color)
-            axs[0].loglog(r.tau, f.model_adev, "-", lw=1, color=color)
+            fitted = r.tau >= f.fitted_from_tau_s
+            axs[0].loglog(r.tau[fitted], f.model_adev[fitted], "-", lw=1, color=color)
             for term in f.terms:
                 single = noise_fit.fit_term_curve(r.tau, f, term)
                 if single is not None:
@@ -126,13 +177,14 @@ def _plots(out: Path, names, results, fits, data, rate) -> None:
         axs[0].fill_between([], [], [], color="0.5", alpha=0.3, label="confidence band")
         axs[1].legend(fontsize=8)
         axs[0].set_xlabel("tau (s)")
-        axs[0].set_ylabel("Allan deviation (SI)")
+        u = units(group)
+        axs[0].set_ylabel(f"Allan deviation ({u['rate']})")
         axs[0].set_title(f"{group}: data, {100 * results[cols[0]].confidence:.0f} % band, fit (solid), "
                          f"terms (dotted), eq. 5.9 (dashed)", fontsize=8)
         axs[0].legend(fontsize=8)
         axs[1].set_xlabel("frequency (Hz)")
-        axs[1].set_ylabel("one-sided PSD (SI^2/Hz)")
-        axs[1].set_title("PSD, log-averaged")
+        axs[1].set_ylabel(f"one-sided PSD ({u['psd']})")
+        axs[1].set_title("PSD, log-averaged" + ("; u: the column's own unit (undeclared)" if group == GENERIC else ""))
         fig.tight_layout()
         fig.savefig(out / f"allan_{group}.png", dpi=110)
         plt.close(fig)

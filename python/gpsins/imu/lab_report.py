@@ -141,7 +141,8 @@ def figures(res: dict) -> dict[str, bytes]:
             axs[0].fill_between(r.tau, r.lo, r.hi, alpha=0.2, color=line.get_color())
             axs[0].loglog(r.tau, r.eq59_lo, "--", lw=0.7, color=line.get_color())
             axs[0].loglog(r.tau, r.eq59_hi, "--", lw=0.7, color=line.get_color())
-            axs[0].loglog(r.tau, f.model_adev, "-", lw=1, color=line.get_color())
+            fitted = r.tau >= f.fitted_from_tau_s  # shorter taus: the sensor's filter, not fitted
+            axs[0].loglog(r.tau[fitted], f.model_adev[fitted], "-", lw=1, color=line.get_color())
             short = r.edf < res["min_edf"]
             if short.any():
                 axs[0].loglog(r.tau[short], r.adev[short], "x", color="k", ms=5)
@@ -149,12 +150,13 @@ def figures(res: dict) -> dict[str, bytes]:
             axs[1].loglog(fc, pc, label=n, color=line.get_color())
             axs[1].axhline(2 * v["N_psd"] ** 2, ls=":", lw=0.8, color=line.get_color())
         axs[0].set_xlabel("tau (s)")
-        axs[0].set_ylabel("Allan deviation (SI)")
+        unit = noise_fit.rate_unit(group)
+        axs[0].set_ylabel(f"Allan deviation ({unit})")
         axs[0].set_title(f"{group}: {res['estimator']} ADEV, chi-square band (shaded), eq. 5.9 (dashed), fit;\n"
                          f"x: edf < {res['min_edf']:g}", fontsize=9)
         axs[0].legend(fontsize=8)
         axs[1].set_xlabel("frequency (Hz)")
-        axs[1].set_ylabel("one-sided PSD (SI^2/Hz)")
+        axs[1].set_ylabel(f"one-sided PSD (({unit})^2/Hz)")
         axs[1].set_title("PSD with frequency averaging; dotted: white level 2 N^2", fontsize=9)
         fig.tight_layout()
         buf = io.BytesIO()
