@@ -19,8 +19,11 @@ Two methods:
      recording served faster than real time or a drifting clock is no special
      case) and removed; what is left is a clock offset that is constant between
      realtime clock steps, plus delays that are never negative. A stamp far
-     below its neighbours on both sides cannot be a delay: it is a damaged stamp
-     and is left out. A step is a change of the running minimum that lasts (the
+     below the floors of the stamps on both sides cannot be a delay: it is a
+     damaged stamp and is left out (a few in a row or close together too: each
+     floor is a low order statistic, not the minimum). "Far" is GPS time, what
+     a damaged stamp left in would cost: served S times faster, S times fewer
+     system seconds. A step is a change of the running minimum that lasts (the
      minimum over a window is blind to delays shorter than the window; the
      threshold grows with the delays). A step up undone by one down of the same
      size within 10 s is a host stall longer than the window, not two steps.
@@ -54,6 +57,7 @@ edge of a group's lower convex hull (Qhull).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -62,7 +66,8 @@ METHODS = ("robust", "report")
 GPS_WINDOW = 30  # ID 23 blocks (3 s at 10 Hz) for running minima: longer than a host stall
 IMU_WINDOW_S = 3.0
 MIN_SIDE = 15  # blocks on each side before a step can be told from delays
-OUTLIER_TOL_S = 0.002  # a stamp this far below both neighbourhoods' minima is damaged
+OUTLIER_TOL_S = 0.001  # GPS seconds: a stamp this far below the floors on both sides is damaged
+DAMAGE_SHARE = 64  # a floor is the (1 + w // 64)-th smallest of w stamps: one damaged in 64 does not lower it
 UNWRAP_WINDOW_S = 10.0  # longer than host stalls: the floor on each side of a gap
 MEDIAN_FRAMES = 5  # frames whose median stands for one frame's time in the coarse cut
 PIECE_GAP_S = 1.0  # an IMU gap this long may restart its clock: fit each side on its own
@@ -212,34 +217,74 @@ def _running_min(y: np.ndarray, w: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 DAMAGE_BLOCK = 1 << 18  # values per block of _damaged_low
+DAMAGE_SWEEPS = 8  # repeats of the damaged-stamp test with the damage found left out
+DAMAGE_SUBBLOCKS = 4  # sub-blocks per neighbourhood of the damaged-stamp test
 
 
-def _damaged_low(y: np.ndarray, w: int, tol: float) -> np.ndarray:
-    """Values below every neighbour within w on both sides by more than tol. Delays only ever
-    raise a stamp and a clock step moves all later ones: a lone low stamp is damage. The
-    tolerance grows with the delays: the minimum of w exponential delays exceeds 7/w of their
-    mean once in a thousand, so a good stamp is rarely below both windows by more."""
+def _poisson_quantile(k: int, p: float = 1e-3) -> float:
+    """The c with P(Poisson(c) < k) = p: the k-th smallest of w exponential delays of mean mu
+    exceeds c mu / w with probability p (c = 6.9 for the minimum)."""
+    lo, hi = 0.0, 100.0
+    for _ in range(60):
+        c = 0.5 * (lo + hi)
+        tail = sum(math.exp(-c) * c ** j / math.factorial(j) for j in range(k))
+        lo, hi = (c, hi) if tail > p else (lo, c)
+    return hi
+
+
+def _damaged_low(y: np.ndarray, w: int, tol: float, order: int = 1) -> np.ndarray:
+    """Values below the floors of the w values before and after them by more than tol, each floor
+    the `order`-th smallest of those values (up to order - 1 damaged values among them do not
+    lower it). Delays only ever raise a stamp and a clock step moves all later ones: stamps below
+    the floors on both sides are damage. The neighbourhoods are whole sub-blocks of w / 4 values,
+    the value's own sub-block left out, so a run of damaged values is found as well as a lone one.
+    The tolerance grows with the delays: the order-th smallest of w exponential delays exceeds
+    c/w of their mean once in a thousand (``_poisson_quantile``), so a good stamp is rarely below
+    both floors by more. The test is repeated with the damage found left out of the floors, until
+    nothing new is found."""
     n = len(y)
     if n < 3:
         return np.zeros(n, dtype=bool)
-    # Block by block, each with the w values either side it needs (a day's IMU stamps without
-    # day-long temporaries); the same numbers as over the whole series.
-    floor = np.empty(n)
-    delays = np.empty(n)
-    m = 0
-    for a in range(0, n, DAMAGE_BLOCK):
-        b = min(a + DAMAGE_BLOCK, n)
-        lo, hi = max(0, a - w), min(n, b + w + 1)
-        left, right_incl = _running_min(y[lo:hi], w)
-        right = np.concatenate([right_incl[1:], [np.inf]])
-        f = floor[a:b] = np.minimum(left[a - lo:b - lo], right[a - lo:b - lo])
-        ok = np.isfinite(f)
-        d = np.maximum(y[a:b][ok] - f[ok], 0.0)
-        delays[m:m + len(d)] = d
-        m += len(d)
-    mean_delay = float(np.median(delays[:m], overwrite_input=True)) / np.log(2.0) if m else 0.0
-    del delays
-    return y < floor - max(tol, 7.0 * mean_delay / w)
+    w = max(1, min(int(w), n))
+    q = max(1, w // DAMAGE_SUBBLOCKS)  # values per sub-block
+    side = -(-w // q)  # sub-blocks per neighbourhood
+    k = max(1, min(int(order), side * q))
+    kk = min(k, q)  # of each sub-block, the kk smallest can hold a neighbourhood's k smallest
+    nsb = -(-n // q)
+    step = max(1, DAMAGE_BLOCK // q) * q  # values per pass through the series: whole sub-blocks
+    bad = np.zeros(n, dtype=bool)
+    limit = None
+    for _ in range(DAMAGE_SWEEPS):
+        small = np.empty((nsb, kk))
+        for a in range(0, n, step):  # a day's stamps without day-long temporaries
+            v = np.where(bad[a:a + step], np.inf, y[a:a + step])
+            v = np.concatenate([v, np.full(-len(v) % q, np.inf)]).reshape(-1, q)
+            small[a // q:a // q + len(v)] = np.partition(v, kk - 1, axis=1)[:, :kk] if kk < q else v
+        pad = np.full((side, kk), np.inf)
+        near = np.lib.stride_tricks.sliding_window_view(np.concatenate([pad, small, pad]), side, axis=0)
+        near = np.partition(near.reshape(len(near), -1), k - 1, axis=1)[:, k - 1]  # sub-blocks i..i+side-1
+        floor = np.minimum(near[:nsb], near[side + 1:])  # the side sub-blocks before and after each
+        del near
+        if limit is None:
+            delays = np.empty(n)
+            m = 0
+            for a in range(0, n, step):
+                f = np.repeat(floor[a // q:(a + step) // q], q)[:min(step, n - a)]
+                ok = np.isfinite(f)
+                d = np.maximum(y[a:a + step][ok] - f[ok], 0.0)
+                delays[m:m + len(d)] = d
+                m += len(d)
+            mean_delay = float(np.median(delays[:m], overwrite_input=True)) / np.log(2.0) if m else 0.0
+            del delays
+            limit = max(tol, _poisson_quantile(k) * mean_delay / w)
+        new = np.zeros(n, dtype=bool)
+        for a in range(0, n, step):
+            f = np.repeat(floor[a // q:(a + step) // q], q)[:min(step, n - a)]
+            new[a:a + step] = (y[a:a + step] < f - limit) & ~bad[a:a + step]
+        if not new.any():
+            break
+        bad |= new
+    return bad
 
 
 SLOPE_BLOCK = 1 << 18  # points per block of _median_slope: a day's IMU stamps without day-long temporaries
@@ -359,7 +404,9 @@ def fit_gps_clock(tow: np.ndarray, stamps: np.ndarray, latency_s: float, step_th
                              f"or times of week are unusable")
     lag = s - rate0 * x
     damaged = ~good
-    damaged[good] = _damaged_low(lag[good], GPS_WINDOW, OUTLIER_TOL_S)
+    # The tolerance is what a damaged stamp left in may cost in GPS time: served S times faster,
+    # a system second is S GPS seconds.
+    damaged[good] = _damaged_low(lag[good], GPS_WINDOW, OUTLIER_TOL_S * rate0, 1 + GPS_WINDOW // DAMAGE_SHARE)
     keep = np.flatnonzero(~damaged)
     if len(keep) < 3:
         raise AlignmentError(f"only {len(keep)} GPS measurement blocks have a usable stamp")
@@ -604,8 +651,12 @@ def align(gps_tow: np.ndarray, gps_stamps: np.ndarray, week: int, imu_stamps: np
     # Damaged IMU stamps: far below both neighbourhoods once the counter's trend is removed.
     nc = _counter_steps(imu_counter)
     w = max(8, int(IMU_WINDOW_S * rate_hz))
-    trend = _median_slope(nc.astype(float), s, max(1.0, 0.25 * float(np.ptp(nc)))) if np.ptp(nc) > 0 else period
-    usable = ~_damaged_low(s - trend * nc, w, OUTLIER_TOL_S)
+    # (Slopes over at most 10 s, as for the frame period below: over longer spans, the pairs that
+    # straddle a gap the counter cannot count or a clock step bias it, and its residual slope
+    # shows in the floors beside a step.)
+    trend = (_median_slope(nc.astype(float), s, max(1.0, min(0.25 * float(np.ptp(nc)), 10.0 * rate_hz)))
+             if np.ptp(nc) > 0 else period)
+    usable = ~_damaged_low(s - trend * nc, w, OUTLIER_TOL_S * float(clock.rate[0]), 1 + w // DAMAGE_SHARE)
 
     # Stage 2: each clock step's cut in the IMU stream, coarse first.
     n_seg = len(clock.starts)
