@@ -689,6 +689,12 @@ def align(gps_tow: np.ndarray, gps_stamps: np.ndarray, week: int, imu_stamps: np
         n = unwrap_counter(imu_counter, mapped, period, usable, int(UNWRAP_WINDOW_S / period))
     # Stage 4: the IMU clock (the stamps and counter steps no longer needed: a day of them is 90 MB).
     del s, nc
+    # With the gaps counted and the clock steps taken out, the mapped times less the counter's
+    # are one flat series (GPS seconds): damage right beside a gap or a step, which the test on the
+    # stamps could only compare with one side, shows here.
+    if np.ptp(n) > 0:
+        flat = _median_slope(n.astype(float), mapped, max(1.0, min(0.25 * float(np.ptp(n)), 10.0 * rate_hz)))
+        usable &= ~_damaged_low(mapped - flat * n, w, OUTLIER_TOL_S, 1 + w // DAMAGE_SHARE)
     t, p, pieces = _fit_imu_clock(n, mapped, usable, period, int(PIECE_GAP_S / period))
     if np.any(np.diff(t) <= 0):
         i = int(np.flatnonzero(np.diff(t) <= 0)[0]) + 1
