@@ -380,7 +380,7 @@ def test_rtklib_pos_ecef_week_seconds_and_errors(tmp_path):
     assert np.all(f.sigma_ned_m[1] == 0.0)  # zero sigmas are kept as they are: floors are the filter's business
     assert f.v_ned_mps is None
     p.write_text(POS_ECEF.replace("4079493.4000", "4079493.4x00"))
-    with pytest.raises(ReaderError, match=r"e\.pos:4: row"):
+    with pytest.raises(ReaderError, match=r"e\.pos:4: z-ecef\(m\): bad value"):
         rtklib_pos.read(p)
     p.write_text("2381 408639.750 1 2 3 5 9\n")
     with pytest.raises(ReaderError, match="no column header"):

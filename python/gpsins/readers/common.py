@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import datetime as dt
 import gzip
+from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -77,7 +78,8 @@ class Fixes:
 
     q follows RTKLIB: 1 fix, 2 float, 3 SBAS, 4 DGPS, 5 single, 6 PPP (0: unknown).
     sigma_ned_m / sigma_v_ned_mps are as the source states them (they may be zero: the
-    user of the fixes applies floors); NaN where the source has none.
+    user of the fixes applies floors); NaN where the source has none. ``skipped`` counts the rows the reader
+    left out (a value written as nan or inf, ...), by reason.
     """
 
     t_abs: np.ndarray  # (n,)
@@ -88,6 +90,7 @@ class Fixes:
     v_ned_mps: np.ndarray | None = None  # (n, 3), NaN rows where absent
     sigma_v_ned_mps: np.ndarray | None = None  # (n, 3)
     source: str = ""
+    skipped: Counter = field(default_factory=Counter)
 
     def __len__(self) -> int:
         return len(self.t_abs)
@@ -95,7 +98,7 @@ class Fixes:
     def select(self, keep: np.ndarray) -> "Fixes":
         pick = (lambda a: None if a is None else a[keep])
         return Fixes(self.t_abs[keep], self.r_ecef[keep], self.sigma_ned_m[keep], self.q[keep], self.ns[keep],
-                     pick(self.v_ned_mps), pick(self.sigma_v_ned_mps), self.source)
+                     pick(self.v_ned_mps), pick(self.sigma_v_ned_mps), self.source, Counter(self.skipped))
 
     def llh(self) -> np.ndarray:
         from .. import _core
@@ -167,6 +170,7 @@ class Navigation:
     # Galileo's BGD(E1, E5a) by core id: the E1/E5a pair's group delay (I/NAV word type 5), which the
     # ephemeris's tgd_s (BGD(E1, E5b), for the E1 single-frequency user) does not carry.
     bgd_e1_e5a_s: dict[int, float] = field(default_factory=dict)
+    skipped: Counter = field(default_factory=Counter)  # records the reader left out, by reason
 
     def store(self):
         from .. import _core
@@ -193,3 +197,12 @@ def read_bytes(path: str | Path) -> bytes:
 
 def read_text_lines(path: str | Path) -> list[str]:
     return read_bytes(path).decode("ascii", errors="replace").splitlines()
+
+
+def finite_rows(a: np.ndarray) -> np.ndarray:
+    """Which rows of a table hold only finite values."""
+    a = np.asarray(a, float)
+    return np.isfinite(a.reshape(len(a), -1)).all(1)
+
+
+NON_FINITE_ROWS = "rows with a value written as nan or inf (dropped)"

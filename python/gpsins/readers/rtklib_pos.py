@@ -19,12 +19,13 @@ from __future__ import annotations
 
 import datetime as dt
 import re
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
 
 from .. import _core
-from .common import Fixes, ReaderError, gps_seconds, leap_seconds, read_text_lines, SECONDS_PER_WEEK
+from .common import NON_FINITE_ROWS, SECONDS_PER_WEEK, Fixes, ReaderError, gps_seconds, leap_seconds, read_text_lines
 
 
 def _time_parser(header: list[str], path):
@@ -49,12 +50,13 @@ def _time_parser(header: list[str], path):
 
 def read(path: str | Path, geoid_height_m: float | None = None) -> Fixes:
     """Fixes from a .pos; ``geoid_height_m``: the geoid's height above the ellipsoid, added to heights above the
-    geoid (None: the heights are taken as ellipsoidal, as RTKLIB writes them by default)."""
+    geoid (None: the heights are taken as ellipsoidal, as RTKLIB writes them by default). Rows with a value
+    written as nan or inf, and a last row cut short, are dropped and counted in ``skipped``; any other row
+    shorter than the header is an error."""
     path = Path(path)
     lines = read_text_lines(path)
-    header = None
+    header, header_line = None, None
     rows = []
-    first_line = None
     for i, line in enumerate(lines):
         if line.startswith("%"):
             text = line[1:].strip()
@@ -62,26 +64,24 @@ def read(path: str | Path, geoid_height_m: float | None = None) -> Fixes:
                 raise ReaderError(path, "heights are above the geoid (header says geodetic): give the geoid height",
                                   line=i + 1, field="height")
             if re.match(r"^(GPST|UTC|JST)\b", text):
-                header = text.split()
+                header, header_line = text.split(), i + 1
             continue
         if not line.strip():
             continue
         if header is None:
-            raise ReaderError(path, "no column header ('%  GPST ...') before the data", line=i + 1)
-        if first_line is None:
-            first_line = i
+            raise ReaderError(path, "no column header ('%  GPST ...') before the data", line=i + 1, field="header")
         rows.append((i + 1, line.split()))
     if header is None:
-        raise ReaderError(path, "no column header ('%  GPST ...')")
+        raise ReaderError(path, "no column header ('%  GPST ...')", line=len(lines) + 1, field="header")
     names = header[1:]
     lower = [n.lower() for n in names]
-    kind = "llh" if lower[0].startswith("latitude") else "xyz" if lower[0].startswith("x-ecef") else \
-        "enu" if lower[0].startswith("e-baseline") else None
-    if kind is None:
-        raise ReaderError(path, f"unknown position columns {names[:3]}", line=first_line, field="header")
+    kind = None if not lower else "llh" if lower[0].startswith("latitude") else \
+        "xyz" if lower[0].startswith("x-ecef") else "enu" if lower[0].startswith("e-baseline") else None
+    if kind is None or len(names) < 3:
+        raise ReaderError(path, f"unknown position columns {names[:3]}", line=header_line, field="header")
     if kind == "enu":
         raise ReaderError(path, "ENU baseline solutions have no absolute position; write lat/lon/height or ECEF",
-                          field="header")
+                          line=header_line, field="header")
     parse_time = _time_parser(header, path)
     col = {n: k for k, n in enumerate(lower)}
 
@@ -101,26 +101,47 @@ def read(path: str | Path, geoid_height_m: float | None = None) -> Fixes:
     ns = np.zeros(n, int)
     vel = np.full((n, 3), np.nan)
     sdv = np.full((n, 3), np.nan)
+    finite, cut = np.ones(n, bool), np.zeros(n, bool)
     dms = None
     for k, (lineno, tok) in enumerate(rows):
         try:
+            field = "time"
             t[k] = parse_time(tok[:2])
             rest = tok[2:]
             if kind == "llh":
                 if dms is None:  # "d m s" needs 3 tokens for each angle: the row is 4 tokens longer
                     dms = len(rest) >= len(names) + 4
                 if dms:
+                    field = names[0]
                     lat = _dms(rest[0:3])
+                    field = names[1]
                     lon = _dms(rest[3:6])
                     rest = [str(lat), str(lon)] + rest[6:]
-            values = [float(x) for x in rest[:len(names)]]
-            if len(values) < 5:
-                raise ValueError(f"{len(values)} columns, expected {len(names)}")
-        except (ValueError, IndexError) as e:
-            raise ReaderError(path, f"bad row ({e})", line=lineno, field="row") from None
+            values = []
+            for j, x in enumerate(rest[:len(names)]):
+                field = names[j]
+                values.append(float(x))
+        except (ValueError, IndexError, OverflowError) as e:
+            raise ReaderError(path, f"bad value ({e})", line=lineno, field=field) from None
+        if len(values) < len(names):
+            if k == n - 1:  # the file was cut while its last row was written
+                cut[k] = True
+                continue
+            raise ReaderError(path, f"{len(values)} values where the header has {len(names)} columns", line=lineno,
+                              field="row")
+        if not (np.isfinite(values).all() and np.isfinite(t[k])):
+            finite[k] = False
+            continue
         pos[k] = values[0:3]
-        q[k] = int(values[iq]) if iq is not None else 0
-        ns[k] = int(values[ins]) if ins is not None and ins < len(values) else 0
+        if kind == "llh" and not (abs(values[0]) <= 90.0 and abs(values[1]) <= 360.0):
+            raise ReaderError(path, f"{values[0]!r}, {values[1]!r} is no latitude, longitude", line=lineno,
+                              field=f"{names[0]} {names[1]}")
+        for name, i, lo, hi, out in (("Q", iq, 0, 255, q), ("ns", ins, 0, 1 << 16, ns)):
+            if i is not None and i < len(values):
+                if not (lo <= values[i] <= hi):
+                    raise ReaderError(path, f"{values[i]!r} is not a {name} ({lo} to {hi})", line=lineno,
+                                      field=names[i])
+                out[k] = int(values[i])
         for j in range(3):
             if isd[j] is not None and isd[j] < len(values):
                 sd[k, j] = values[isd[j]]
@@ -128,6 +149,15 @@ def read(path: str | Path, geoid_height_m: float | None = None) -> Fixes:
                 vel[k, j] = values[ivel[j]]
             if isv[j] is not None and isv[j] < len(values):
                 sdv[k, j] = values[isv[j]]
+    skipped = Counter()
+    if not finite.all():
+        skipped[f"GNSS {NON_FINITE_ROWS}"] = int((~finite).sum())
+    if cut.any():
+        skipped["GNSS rows cut short at the end of the file (dropped)"] = 1
+    if not finite.all() or cut.any():
+        keep = finite & ~cut
+        t, pos, sd, q, ns, vel, sdv = (a[keep] for a in (t, pos, sd, q, ns, vel, sdv))
+        n = len(t)
     if kind == "llh":
         llh = np.column_stack([np.radians(pos[:, 0]), np.radians(pos[:, 1]), pos[:, 2] + (geoid_height_m or 0.0)])
         r = _core.geodetic_to_ecef(llh) if n else np.zeros((0, 3))
@@ -150,7 +180,8 @@ def read(path: str | Path, geoid_height_m: float | None = None) -> Fixes:
             sv_ned = None
     order = np.argsort(t, kind="stable")
     return Fixes(t[order], np.asarray(r).reshape(-1, 3)[order], sd_ned[order], q[order], ns[order],
-                 None if v_ned is None else v_ned[order], None if sv_ned is None else sv_ned[order], path.name)
+                 None if v_ned is None else v_ned[order], None if sv_ned is None else sv_ned[order], path.name,
+                 skipped)
 
 
 def _dms(tokens: list[str]) -> float:

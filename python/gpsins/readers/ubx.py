@@ -93,6 +93,7 @@ class UbxFile:
     damage: list[Damage] = field(default_factory=list)
     subframes: Counter = field(default_factory=Counter)  # GPS LNAV subframe and Galileo I/NAV page statistics
     source: str = ""
+    skipped: Counter = field(default_factory=Counter)  # decoded values left out (non-finite, impossible), by reason
 
     def signal(self, gnss: int = GNSS_GPS, sig: int = 0) -> Pseudoranges:
         """One system's signal from RAWX with a valid pseudorange (``prn`` is the system's own satellite number);
@@ -202,7 +203,7 @@ def _days_from_civil(y, m, d):
     return era * 146097 + doe - 719468
 
 
-def _decode_rawx(data: bytes, frames) -> tuple[np.ndarray, np.ndarray, list[int], list[int]]:
+def _decode_rawx(data: bytes, frames, skipped: Counter) -> tuple[np.ndarray, np.ndarray, list[int], list[int]]:
     heads, blocks, t_rows = [], [], []
     for start, length in frames:
         if length < 16:
@@ -210,11 +211,23 @@ def _decode_rawx(data: bytes, frames) -> tuple[np.ndarray, np.ndarray, list[int]
         tow, week, leap, n, rec_stat, _ = RAWX_HEAD.unpack_from(data, start)
         if length < 16 + 32 * n:
             continue
+        if not 0.0 <= tow < SECONDS_PER_WEEK + 1.0:  # a good checksum over a bad double (NaN, inf, garbage)
+            skipped["RXM-RAWX epochs with an impossible time of week (dropped)"] += 1
+            continue
         heads.append((week, leap if rec_stat & 1 else None))
         blocks.append(data[start + 16:start + 16 + 32 * n])
         t_rows.append(np.full(n, week * SECONDS_PER_WEEK + tow))
     meas = np.frombuffer(b"".join(blocks), RAWX_MEAS) if blocks else np.zeros(0, RAWX_MEAS)
     t = np.concatenate(t_rows) if t_rows else np.zeros(0)
+    bad = ((meas["trk"] & 1) == 1) & ~np.isfinite(meas["pr_m"])
+    if bad.any():
+        skipped["RXM-RAWX pseudoranges written as NaN or inf (dropped)"] = int(bad.sum())
+        meas, t = meas[~bad], t[~bad]
+    if not np.isfinite(meas["doppler_hz"]).all():
+        meas = meas.copy()
+        odd = ~np.isfinite(meas["doppler_hz"])
+        skipped["RXM-RAWX Dopplers written as NaN or inf (taken as absent)"] = int(odd.sum())
+        meas["doppler_hz"][odd] = np.nan
     weeks = [w for w, _ in heads]
     leaps = [x for _, x in heads if x is not None]
     return t, meas, weeks, leaps
@@ -361,7 +374,8 @@ def parse(data: bytes, source: str = "<bytes>", path=None) -> UbxFile:
         by_type.setdefault((cls, mid), []).append((start, length))
         counts[NAMES.get((cls, mid), f"{cls:02X}-{mid:02X}")] += 1
 
-    t_meas, meas, weeks, leaps = _decode_rawx(data, by_type.get((0x02, 0x15), []))
+    skipped = Counter()
+    t_meas, meas, weeks, leaps = _decode_rawx(data, by_type.get((0x02, 0x15), []), skipped)
     pvt, t_pvt = _decode_pvt(data, by_type.get((0x01, 0x07), []))
     week_hint = int(np.median(weeks)) if weeks else (int(np.nanmedian(t_pvt) // SECONDS_PER_WEEK)
                                                       if np.isfinite(t_pvt).any() else None)
@@ -383,7 +397,7 @@ def parse(data: bytes, source: str = "<bytes>", path=None) -> UbxFile:
     nav = Navigation(ephs, lnav.alpha, lnav.beta, int(np.median(leaps)) if leaps else None, inav.bgd_e1_e5a_s)
 
     out = UbxFile(t_meas, meas, Pseudoranges.empty(source), pvt_fixes(pvt, t_pvt, source), pvt, t_pvt, nav, counts,
-                  damage, lnav.stats + inav.stats, source)
+                  damage, lnav.stats + inav.stats, source, skipped)
     e1 = out.signal(GNSS_GALILEO, 0)  # the pilot E1 C where tracked, else E1 B
     out.pseudoranges = _with_galileo(out.signal(GNSS_GPS, 0), e1 if len(e1) else out.signal(GNSS_GALILEO, 1))
     return out
