@@ -114,6 +114,7 @@ py::dict counters_dict(const Counters& c) {
   d["fixes"] = c.fixes;
   d["fixes_accepted"] = c.fixes_accepted;
   d["fixes_rejected"] = c.fixes_rejected;
+  d["fixes_implausible"] = c.fixes_implausible;
   d["fixes_dop_masked"] = c.fixes_dop_masked;
   d["fixes_without_solution"] = c.fixes_without_solution;
   d["fixes_before_alignment"] = c.fixes_before_alignment;
@@ -124,6 +125,7 @@ py::dict counters_dict(const Counters& c) {
   d["baseline_attitude_updates"] = c.baseline_attitude_updates;
   d["updates_rejected"] = c.updates_rejected;
   d["updates_guarded"] = c.updates_guarded;
+  d["updates_downweighted"] = c.updates_downweighted;
   d["standstill_samples"] = c.standstill_samples;
   d["pseudorange_epochs"] = c.pseudorange_epochs;
   d["pseudoranges_used"] = c.pseudoranges_used;
@@ -148,6 +150,8 @@ py::dict update_dict(const UpdateRecord& u) {
   d["dof"] = u.dof;
   d["nis"] = u.nis;
   d["gate"] = u.gate;
+  d["log_det_s"] = u.log_det_s;
+  d["r_scale"] = u.r_scale;
   d["accepted"] = u.accepted;
   d["guarded"] = u.guarded;
   d["innovation"] = py::make_tuple(u.innovation[0], u.innovation[1], u.innovation[2]);
@@ -413,7 +417,7 @@ py::dict run_batch(InsFilter<NB, NC, NT>& f, const Array& imu, const Array& fixe
     out["covariance"] = cov;
   }
   const auto nu = static_cast<py::ssize_t>(log.size());
-  Array ut({nu}), nis({nu}), gate({nu}), innov({nu, py::ssize_t(3)}), isig({nu, py::ssize_t(3)});
+  Array ut({nu}), nis({nu}), gate({nu}), logdet({nu}), rscale({nu}), innov({nu, py::ssize_t(3)}), isig({nu, py::ssize_t(3)});
   py::array_t<int> kind({nu}), id({nu}), dof({nu});
   py::array_t<bool> acc({nu}), guarded({nu});
   for (py::ssize_t i = 0; i < nu; ++i) {
@@ -421,6 +425,8 @@ py::dict run_batch(InsFilter<NB, NC, NT>& f, const Array& imu, const Array& fixe
     ut.mutable_at(i) = u.t_s;
     nis.mutable_at(i) = u.nis;
     gate.mutable_at(i) = u.gate;
+    logdet.mutable_at(i) = u.log_det_s;
+    rscale.mutable_at(i) = u.r_scale;
     kind.mutable_at(i) = u.kind;
     id.mutable_at(i) = u.id;
     dof.mutable_at(i) = u.dof;
@@ -438,6 +444,8 @@ py::dict run_batch(InsFilter<NB, NC, NT>& f, const Array& imu, const Array& fixe
   upd["dof"] = dof;
   upd["nis"] = nis;
   upd["gate"] = gate;
+  upd["log_det_s"] = logdet;
+  upd["r_scale"] = rscale;
   upd["accepted"] = acc;
   upd["guarded"] = guarded;
   upd["innovation"] = innov;
@@ -692,6 +700,10 @@ void bind_filter(py::module_& m) {
   GPSINS_FIELD(nhc_interval_s);
   GPSINS_FIELD(gate_probability);
   GPSINS_FIELD(update_check);
+  GPSINS_FIELD(robust_after_rejections);
+  GPSINS_FIELD(fix_min_dop);
+  GPSINS_FIELD(fix_min_height_m);
+  GPSINS_FIELD(fix_max_height_m);
   GPSINS_FIELD(max_attitude_correction_rad);
   GPSINS_FIELD(gnss_reset_timeout_s);
   GPSINS_FIELD(gnss_reset_max_dop);

@@ -430,7 +430,10 @@ void InsFilter<NB, NC, NT>::note_gnss(bool accepted, double t) {
 }
 
 // Position and velocity from GNSS with their initial spread (PX4 EKF2's reset
-// after its fusion timeout); cross terms with the other states dropped.
+// after its fusion timeout); cross terms with the other states dropped. The attitude
+// that let the filter drift off is suspect too: its tilt and yaw variances grow by the
+// initial levelling's and heading's, so the fixes after the reset can correct it (a
+// reset that kept the attitude's old confidence left a car's pitch 2-3 deg off).
 template <int NB, int NC, int NT>
 void InsFilter<NB, NC, NT>::reset_to_fix(const FixInput& fix) {
   ++counters_.gnss_resets;
@@ -451,14 +454,21 @@ void InsFilter<NB, NC, NT>::reset_to_fix(const FixInput& fix) {
   }
   // The nominal stands for the fix's time plus the IMU time offset.
   if constexpr (NT == 1) core_.nav.r_ecef_m += core_.nav.v_ecef_mps * core_.time_offset_s;
-  P.template middleRows<6>(es::vel).setZero();
-  P.template middleCols<6>(es::vel).setZero();
+  const Geodetic llh = ecef_to_geodetic(core_.nav.r_ecef_m);
+  const Mat3 c_bn = core_.nav.q_eb.toRotationMatrix().transpose() * rot_ned_to_ecef(llh.lat_rad, llh.lon_rad);
+  const Mat3 att_ned = c_bn.transpose() * P.template block<3, 3>(es::att, es::att) * c_bn;
+  const Vec3 att_var = att_ned.diagonal() + square(Vec3(cfg_.attitude_sigma_rad.x(), cfg_.attitude_sigma_rad.y(),
+                                                        heading_known_ ? cfg_.heading_sigma_rad : cfg_.attitude_sigma_rad.z()));
+  P.template topRows<9>().setZero();
+  P.template leftCols<9>().setZero();
+  P.template block<3, 3>(es::att, es::att) = c_bn * att_var.asDiagonal() * c_bn.transpose();
   P.template block<3, 3>(es::vel, es::vel) = Mat3::Identity() * var_v;
   // The fix's own spread where it is wider than the configured initial one.
   const double s_fix = cfg_.fix_uere_m * std::max(fix.hdop, fix.vdop);
   P.template block<3, 3>(es::pos, es::pos) =
       Mat3::Identity() * std::max(cfg_.position_sigma_m * cfg_.position_sigma_m, s_fix * s_fix);
-  core_.note_restart(es::vel, 6);
+  core_.note_restart(es::att, 9);
+  rejections_in_row_.fill(0);
   if constexpr (Core::kHasClock) clock_set_ = false;
 }
 
@@ -570,7 +580,7 @@ void InsFilter<NB, NC, NT>::constrain_vehicle(const Increment& inc) {
   if (core_.nav.v_ecef_mps.norm() < cfg_.nhc_min_speed_mps) return;
   last_nhc_t_ = t_last_;
   const auto m = nonholonomic(core_, c_vb_, cfg_.vehicle_point_body_m, inc.dtheta_rad / inc.dt_s, cfg_.nhc_sigma_mps);
-  record(kNonholonomic, apply(m, 2), 2);
+  record(kNonholonomic, apply(m, 2, kNonholonomic), 2);
   ++counters_.nonholonomic_updates;
 }
 
@@ -1090,6 +1100,8 @@ void InsFilter<NB, NC, NT>::record(int kind, const UpdateResult<M>& r, int dof, 
   u.dof = dof;
   u.nis = r.nis;
   u.gate = gate(dof);
+  u.log_det_s = r.log_det_s;
+  u.r_scale = r.r_scale;
   u.accepted = r.accepted;
   u.guarded = r.guarded;
   u.innovation.fill(std::numeric_limits<double>::quiet_NaN());
@@ -1108,8 +1120,25 @@ void InsFilter<NB, NC, NT>::record(int kind, const UpdateResult<M>& r, int dof, 
 
 template <int NB, int NC, int NT>
 template <int M, int K>
-UpdateResult<M> InsFilter<NB, NC, NT>::apply(const Measurement<M, K>& m, int dof) {
-  return core_.update(m.y, m.H, m.R, gate(dof), attitude_limit());
+UpdateResult<M> InsFilter<NB, NC, NT>::apply(const Measurement<M, K>& m, int dof, int robust_kind) {
+  const auto r = core_.update(m.y, m.H, m.R, gate(dof), attitude_limit());
+  if (robust_kind <= 0 || cfg_.robust_after_rejections <= 0) return r;
+  int& in_row = rejections_in_row_[static_cast<std::size_t>(robust_kind)];
+  const bool beyond_gate = !r.accepted && !r.guarded && !r.attitude_refused;
+  if (!beyond_gate) {
+    if (r.accepted) in_row = 0;
+    return r;
+  }
+  if (++in_row <= cfg_.robust_after_rejections) return r;
+  // A run of rejections says the filter, not this measurement, is off: use it with R
+  // scaled so that its NIS would sit at the gate were the prediction exact.
+  const double scale = r.nis / gate(dof);
+  auto used = core_.update(m.y, m.H, (m.R * scale).eval(), 0.0, attitude_limit());
+  used.nis = r.nis;  // the measurement's consistency, as the unscaled model saw it
+  used.log_det_s = r.log_det_s;
+  used.r_scale = scale;
+  if (used.accepted) ++counters_.updates_downweighted;
+  return used;
 }
 
 template <int NB, int NC, int NT>
@@ -1122,6 +1151,12 @@ void InsFilter<NB, NC, NT>::process_fix(const FixInput& fix) {
     return;
   }
   const Geodetic llh = ecef_to_geodetic(fix.r_ecef_m);
+  if (!(llh.height_m >= cfg_.fix_min_height_m && llh.height_m <= cfg_.fix_max_height_m)) {
+    // Off the Earth: no gate or reset may take it (30 fixes 1e7 m off outlasted the reset's
+    // timeout and the filter was reset onto them).
+    ++counters_.fixes_implausible;
+    return;
+  }
   const Mat3 c_en = rot_ned_to_ecef(llh.lat_rad, llh.lon_rad);
 
   // Heading from the course over ground once moving, if not configured: at
@@ -1167,7 +1202,8 @@ void InsFilter<NB, NC, NT>::process_fix(const FixInput& fix) {
     r_cov = square(cfg_.fix_sigma_ecef_m).asDiagonal();
   } else {
     const double uere = fix.mode == 3 && cfg_.fix_uere_2d_m > 0.0 ? cfg_.fix_uere_2d_m : cfg_.fix_uere_m;
-    const double sh = uere * fix.hdop / std::sqrt(2.0), sv = uere * fix.vdop;
+    const double sh = uere * std::max(fix.hdop, cfg_.fix_min_dop) / std::sqrt(2.0),
+                 sv = uere * std::max(fix.vdop, cfg_.fix_min_dop);
     const Vec3 s = stated_or(fix.sigma_ned_m, Vec3(sh, sh, sv));
     r_cov = c_en * square(s).asDiagonal() * c_en.transpose();
   }
@@ -1184,9 +1220,11 @@ void InsFilter<NB, NC, NT>::process_fix(const FixInput& fix) {
     record(kFix2D, r, 2);
     accepted = r.accepted;
   } else {
-    const auto r = apply(m, 3);
+    const auto r = apply(m, 3, kFix3D);
     record(kFix3D, r, 3);
-    accepted = r.accepted;
+    // One used down-weighted still failed the gate: it counts as rejected, and a run of them
+    // (a jump the receiver is right about) still leads to the reset.
+    accepted = r.accepted && !(r.r_scale > 1.0);
   }
   ++(accepted ? counters_.fixes_accepted : counters_.fixes_rejected);
   note_gnss(accepted, fix.t_s);
@@ -1209,7 +1247,7 @@ void InsFilter<NB, NC, NT>::process_fix(const FixInput& fix) {
                             : fix.v_ecef_mps;
     auto mv = gnss_velocity(core_, v_meas, r_v, cfg_.lever_arm_body_m, rate);
     if constexpr (NT == 1) add_time_offset(mv, core_, es::vel, antenna_acceleration_now());
-    record(kFixVelocity, apply(mv, 3), 3);
+    record(kFixVelocity, apply(mv, 3, kFixVelocity), 3);
   }
 }
 

@@ -103,6 +103,8 @@ struct UpdateResult {
   Eigen::Matrix<double, M, 1> innovation = Eigen::Matrix<double, M, 1>::Zero();
   Eigen::Matrix<double, M, 1> innovation_sigma = Eigen::Matrix<double, M, 1>::Zero();
   double nis = 0.0;
+  double log_det_s = 0.0;  // ln det S: with the NIS, the update's Gaussian log-likelihood
+  double r_scale = 1.0;    // > 1: a robust update, its R scaled by this (InsFilter::apply)
   bool accepted = false;
   bool guarded = false;  // rejected because the result was not a valid covariance
   bool attitude_refused = false;  // rejected: the attitude correction exceeded its limit
@@ -438,6 +440,7 @@ class Eskf {
       return res;
     }
     res.nis = y.dot(llt.solve(y));
+    res.log_det_s = 2.0 * llt.matrixLLT().diagonal().array().log().sum();
     if (gate > 0.0 && !(res.nis <= gate)) return res;
     const Eigen::Matrix<double, N, M> K = llt.solve(pht.transpose()).transpose();
     const VecN dx = K * y;

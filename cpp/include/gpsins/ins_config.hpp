@@ -213,6 +213,14 @@ struct InsConfig {
   // Innovation gate: chi-square probability (<= 0 or >= 1 disables gating).
   double gate_probability = 0.9999;
   UpdateCheck update_check = UpdateCheck::ChiSquare;
+  // No lock-out: after this many gate rejections in a row of one kind of GNSS-derived
+  // update (3D fix, fix velocity, non-holonomic), each further one beyond the gate is used
+  // with its R scaled by NIS / gate until one passes: an isolated outlier is refused, but a
+  // filter whose covariance has grown too small is pulled back by every fix instead of
+  // refusing them all until a reset. Its pull on the state, in units of its own sigma, then
+  // falls as gate / sqrt(NIS), so a run of wild fixes moves it little. Such a fix still counts
+  // as rejected (fixes_rejected, the GNSS reset's timer). <= 0: hard rejection.
+  int robust_after_rejections = 3;
   double max_attitude_correction_rad = 0.0873;  // 5 deg, for the attitude-correction check
   // GNSS measurements rejected this long while the receiver reports solutions:
   // position and velocity reset to GNSS with inflated covariance. <= 0: never.
@@ -224,6 +232,13 @@ struct InsConfig {
   // A fix whose HDOP (or, 3D, VDOP) is above this is not used (0: all are): its R
   // cannot be known when the DOP is the receiver's saturated 99.9.
   double fix_max_dop = 0.0;
+  // A fix's DOP is taken as at least this for its R: a receiver never has a DOP far below 1,
+  // and a 1e-9 would make the fix absolute.
+  double fix_min_dop = 0.5;
+  // A fix whose ellipsoidal height is outside these is not on or above the Earth's surface as a
+  // vehicle can be (the Dead Sea shore is at -430 m plus the geoid; 100 km is the Karman line).
+  double fix_min_height_m = -1000.0;
+  double fix_max_height_m = 1.0e5;
   // Divergence guard: position sigma beyond this marks the filter diverged.
   double max_position_sigma_m = 1e4;
 };

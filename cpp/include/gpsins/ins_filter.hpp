@@ -101,6 +101,8 @@ struct UpdateRecord {
   int dof = 0;
   double nis = 0.0;
   double gate = 0.0;
+  double log_det_s = 0.0;  // ln det S (the NIS's covariance)
+  double r_scale = 1.0;    // > 1: used down-weighted (InsConfig::robust_after_rejections)
   bool accepted = false;
   bool guarded = false;
   std::array<double, 3> innovation{};
@@ -132,6 +134,7 @@ struct Counters {
   std::int64_t fixes = 0;
   std::int64_t fixes_accepted = 0;
   std::int64_t fixes_rejected = 0;
+  std::int64_t fixes_implausible = 0;  // not used: a height outside [fix_min_height_m, fix_max_height_m]
   std::int64_t fixes_dop_masked = 0;  // not used: a DOP beyond fix_max_dop (a receiver's 99.9 says only "at least")
   std::int64_t fixes_without_solution = 0;
   std::int64_t fixes_before_alignment = 0;
@@ -142,6 +145,7 @@ struct Counters {
   std::int64_t baseline_attitude_updates = 0;  // dual-antenna heading/pitch used (accepted or not)
   std::int64_t updates_rejected = 0;
   std::int64_t updates_guarded = 0;
+  std::int64_t updates_downweighted = 0;  // beyond the gate, used with a scaled R (robust_after_rejections)
   std::int64_t standstill_samples = 0;
   std::int64_t pseudorange_epochs = 0;
   std::int64_t pseudoranges_used = 0;
@@ -265,8 +269,10 @@ class InsFilter {
   void process_attitude(const AttitudeInput& a, const Increment& inc);
   template <int M>
   void record(int kind, const UpdateResult<M>& r, int dof, int id = 0);
+  // robust_kind: the kind whose rejections in a row allow a down-weighted update (0: none).
   template <int M, int K>
-  UpdateResult<M> apply(const Measurement<M, K>& m, int dof);
+  UpdateResult<M> apply(const Measurement<M, K>& m, int dof, int robust_kind = 0);
+  std::array<int, 10> rejections_in_row_{};  // per update kind
   double gate(int dof) const { return gates_[static_cast<std::size_t>(dof)]; }
   double attitude_limit() const {
     return cfg_.update_check == UpdateCheck::AttitudeCorrection || cfg_.update_check == UpdateCheck::Both
