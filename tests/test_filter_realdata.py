@@ -235,3 +235,42 @@ def test_walk_forward_drift_meets_the_goal_on_its_schedule(tmp_path):
     the IMU as logged 2.28 m, in the test above). Pooled over shifted schedules it is 2.60 m."""
     res = replay.replay(WALK, tmp_path / "walk").summary
     assert res["scoring"]["horizontal_m"]["rms"] <= 2.3
+
+
+# --- the walk from its publisher's facts alone (walk_0827_facts.toml: no key tuned on the walk) ----------
+
+@pytest.fixture(scope="module")
+def facts_walk(tmp_path_factory):
+    return replay.replay(WALK.parent / "walk_0827_facts.toml", tmp_path_factory.mktemp("facts"))
+
+
+@pytest.mark.xfail(strict=True, reason="issue 35's goal for a data set of facts only is 2.3 m on 25:15:45:45; "
+                   "measured 2.36 m with the generic MEMS priors (2.22 m with the BP3010-sized bias priors, "
+                   "which would be tuning on the walk); the tuned copy gives 2.29 m")
+def test_walk_from_its_publishers_facts_meets_the_goal(facts_walk):
+    assert facts_walk.summary["scoring"]["horizontal_m"]["rms"] <= 2.3
+
+
+def test_walk_from_its_publishers_facts_is_near_the_tuned_copy(facts_walk, tmp_path):
+    """What the data set leaves out, replay takes from the data: no calibration of a consumer unit, no
+    standalone receiver's correlated metres for RTK fixes, the velocity lag measured. Within 10 % of the
+    hand-tuned copy's drift on the same schedule."""
+    tuned = replay.replay(WALK, tmp_path / "tuned").summary["scoring"]["horizontal_m"]["rms"]
+    facts = facts_walk.summary["scoring"]["horizontal_m"]["rms"]
+    print(f"\nfacts {facts:.2f} m, tuned {tuned:.2f} m")
+    assert facts <= 1.1 * tuned
+    assert facts_walk.summary["counters"]["gnss_resets"] == 0
+
+
+@pytest.mark.xfail(strict=True, reason="issue 35 asks NIS/dof in [0.5, 2] for every source on real data; on the "
+                   "walk from facts the RTK fixes' NIS/dof mean is 5.8 (median 2.3, lag-one autocorrelation "
+                   "0.88): the hand's gait is motion the error model has no term for, and fitting white IMU "
+                   "noise to it (fit_noise) brings the mean to 0.8 but the drift to 4.7 m")
+def test_walk_from_its_publishers_facts_is_consistent(facts_walk):
+    import pyarrow.parquet as pq
+
+    t = pq.read_table(facts_walk.out / "updates.parquet").to_pydict()
+    kind, nis, dof = (np.asarray(t[k]) for k in ("kind", "nis", "dof"))
+    for k in (1, 3):  # fix position, fix velocity
+        per_dof = nis[kind == k] / dof[kind == k]
+        assert 0.5 <= per_dof.mean() <= 2.0, (k, per_dof.mean())

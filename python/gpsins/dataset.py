@@ -34,8 +34,8 @@ Extensions (all optional):
   ``[horizontal, vertical]``: the smallest 1-sigma a fix of that quality is given (``SIGMA_FLOOR_M``);
   ``[gnss.sigma_default_m]`` the same keys: the sigma of a fix whose file states none
   (``SIGMA_DEFAULT_M``); ``[gnss] velocity_sigma_floor_mps``.
-- ``[gnss] velocity_lag_s``: how long before its fix's time a fix velocity applies (default 0), or
-  ``"measured"``: from the fixes themselves (``velocity_lag``; a receiver that reports the mean velocity
+- ``[gnss] velocity_lag_s``: how long before its fix's time a fix velocity applies (seconds), or
+  ``"measured"`` (the default): from the fixes themselves (``velocity_lag``; a receiver that reports the mean velocity
   over the epoch just ended gives half an epoch). The filter's ``fix_velocity_lag_s``.
 - ``[gnss] ionosphere = "dual-frequency"`` (rinex, ubx; default ``"broadcast"``: Klobuchar when the
   navigation data has it): each L1 range less the ionospheric delay its second code measures (GPS L2,
@@ -89,6 +89,26 @@ SIGMA_FLOOR_M = {"fix": (0.02, 0.03), "float": (0.15, 0.3), "sbas": (0.7, 1.4), 
 SIGMA_DEFAULT_M = {"fix": (0.05, 0.1), "float": (0.5, 1.0), "sbas": (1.5, 3.0), "dgps": (1.0, 2.0),
                    "single": (3.0, 6.0), "ppp": (0.2, 0.4), "unknown": (3.0, 6.0)}
 VELOCITY_SIGMA_FLOOR_MPS = 0.02
+
+# What a data set's IMU is taken to be when its [filter] table does not say: a factory-calibrated
+# consumer MEMS unit, not the preset's BP3010 (whose bench calibration and turntable misalignment
+# belong to that one unit). Its raw samples get no calibration; its turn-on bias residuals are
+# datasheet-sized 1-sigma priors (Bosch BMI088: gyro zero-rate offset +-1 deg/s, accelerometer
+# zero-g offset +-20 mg, taken here as about 2 sigma and 1 sigma); the triad's misalignment is not
+# carried as attitude noise (a datasheet's cross-axis figure is a bound for the whole product line,
+# and carried as noise at 5e-3 rad it would swamp a good unit's 3e-4 rad/s of rate noise; the
+# recording's noise fit, gpsins.noise_from_data, takes up what remains).
+GENERIC_MEMS = {
+    "gyro_bias_cal_rad_per_s": [0.0, 0.0, 0.0], "accel_bias_cal_mps2": [0.0, 0.0, 0.0],
+    "gyro_scale_factor_cal": [0.0, 0.0, 0.0], "accel_scale_factor_cal": [0.0, 0.0, 0.0],
+    "gyro_bias_residual_rad_per_s": 8.7e-3, "accel_bias_residual_mps2": 0.2,
+    "gyro_misalignment_sigma_rad": 0.0,
+}
+# Fix qualities whose errors are centimetres to decimetres, correlated over seconds (carrier multipath, a
+# float ambiguity settling): their stated sigmas (with SIGMA_FLOOR_M) are the whole model, and the preset's
+# fix-error states, sized per unit of DOP for a standalone receiver's metres, do not apply.
+CARRIER_QUALITIES = (1, 2, 6)
+STANDALONE_FIX_MODEL_OFF = {"fix_error_gm_sigma_m": [0.0, 0.0, 0.0], "fix_error_fast_sigma_m": [0.0, 0.0, 0.0]}
 
 
 class DatasetError(ReaderError):
@@ -200,7 +220,7 @@ class Dataset:
     sigma_floor_m: dict = field(default_factory=dict)  # [gnss.sigma_floor_m]: quality name -> (h, v)
     sigma_default_m: dict = field(default_factory=dict)  # [gnss.sigma_default_m]
     velocity_sigma_floor_mps: float = VELOCITY_SIGMA_FLOOR_MPS
-    velocity_lag_s: float | str = 0.0  # [gnss] velocity_lag_s: seconds, or "measured"
+    velocity_lag_s: float | str = "measured"  # [gnss] velocity_lag_s: seconds, or "measured" (the default)
     ionosphere: str = "broadcast"  # [gnss] ionosphere: "broadcast" (Klobuchar) or "dual-frequency" (ranges corrected)
 
     def gnss_span(self) -> tuple[float, float]:
@@ -444,7 +464,7 @@ def load(path: str | Path) -> Dataset:
     ds.velocity_sigma_floor_mps = float(tg.get("velocity_sigma_floor_mps", VELOCITY_SIGMA_FLOOR_MPS))
     if not ds.velocity_sigma_floor_mps > 0:
         raise DatasetError(path, "must be positive", field="[gnss] velocity_sigma_floor_mps")
-    lag = tg.get("velocity_lag_s", 0.0)
+    lag = tg.get("velocity_lag_s", "measured")
     if lag != "measured" and not (isinstance(lag, (int, float)) and not isinstance(lag, bool) and 0.0 <= lag < 10.0):
         raise DatasetError(path, 'seconds (0 to 10) or "measured"', field="[gnss] velocity_lag_s")
     ds.velocity_lag_s = lag if lag == "measured" else float(lag)

@@ -60,7 +60,7 @@ _DEGREE_KEYS = {"attitude_sigma_deg": "attitude_sigma_rad", "initial_yaw_deg": "
                 "pseudorange_elevation_mask_deg": "pseudorange_elevation_mask_rad",
                 "body_to_vehicle_ypr_deg": "body_to_vehicle_ypr_rad"}
 _EXTRA_KEYS = {"preset", "mode", "imu_noise", "gyro_bias_residual_rad_per_s", "accel_bias_residual_mps2",
-               "platform", "heading_search_s"}
+               "platform", "heading_search_s", "fit_noise", "estimate_mounting"}
 PLATFORMS = ("vehicle", "handheld")
 # What a platform changes from the preset unless the configuration says otherwise. A handheld device's
 # gait (steps at about 2 Hz, the hand's swing) is motion its MEMS noise figures do not cover: against
@@ -192,7 +192,8 @@ def _key_types() -> dict[str, str]:
                     if hasattr(type(v), "__members__") else "table")  # a pybind11 enum is chosen by name
     for deg, rad in _DEGREE_KEYS.items():
         kinds[deg] = kinds.get(rad, "float")
-    kinds.update({"preset": "str", "mode": "str", "platform": "str", "heading_search_s": "float",
+    kinds.update({"preset": "str", "mode": "str", "platform": "str", "heading_search_s": "float", "fit_noise": "bool",
+                  "estimate_mounting": "bool",
                   "imu_noise": "table", "gyro_bias_residual_rad_per_s": "vec3",
                   "accel_bias_residual_mps2": "vec3"})
     for k in _EXTRA_KEYS - set(kinds):
@@ -345,7 +346,7 @@ def core_config(cfg: dict) -> _core.InsConfig:
     noise = table.pop("imu_noise", None)
     gyro_residual = table.pop("gyro_bias_residual_rad_per_s", None)
     accel_residual = table.pop("accel_bias_residual_mps2", None)
-    for k in ("preset", "mode", "platform", "heading_search_s"):
+    for k in ("preset", "mode", "platform", "heading_search_s", "fit_noise", "estimate_mounting"):
         table.pop(k, None)
     for deg, rad in _DEGREE_KEYS.items():
         if deg in table:

@@ -52,7 +52,7 @@ from pathlib import Path
 import numpy as np
 
 from . import dataset as dataset_mod, evaluate, filter as flt, measurements, outages as outages_mod
-from . import measurements_ubx, reference as reference_mod, results, solution, timing
+from . import measurements_ubx, mounting, noise_from_data, reference as reference_mod, results, solution, timing
 from .readers import rinex
 
 DEFAULT_GPS_LATENCY_S = 0.0205  # receiver's epoch-to-first-byte delay (assumed 20 ms) + the logger's
@@ -67,7 +67,8 @@ RESULT_ARRAYS = {
     "standstill": "standstill detected", "heading_known": "heading initialised",
     "fixes": "receiver fixes [t, r xyz, v xyz, hdop, vdop, mode] (data sets: then sigma n e d, vn ve vd)",
     "fix_sats": "satellites used per fix",
-    "upd_*": "updates: t, kind, id, dof, nis, gate, accepted, innovation (3), innovation_sigma (3)",
+    "upd_*": "updates: t, kind, id, dof, nis, gate, log_det_s, r_scale (> 1: used down-weighted), accepted, "
+             "innovation (3), innovation_sigma (3)",
     "err_ned_m": "position error (estimate - truth) NED", "err_ypr_deg": "attitude error",
     "err_v_ned_mps": "velocity error NED", "nees9": "NEES of the 9 navigation states",
     "seg_labels": "truth segment labels", "seg_t": "truth segments' start and end times",
@@ -220,7 +221,8 @@ def _dataset_inputs(path: Path, config, overrides: dict) -> Inputs:
     explicit |= set(overrides)
     base = config if config is not None else (dict(ds.filter_table) or None)
     cfg0 = flt.load_config(base, overrides)
-    derived: dict = {"lever_arm_body_m": ds.antenna_m.tolist()}
+    # The data's own statistics: a generic MEMS unit's priors, the noise fitted to the recording.
+    derived: dict = {"lever_arm_body_m": ds.antenna_m.tolist(), **dataset_mod.GENERIC_MEMS}
     dt = np.diff(imu.t)
     dt = dt[dt > 0]
     if len(dt):
@@ -233,6 +235,8 @@ def _dataset_inputs(path: Path, config, overrides: dict) -> Inputs:
         fixes = dataset_mod.fix_table(ds.fixes, t_week, uere, ds.sigma_floor_m, ds.sigma_default_m,
                                       ds.velocity_sigma_floor_mps)
         sats = ds.fixes.ns.astype(int)
+        if np.mean(np.isin(ds.fixes.q, dataset_mod.CARRIER_QUALITIES)) >= 0.5:
+            derived.update(dataset_mod.STANDALONE_FIX_MODEL_OFF)
         vs = dataset_mod.velocity_sigma(ds.fixes, ds.velocity_sigma_floor_mps)
         if vs is not None:
             # Per-fix velocity sigmas travel in the fix table; this median only stands in where a fix has none.
@@ -270,6 +274,12 @@ def _dataset_inputs(path: Path, config, overrides: dict) -> Inputs:
     derived["platform"] = "vehicle" if ds.vehicle_kind == "car" else "handheld"
     if ds.vehicle_kind == "car":
         derived["nonholonomic_constraint"] = True
+        # The mounting's fine misalignment, unless the data set states it (mounting.py).
+        derived["estimate_mounting"] = not any(k.startswith("body_to_vehicle_ypr") for k in explicit)
+        # The noise from the recording (noise_from_data). Not for a hand-carried device: its gait is motion
+        # the error model has no term for, and a white-noise fit takes it for IMU noise (the walk: gyro and
+        # accelerometer variance x 100-400, drift RMS 2.36 -> 4.66 m), as the gate took it for outliers.
+        derived["fit_noise"] = True
     inp.data_config = {k: v for k, v in derived.items() if k not in explicit}
     if ds.reference is not None:
         inp.reference = (ds.reference.t_abs - t_week, ds.reference.r_ecef, ds.reference.source)
@@ -284,6 +294,36 @@ def _dataset_inputs(path: Path, config, overrides: dict) -> Inputs:
                 "from_data": inp.data_config, "velocity_lag_measured": measured_lag,
                 "ephemerides_prn": ds.navigation.prns() if ds.navigation is not None else []}
     return inp
+
+
+def _with_estimated_mounting(imu, fixes: np.ndarray, cfg: dict) -> tuple[dict, dict | None]:
+    """The car's body-to-vehicle yaw and pitch from a first pass without the non-holonomic constraint
+    (``mounting.estimate``), put into the configuration; unchanged when the drive cannot show them."""
+    step = max(1, int(round(float(cfg.get("imu_rate_hz", 100.0)) / 10.0)))  # 10 Hz is plenty for a median
+    first = flt.run(imu, fixes, {**cfg, "nonholonomic_constraint": False}, mode="loose", output_every=step)
+    found = mounting.estimate(first.t, first.q_eb, first.v_ecef, first.heading_known)
+    if found is None:
+        return cfg, None
+    out = {k: v for k, v in cfg.items() if k not in ("body_to_vehicle_ypr_rad", "body_to_vehicle_ypr_deg")}
+    out["body_to_vehicle_ypr_deg"] = [found["yaw_deg"], found["pitch_deg"], 0.0]
+    return out, found
+
+
+# A source whose updates are refused more often than this is worth a line on the terminal.
+REJECTED_SHARE_WARNING = 0.05
+
+
+def health_lines(counters: dict, sources: dict) -> list[str]:
+    """One line for each way the run went wrong: diverged, GNSS resets, a source refused often."""
+    lines = []
+    if counters.get("diverged"):
+        lines.append("the filter diverged (sustained GNSS rejection or an invalid covariance)")
+    if counters.get("gnss_resets"):
+        lines.append(f"{counters['gnss_resets']} GNSS reset(s): position and velocity were taken from GNSS")
+    for name, s in sources.items():
+        if s["rejected_fraction"] > REJECTED_SHARE_WARNING:
+            lines.append(f"{name}: {100 * s['rejected_fraction']:.1f} % of {s['n']} updates rejected")
+    return lines
 
 
 def _config_keys(config) -> list[str]:
@@ -478,6 +518,18 @@ def run_mode(inp: Inputs, out: str | Path, *, mode: str = "loose", overrides: di
         tight = dict(pseudoranges=prs if prs is not None else np.zeros((0, 5)), ephemerides=inp.ephemerides,
                      klobuchar=inp.klobuchar, gps_time_offset_s=inp.week * measurements.SECONDS_PER_WEEK)
 
+    noise_fit = mount_fit = None
+    if cfg.get("fit_noise") and filter_mode == "loose" and len(fixes):
+        # The statistics from the recording: fitted on the fixes this run uses (outages removed),
+        # without the vehicle constraint, whose mounting may not be known yet.
+        t_fit = time.perf_counter()
+        noise_fit = noise_from_data.fit_noise(inp.imu, fixes, {**cfg, "nonholonomic_constraint": False},
+                                              mode=filter_mode)
+        cfg, fixes = noise_from_data.scaled(cfg, fixes, noise_fit["factors"])
+        clock["noise_fit_s"] = time.perf_counter() - t_fit
+    if cfg.get("estimate_mounting") and cfg.get("nonholonomic_constraint") and filter_mode == "loose" and len(fixes):
+        cfg, mount_fit = _with_estimated_mounting(inp.imu, fixes, cfg)
+
     ref_system = _reference_system(source)
     attitude = None
     if aid_heading:
@@ -543,6 +595,8 @@ def run_mode(inp: Inputs, out: str | Path, *, mode: str = "loose", overrides: di
     updates = results.TableWriter(out / results.UPDATES)
     events: dict[str, list] = {"t": [], "kind": [], "value": []}
     update_kinds: dict[int, int] = {}
+    stat_columns = ("kind", "dof", "nis", "accepted", "r_scale", "innovation", "innovation_sigma")
+    update_cols: dict[str, list] = {k: [] for k in stat_columns}
     write_s = 0.0
     time_offset = None  # the last epoch's estimate and sigma (s), with estimate_time_offset
     for sol in run.chunks():
@@ -552,6 +606,8 @@ def run_mode(inp: Inputs, out: str | Path, *, mode: str = "loose", overrides: di
         forward.add(sol, forward.epochs)
         updates.append(sol.updates)
         write_s += time.perf_counter() - w0
+        for k in stat_columns:
+            update_cols[k].append(np.asarray(sol.updates[k]))
         for k in events:
             events[k].extend(np.asarray(sol.events.get(k, ())).tolist())
         for k, n in zip(*np.unique(sol.updates["kind"], return_counts=True)):
@@ -562,6 +618,8 @@ def run_mode(inp: Inputs, out: str | Path, *, mode: str = "loose", overrides: di
     if forward.epochs == 0:
         raise measurements.logs.LogError(f"{source}: the filter never initialised (no usable fix after levelling)")
     counters = run.counters
+    sources = noise_from_data.source_stats({k: np.concatenate(v) if v else np.zeros(0)
+                                            for k, v in update_cols.items()})
     if last_use:
         run.release_inputs()
         inp.imu = inp.pseudoranges = prs = tight = None
@@ -620,6 +678,8 @@ def run_mode(inp: Inputs, out: str | Path, *, mode: str = "loose", overrides: di
                "wall_time_s": clock, "imu_samples": n_imu, "epochs": forward.epochs,
                "errors": forward.score.summary() if forward.score is not None else {},
                "update_kinds": {flt.UPDATE_KINDS[k]: n for k, n in sorted(update_kinds.items())},
+               "sources": sources, "noise_fit": noise_fit, "mounting_fit": mount_fit,
+               "health": health_lines(counters, sources),
                "solution_point": point,
                "heading_aiding": ({"source": reference_mod.FILE_NAME, "epochs": int(len(attitude)),
                                    "interval_s": HEADING_AIDING_INTERVAL_S} if attitude is not None else None),

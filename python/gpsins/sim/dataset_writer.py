@@ -114,7 +114,9 @@ class DatasetWriter:
                  imu_format: str = "increments", gnss_rate_hz: float = 5.0, gnss_phase_s: float = 0.137,
                  fix_sigma_range_m=(0.01, 0.04), float_every: int = 13, zero_sigma_every: int = 7,
                  velocity_sigma_mps: float = 0.03, seed_offset: int = 0, vehicle_kind: str = "car",
-                 velocity_mean_over_epoch: bool = False):
+                 velocity_mean_over_epoch: bool = False, undeclared_misalignment_ypr_deg=(0.0, 0.0, 0.0),
+                 fix_correlated_sigma_m=(0.0, 0.0), fix_correlated_tau_s: float = 30.0,
+                 declared_white_noise_scale: float = 1.0):
         if imu_format not in ("increments", "rates"):
             raise ValueError(f"imu_format {imu_format!r}: increments or rates")
         # The simulated vehicle moves along its body x axis without slip (also the walk profile and the
@@ -124,7 +126,13 @@ class DatasetWriter:
         self.out.mkdir(parents=True, exist_ok=True)
         self.sc, self.seed = sc, seed
         self.mount, self.antenna_m = imu_to_body_ypr_deg, antenna_m
-        self.m = ypr_matrix(*imu_to_body_ypr_deg)
+        # The IMU's axes are off the declared mounting by a fine misalignment the data set does not state:
+        # the body the data set declares is then turned from the vehicle's axes by it, as the filter's
+        # body_to_vehicle_ypr states (what a car's non-holonomic constraint has to find).
+        # v_vehicle = M_fine v_body_declared, v_body_declared = M_declared v_imu.
+        self.m = ypr_matrix(*undeclared_misalignment_ypr_deg) @ ypr_matrix(*imu_to_body_ypr_deg)
+        # The noise the data set declares against what the unit has (a datasheet's figures on a vehicle).
+        self.declared_white_noise_scale = declared_white_noise_scale
         self.imu_time_offset_s, self.imu_format, self.gnss_rate_hz = imu_time_offset_s, imu_format, gnss_rate_hz
         self.fix_sigma_range_m = fix_sigma_range_m
         self.float_every, self.zero_sigma_every = float_every, zero_sigma_every
@@ -138,6 +146,10 @@ class DatasetWriter:
                      "velocity": Stream(key + (3,), width=3)}
         # Fixes off whole seconds and the antenna's truth at 10 Hz: a few MB of times for a day's drive.
         self.t_fix = np.arange(gnss_phase_s, t_last_sample - 0.5, 1.0 / gnss_rate_hz)
+        # A slow error on top of the stated white one (carrier multipath, an RTK engine's ambiguity
+        # residuals): first-order Gauss-Markov per north, east, down axis with sigmas (h, h, v), drawn
+        # for every fix up front so that a block's fixes do not depend on where the run is cut.
+        self.fix_correlated_ned = self._gauss_markov(key + (4,), fix_correlated_sigma_m, fix_correlated_tau_s)
         self.t_ref = np.arange(0.05, t_last_sample - 0.05, 0.1)
         self._next_fix = self._next_ref = 0
         self._t_prev: float | None = None  # the last IMU sample written
@@ -148,6 +160,19 @@ class DatasetWriter:
         self.fix_file.write(_pos_header("gpsins sim (receiver)"))
         self.ref_file = open(self.out / "truth.pos", "w", encoding="ascii")
         self.ref_file.write(_pos_header("gpsins sim (truth of the antenna)"))
+
+    def _gauss_markov(self, key, sigma_hv, tau_s: float) -> np.ndarray:
+        n = len(self.t_fix)
+        sigma = np.array([sigma_hv[0], sigma_hv[0], sigma_hv[1]], float)
+        out = np.zeros((n, 3))
+        if n == 0 or not (sigma > 0).any():
+            return out
+        w = Stream(key, width=3).rows(0, n)
+        a = np.exp(-np.diff(self.t_fix, prepend=self.t_fix[0]) / tau_s)
+        out[0] = w[0] * sigma
+        for i in range(1, n):  # x_k = a x_k-1 + sqrt(1 - a^2) sigma w_k: stationary at sigma
+            out[i] = a[i] * out[i - 1] + np.sqrt(1.0 - a[i] ** 2) * sigma * w[i]
+        return out
 
     def _times(self, times: np.ndarray, start: int, b: Simulation) -> tuple[int, int]:
         """The range of `times` from `start` that falls in block b's truth (all that remain in the last)."""
@@ -184,7 +209,8 @@ class DatasetWriter:
             drawn_h, drawn_v = np.where(stated_zero, 0.01, s_h), np.where(stated_zero, 0.015, s_v)
             lat, lon = np.array([ecef_to_geodetic(x)[:2] for x in r_true]).T
             c_en = ecef_to_ned_matrix(lat, lon)  # (n, 3, 3) NED -> ECEF
-            e_ned = self.draw["position"].rows(i0, i1) * np.column_stack([drawn_h, drawn_h, drawn_v])
+            e_ned = (self.draw["position"].rows(i0, i1) * np.column_stack([drawn_h, drawn_h, drawn_v])
+                     + self.fix_correlated_ned[i0:i1])
             r_fix = r_true + np.einsum("nij,nj->ni", c_en, e_ned)
             if self.velocity_mean_over_epoch:  # from the antenna's position an interval earlier (or the block start)
                 t_before = np.maximum(t_fix - 1.0 / self.gnss_rate_hz, b.truth.t[0])
@@ -214,6 +240,8 @@ class DatasetWriter:
             f.close()
         sc, seed = self.sc, self.seed
         noise = imu_noise_truth(sc.imu)
+        for k in ("gyro_arw_rad_per_sqrt_s", "accel_vrw_mps_per_sqrt_s"):
+            noise["imu_noise"][k] = [x * self.declared_white_noise_scale for x in noise["imu_noise"][k]]
         lines = [f'name = "{sc.name}_seed{seed}"',
                  f'description = "gpsins sim --dataset: {sc.name}, seed {seed}, '
                  f'IMU {sc.imu.rate_hz} Hz ({self.imu_format}), fixes {self.gnss_rate_hz:g} Hz"', "",

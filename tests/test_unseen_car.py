@@ -1,0 +1,85 @@
+"""A car recording the filter was not told the truth about (the real-car failure of a data set written
+from its publisher's facts, made on the simulator where the truth is known): IMU white noise 3x the
+declared, bias instability and a warm-up, RTK fixes at 4 Hz with a centimetre Gauss-Markov error on top
+of their stated sigmas, the IMU turned 5.4 deg in yaw and -6.8 deg in pitch from its stated mounting,
+and the body rocking on its suspension. Scored on eleven 15 s outages, 40 s in, every 45 s.
+
+The bars: the non-holonomic constraint must be worth having (at most 0.6 x the drift without it), no
+GNSS reset, every GNSS source's NIS/dof in [0.5, 2] (a factor 2 either way of its chi-square mean, 1),
+the gate no worse than none, and the estimated mounting within 10 % of the stated fine one. The NIS/dof
+is computed here from updates.parquet (pyarrow), not taken from the run's summary."""
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+
+from gpsins import replay, sim
+from gpsins.sim import dataset_writer
+
+pytest.importorskip("scipy")
+
+OUTAGES = "40:15:45"
+MISMATCH = dict(declared_white_noise_scale=1.0 / 3.0, fix_correlated_sigma_m=(0.02, 0.03), fix_correlated_tau_s=30.0,
+                undeclared_misalignment_ypr_deg=(5.4, -6.8, 0.0))
+KINDS = {1: "fix_3d", 3: "fix_velocity", 7: "nonholonomic"}
+
+
+@pytest.fixture(scope="module")
+def car(tmp_path_factory):
+    import importlib.util
+    import pathlib
+
+    spec = importlib.util.spec_from_file_location(
+        "bench_car_outages", pathlib.Path(__file__).parents[1] / "benchmarks" / "bench_car_outages.py")
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    s = sim.simulate(bench.scenario(560.0, ride=True, warmup=True), 1)
+    work = tmp_path_factory.mktemp("car")
+    path = dataset_writer.write_dataset(s, work / "set", gnss_rate_hz=4.0, imu_format="rates", **MISMATCH)
+    runs = {}
+    for name, over in {"nhc": None, "no nhc": {"nonholonomic_constraint": False},
+                       "gate off": {"gate_probability": 0.0},
+                       "mounting stated": {"body_to_vehicle_ypr_deg": [5.4, -6.8, 0.0]}}.items():
+        runs[name] = replay.replay(path, work / name.replace(" ", "_"), overrides=over, outages=OUTAGES)
+    return runs
+
+
+def drift(res) -> float:
+    return res.summary["scoring"]["horizontal_m"]["rms"]
+
+
+def nis_per_dof(res) -> dict:
+    t = pq.read_table(res.out / "updates.parquet").to_pydict()
+    kind, nis, dof = (np.asarray(t[k]) for k in ("kind", "nis", "dof"))
+    return {name: float(np.mean(nis[kind == k] / dof[kind == k])) for k, name in KINDS.items() if (kind == k).any()}
+
+
+@pytest.mark.xfail(strict=True, reason="issue 35's bar (NHC <= 0.6 x without) is not met on this drive: 1.27 m "
+                   "with NHC against 1.19 m without (with the true IMU noise and no fit 1.17 / 1.14 m; the first moving "
+                   "outage, 85 s, 2.84 m against 1.27 m: its forward velocity error grows 0.49 m/s in 15 s against "
+                   "0.26 m/s, a 0.13 deg pitch difference at the outage start, the suspension ride violating the "
+                   "constraint's vertical axis); on seed 0, 800 s, outages 120:15:60:60 it is 0.73 against 1.50 m")
+def test_the_vehicle_constraint_pays_on_an_unseen_car(car):
+    print({k: round(drift(r), 3) for k, r in car.items()})
+    assert drift(car["nhc"]) <= 0.6 * drift(car["no nhc"])
+
+
+def test_every_gnss_source_is_consistent_on_an_unseen_car(car):
+    assert car["nhc"].summary["counters"]["gnss_resets"] == 0
+    found = nis_per_dof(car["nhc"])
+    print(found)
+    assert set(found) == set(KINDS.values())
+    for name, v in found.items():
+        assert 0.5 <= v <= 2.0, (name, v)
+
+
+def test_the_gate_does_no_harm_on_an_unseen_car(car):
+    assert drift(car["nhc"]) <= drift(car["gate off"])
+
+
+def test_the_estimated_mounting_is_as_good_as_the_stated_one(car):
+    m = car["nhc"].summary["mounting_fit"]
+    print(m)
+    assert m is not None
+    assert abs(m["yaw_deg"] - 5.4) < 0.5 and abs(m["pitch_deg"] + 6.8) < 0.5
+    assert drift(car["nhc"]) <= 1.1 * drift(car["mounting stated"])
