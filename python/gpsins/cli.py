@@ -64,7 +64,7 @@ def _cmd_emulate(args: argparse.Namespace) -> int:
 
 
 def _cmd_replay(args: argparse.Namespace) -> int:
-    from . import filter as flt, replay
+    from . import filter as flt, noise_from_data, replay
 
     if args.set and "help" in args.set:
         print(flt.describe_keys(args.config))
@@ -101,18 +101,8 @@ def _cmd_replay(args: argparse.Namespace) -> int:
               f"{c['updates_rejected']} updates rejected; results in {res.out}")
         for line in res.summary.get("health", []):
             print(f"  WARNING: {line}")
-        src = [f"{k} {v['nis_per_dof_mean']:.2f}/{v['nis_per_dof_median']:.2f}"
-               + (f" rho {v['lag1_autocorrelation']:.2f}" if v["lag1_autocorrelation"] is not None else "")
-               for k, v in res.summary.get("sources", {}).items() if v["nis_per_dof_mean"] is not None]
-        if src:
-            print("  NIS/dof mean/median, lag-one autocorrelation: " + "; ".join(src))
-        m = res.summary.get("mounting_fit")
-        if m:
-            print(f"  mounting estimated: body to vehicle yaw {m['yaw_deg']:.2f} deg, pitch {m['pitch_deg']:.2f} deg")
-        fit = res.summary.get("noise_fit")
-        if fit and fit["factors"]:
-            print("  noise fitted from the recording (variance x): "
-                  + ", ".join(f"{k} {v:.2f}" for k, v in fit["factors"].items()))
+        for line in noise_from_data.summary_lines(res.summary):
+            print(f"  {line}")
         if res.summary["skipped"]:
             print("  skipped: " + "; ".join(f"{k}: {v}" for k, v in res.summary["skipped"].items()))
         e = res.summary["errors"]

@@ -66,6 +66,30 @@ def source_stats(updates: dict) -> dict:
     return out
 
 
+def summary_lines(run: dict) -> list[str]:
+    """What a run's summary (run.json) says of its statistics, a line each: per aiding source NIS/dof mean
+    and median over all its updates, the lag-one autocorrelation of its normalised innovations (about 0
+    when the model's noise is white and right), rejected and down-weighted; what was fitted."""
+    out = []
+    for name, s in (run.get("sources") or {}).items():
+        if s.get("nis_per_dof_mean") is None:
+            continue
+        rho = s.get("lag1_autocorrelation")
+        out.append(f"{name}: {s['n']} updates, NIS/dof mean {s['nis_per_dof_mean']:.2f} median "
+                   f"{s['nis_per_dof_median']:.2f}, lag-one autocorrelation "
+                   f"{'-' if rho is None else f'{rho:.2f}'}, {100 * s['rejected_fraction']:.1f} % rejected, "
+                   f"{s['downweighted']} down-weighted")
+    fit = run.get("noise_fit") or {}
+    if fit.get("factors"):
+        out.append("noise fitted from the recording (variance x): "
+                   + ", ".join(f"{k} {v:.2f}" for k, v in fit["factors"].items()))
+    m = run.get("mounting_fit")
+    if m:
+        out.append(f"mounting estimated: body to vehicle yaw {m['yaw_deg']:.2f} deg, pitch {m['pitch_deg']:.2f} deg "
+                   f"over {m['epochs']} epochs")
+    return out
+
+
 def lag1_autocorrelation(z: np.ndarray) -> float | None:
     """Mean over columns of the lag-one autocorrelation of a sequence (rows in time); NaN columns
     (a 1-dof kind's unused axes) are left out."""

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import _core, evaluate, lazy, results
+from . import _core, evaluate, lazy, noise_from_data, results
 
 # Loaded on first use: replay imports this module for its outage table and draws nothing.
 plt = lazy.module("matplotlib.pyplot", before=lazy.agg_backend)
@@ -856,29 +856,6 @@ def _warning_lines(results: list[Result]) -> list[str]:
     return [f"{r.name}: {w}" for r in results for w in r.run.get("health", [])]
 
 
-def _source_lines(r: Result) -> list[str]:
-    """Per aiding source: NIS/dof mean and median over all its updates, lag-one autocorrelation of its
-    normalised innovations (about 0 when the model's noise is white and right), and what was fitted."""
-    out = []
-    for name, s in (r.run.get("sources") or {}).items():
-        if s.get("nis_per_dof_mean") is None:
-            continue
-        rho = s.get("lag1_autocorrelation")
-        out.append(f"{name}: {s['n']} updates, NIS/dof mean {s['nis_per_dof_mean']:.2f} median "
-                   f"{s['nis_per_dof_median']:.2f}, lag-one autocorrelation "
-                   f"{'-' if rho is None else f'{rho:.2f}'}, {100 * s['rejected_fraction']:.1f} % rejected, "
-                   f"{s['downweighted']} down-weighted")
-    fit = r.run.get("noise_fit") or {}
-    if fit.get("factors"):
-        out.append("noise fitted from the recording (variance x): "
-                   + ", ".join(f"{k} {v:.2f}" for k, v in fit["factors"].items()))
-    m = r.run.get("mounting_fit")
-    if m:
-        out.append(f"mounting estimated: body to vehicle yaw {m['yaw_deg']:.2f} deg, pitch {m['pitch_deg']:.2f} deg "
-                   f"over {m['epochs']} epochs")
-    return out
-
-
 def _receiver_line(r: Result) -> str | None:
     _, e = receiver_errors(r)
     s = _stats(e)
@@ -893,7 +870,7 @@ def summary_markdown(results: list[Result], figs: list[str]) -> str:
     lines = ["# gpsins replay report", ""]
     lines += [f"**WARNING: {w}**" for w in _warning_lines(results)] + ([""] if _warning_lines(results) else [])
     for r in results:
-        lines += [f"## {r.name}", ""] + [f"- {x}" for x in _run_lines(r) + _source_lines(r)] + [""]
+        lines += [f"## {r.name}", ""] + [f"- {x}" for x in _run_lines(r) + noise_from_data.summary_lines(r.run)] + [""]
     rec = _receiver_line(results[0])
     if rec:
         lines += [f"- {rec}", ""]
@@ -917,7 +894,7 @@ def summary_html(results: list[Result], figs: list[str], fig_dir: Path) -> str:
     parts += [f'<p style="color:#b00"><b>WARNING: {esc(w)}</b></p>' for w in _warning_lines(results)]
     for r in results:
         parts.append(f"<h2>{esc(r.name)}</h2><ul>"
-                     + "".join(f"<li>{esc(x)}</li>" for x in _run_lines(r) + _source_lines(r)) + "</ul>")
+                     + "".join(f"<li>{esc(x)}</li>" for x in _run_lines(r) + noise_from_data.summary_lines(r.run)) + "</ul>")
     rec = _receiver_line(results[0])
     if rec:
         parts.append(f"<ul><li>{esc(rec)}</li></ul>")
