@@ -4,12 +4,14 @@ host stalls and clock steps, or the record files edited afterwards (a flipped st
 frames lost while the IMU was unplugged, ID 23 missing for a stretch, a recording served
 faster than real time)."""
 
+import shutil
 import struct
 
 import numpy as np
 import pytest
+from gpsins_logger import superstar2 as ss2
 
-from gpsins import logs, measurements, replay, sim, timing
+from gpsins import cli, logs, measurements, replay, sim, timing
 from gpsins import results as results_mod
 from gpsins.sim import messages
 from gpsins.sim.scenario import parse
@@ -259,3 +261,117 @@ def test_400_hz_counter_wraps_every_0_64_s(tmp_path):
     check(al, err, "400 Hz")
     assert len(al.steps_s) == 1 and abs(al.steps_s[0] + 1.28) < 2e-3
     assert al.summary()["imu_frames_missing"] == int(np.sum(np.diff(k[keep]) - 1))
+
+
+def damage_one_tow(d, change):
+    """One ID 23 in the middle gets another time of week, its checksum made good again (as a
+    multi-bit flip can leave it: the frame finder accepts it)."""
+    scan = logs.read_record_file(d / "gps-000.bin", "superstar2")
+    blocks = np.flatnonzero(logs.message_ids(scan) == 23)
+    i = int(blocks[len(blocks) // 2])
+    out = []
+    for k in range(scan.count):
+        raw = scan.record(k)
+        if k == i:
+            m = ss2.Measurements.decode(scan.frame(k)[ss2.HEADER_LEN:-2])
+            m.tow_s = change(m.tow_s)
+            frame = m.encode()
+            raw = frame[:ss2.HEADER_LEN] + STAMP.pack(scan.stamps[k]) + frame[ss2.HEADER_LEN:]
+        out.append(raw)
+    (d / "gps-000.bin").write_bytes(b"".join(out))
+
+
+@pytest.fixture(scope="module")
+def clean_drive(tmp_path_factory):
+    """A drive with ephemerides and its replays in both modes, undamaged."""
+    tmp = tmp_path_factory.mktemp("clean")
+    s, d = simulate(tmp, "clean", [{"label": "stand", "duration_s": 20, "speed_mps": 0},
+                                   {"label": "drive", "duration_s": 70, "speed_mps": 10, "turn_deg": 90}],
+                    jitter_mean_s=0.0005)
+    scores = {m: replay.replay(d, tmp / f"out_{m}", mode=m).summary["scoring"]["all"] for m in ("loose", "tight")}
+    return d, scores, {m: tmp / f"out_{m}" for m in ("loose", "tight")}
+
+
+@pytest.mark.parametrize("label,change", [("tow -> 0", lambda t: 0.0), ("tow - 302401 s", lambda t: t - 302401.0),
+                                          ("tow - 1000 s", lambda t: t - 1000.0), ("tow + 0.5 s", lambda t: t + 0.5),
+                                          ("tow + 1000 s", lambda t: t + 1000.0)])
+def test_one_damaged_time_of_week_is_dropped_not_spread(tmp_path, clean_drive, label, change):
+    """Before: the week unwrap moved every later epoch by a week (tow -> 0), the IMU counter unwrap
+    crashed (- 302401 s), the tight filter refused the session (- 1000 s, + 0.5 s) or took the epoch
+    and drifted 50 m (+ 1000 s)."""
+    d0, clean, _ = clean_drive
+    d = tmp_path / "damaged"
+    shutil.copytree(d0, d)
+    damage_one_tow(d, change)
+    skipped = measurements.decode_session(d).skipped
+    for mode in ("loose", "tight"):
+        res = replay.replay(d, tmp_path / f"out_{mode}", mode=mode)
+        got = res.summary["scoring"]["all"]
+        print(f"{label}, {mode}: H/V RMS {got['rms_h_m']:.3f} / {got['rms_v_m']:.3f} m, "
+              f"undamaged {clean[mode]['rms_h_m']:.3f} / {clean[mode]['rms_v_m']:.3f} m")
+        # One epoch of 90 without its pseudoranges: the run is the undamaged one within a few per cent.
+        assert got["rms_h_m"] < 1.05 * clean[mode]["rms_h_m"] and got["rms_v_m"] < 1.05 * clean[mode]["rms_v_m"]
+    assert skipped[measurements.TOW_DAMAGED] == 1, skipped
+
+
+@pytest.mark.parametrize("run", [1, 2, 3])
+def test_imu_records_moved_within_the_file(tmp_path, run):
+    """`run` whole IMU records (24 bytes each: counter, increments and stamp) cut out 23 s later
+    and put back earlier, as a fuzzer's "move" does. Before: their counter made the index
+    256 frames too high after them (AlignmentError for two or more; the reader drops a lone one for
+    its stamp). Now they are left out, and counted; their old place is a gap of `run` frames."""
+    s, d = simulate(tmp_path, "moved", jitter_mean_s=0.0005)
+    k = sample_index(d)
+    scan = logs.read_record_file(d / "imu-000.bin", "bp3010")
+    i, j = scan.count // 4, scan.count // 4 + 1500
+    order = [*range(i), *range(j, j + run), *range(i, j), *range(j + run, scan.count)]
+    (d / "imu-000.bin").write_bytes(b"".join(scan.record(m) for m in order))
+    skipped = measurements.decode_session(d).skipped  # a lone one the reader already drops for its stamp
+    assert skipped[measurements.IMU_MOVED] + skipped["imu: records with impossible stamps (their bytes are counted "
+                                                     "above)"] == run
+    al, err = align_errors(s, d, np.delete(k, np.arange(j, j + run)))
+    check(al, err, f"{run} IMU records moved")
+
+
+def test_a_receiver_restart_that_sends_gps_time_back_replays_in_stretches(tmp_path, clean_drive):
+    """50 s in, the receiver restarts and, after a second of silence, serves the drive again from
+    its start (GPS time 51 s back, as the fault campaign's emulator did; the IMU goes on). Before:
+    the whole session refused ("fixes row 40: time does not increase"). Now two stretches, each
+    on its own time line: the first is the undamaged replay of those 50 s."""
+    d0, _, clean_out = clean_drive
+    d = tmp_path / "restart"
+    shutil.copytree(d0, d)
+    scan = logs.read_record_file(d / "gps-000.bin", "superstar2")
+    restart = scan.stamps[0] + 50.0
+    again = scan.stamps - scan.stamps[0] + restart + 1.0
+    first, repeat = np.flatnonzero(scan.stamps < restart), np.flatnonzero(again < scan.stamps[-1])
+    rec = [scan.record(k) for k in first]
+    for k in repeat:
+        raw = scan.record(k)
+        rec.append(raw[:ss2.HEADER_LEN] + STAMP.pack(again[k]) + raw[ss2.HEADER_LEN + logs.STAMP_BYTES:])
+    (d / "gps-000.bin").write_bytes(b"".join(rec))
+
+    for mode in ("loose", "tight"):
+        res = replay.replay(d, tmp_path / mode, mode=mode)
+        assert [r.out.name for r in res.stretches] == ["stretch-1", "stretch-2"]
+        assert all("receiver restart" in " ".join(r.summary["warnings"]) for r in res.stretches)
+        one, whole = results_mod.load(res.stretches[0].out), results_mod.load(clean_out[mode])
+        # Up to its last fix (the undamaged replay has one more, at the restart), at the IMU's times
+        # as the stretch's own clock fit gives them.
+        ok = np.isfinite(one["err_ned_m"][:, 0]) & (one["t"] <= res.stretches[0].summary["outages"]["gnss_last_t"])
+        t = one["t"][ok]
+        diff = np.abs(one["err_ned_m"][ok] - np.column_stack([np.interp(t, whole["t"], whole["err_ned_m"][:, a])
+                                                              for a in range(3)]))
+        print(f"{mode}: stretch 1 {t[0]:.1f}-{t[-1]:.1f} s against the undamaged replay: max difference "
+              f"{diff.max(axis=0)} m; stretch 2 {res.stretches[1].summary['imu_samples']} IMU samples")
+        assert t[-1] - t[0] > 45 and diff.max() < 0.01
+        assert res.stretches[1].summary["imu_samples"] > 30 * 64
+    # The command line writes each stretch (and mode) on its own and says so.
+    assert cli.main(["replay", str(d), "--mode", "both", "--out", str(tmp_path / "cli")]) == 0
+    for part in ("stretch-1", "stretch-2"):
+        for mode in ("loose", "tight"):
+            assert (tmp_path / "cli" / part / mode / "run.json").is_file()
+    # ... and the report puts them together.
+    assert cli.main(["report", str(tmp_path / "cli")]) == 0
+    page = (tmp_path / "cli" / "report" / "report.md").read_text()
+    assert all(f"{mode} stretch {i}" in page for mode in ("loose", "tight") for i in (1, 2))

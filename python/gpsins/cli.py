@@ -64,7 +64,7 @@ def _cmd_emulate(args: argparse.Namespace) -> int:
 
 
 def _cmd_replay(args: argparse.Namespace) -> int:
-    from . import filter as flt, noise_from_data, replay
+    from . import filter as flt, replay
 
     if args.set and "help" in args.set:
         print(flt.describe_keys(args.config))
@@ -87,49 +87,61 @@ def _cmd_replay(args: argparse.Namespace) -> int:
 
     memory.map_large_arrays()  # a day-long replay: freed whole-run arrays go back to the system
     modes = ["loose", "tight"] if args.mode == "both" else [args.mode]
-    inp = replay.load_inputs(args.session, modes=modes, config=args.config, overrides=overrides,
-                             timing_method=args.timing, gps_latency_s=args.gps_latency, imu_latency_s=args.imu_latency,
-                             truth=not args.no_truth, nav=args.nav)
-    for i, mode in enumerate(modes):
-        res = replay.run_mode(inp, Path(args.out) / mode if len(modes) > 1 else args.out, mode=mode,
-                              overrides=overrides, outages=args.outages, reference=args.reference,
-                              reference_q=args.reference_q, point=args.point, smooth=args.smooth,
-                              covariance_every=args.covariance_every, aid_heading=args.aid_heading,
-                              last_use=i == len(modes) - 1)
-        c = res.summary["counters"]
-        print(f"{mode}: {res.summary['imu_samples']} IMU samples, {c['fixes_accepted']} fixes used, "
-              f"{c['updates_rejected']} updates rejected; results in {res.out}")
-        for line in res.summary.get("health", []):
-            print(f"  WARNING: {line}")
-        for line in noise_from_data.summary_lines(res.summary):
-            print(f"  {line}")
-        if res.summary["skipped"]:
-            print("  skipped: " + "; ".join(f"{k}: {v}" for k, v in res.summary["skipped"].items()))
-        e = res.summary["errors"]
-        if e:
-            print(f"  vs truth: horizontal RMS {e['horizontal_rms_m']:.2f} m, vertical RMS {e['vertical_rms_m']:.2f} m")
-        to = res.summary.get("time_offset")
-        if to:
-            applied = f" to add to the applied {to['applied_s'] * 1e3:.1f} ms" if to["applied_s"] is not None else ""
-            print(f"  IMU time offset: {to['estimate_s'] * 1e3:+.1f} ms (sigma {to['sigma_s'] * 1e3:.1f} ms){applied}")
-        from . import report
-
-        if report.shows_outage_table(res.summary):
-            report.print_outage_table(res.summary)
-        memory.trim()
+    stretches = replay.load_stretches(args.session, modes=modes, config=args.config, overrides=overrides,
+                                      timing_method=args.timing, gps_latency_s=args.gps_latency,
+                                      imu_latency_s=args.imu_latency, truth=not args.no_truth, nav=args.nav)
+    if len(stretches) > 1:
+        print(f"{args.session}: GPS time goes back {len(stretches) - 1} time(s) (receiver restarts): "
+              f"{len(stretches)} stretches, each replayed on its own")
+    for j, inp in enumerate(stretches):
+        for i, mode in enumerate(modes):
+            _replay_one(args, inp, Path(args.out) / replay.stretch_dir(j, len(stretches)) /
+                        (mode if len(modes) > 1 else ""), mode, overrides, last_use=i == len(modes) - 1)
     return 0
+
+
+def _replay_one(args: argparse.Namespace, inp, out: Path, mode: str, overrides: dict, last_use: bool) -> None:
+    from . import memory, noise_from_data, replay, report
+
+    res = replay.run_mode(inp, out, mode=mode, overrides=overrides, outages=args.outages,
+                          reference=args.reference, reference_q=args.reference_q, point=args.point,
+                          smooth=args.smooth, covariance_every=args.covariance_every,
+                          aid_heading=args.aid_heading, last_use=last_use)
+    c = res.summary["counters"]
+    stretch = res.summary.get("stretch")
+    where = f" (stretch {stretch['index']} of {stretch['of']})" if stretch else ""
+    print(f"{mode}{where}: {res.summary['imu_samples']} IMU samples, {c['fixes_accepted']} fixes used, "
+          f"{c['updates_rejected']} updates rejected; results in {res.out}")
+    for line in res.summary.get("health", []):
+        print(f"  WARNING: {line}")
+    for line in noise_from_data.summary_lines(res.summary):
+        print(f"  {line}")
+    if res.summary["skipped"]:
+        print("  skipped: " + "; ".join(f"{k}: {v}" for k, v in res.summary["skipped"].items()))
+    e = res.summary["errors"]
+    if e:
+        print(f"  vs truth: horizontal RMS {e['horizontal_rms_m']:.2f} m, vertical RMS {e['vertical_rms_m']:.2f} m")
+    to = res.summary.get("time_offset")
+    if to:
+        applied = f" to add to the applied {to['applied_s'] * 1e3:.1f} ms" if to["applied_s"] is not None else ""
+        print(f"  IMU time offset: {to['estimate_s'] * 1e3:+.1f} ms (sigma {to['sigma_s'] * 1e3:.1f} ms){applied}")
+    if report.shows_outage_table(res.summary):
+        report.print_outage_table(res.summary)
+    memory.trim()
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
     from . import report
 
+    out = args.out or Path(args.results[0]) / "report"
+    args.results = [r for path in args.results for r in report.result_dirs(path)]
     for path in args.results:
         from . import results
 
         if not results.exists(path) or not (Path(path) / "run.json").is_file():
             raise CommandError(f"{path}: no {results.SOLUTION}, {results.SMALL} and run.json; give a directory "
                                "written by gpsins replay --out")
-    page = report.make_report(args.results, args.out or Path(args.results[0]) / "report")
+    page = report.make_report(args.results, out)
     report.print_comparison(args.results)
     print(f"report: {page} (self-contained: {page.with_suffix('.html')})")
     return 0
@@ -269,7 +281,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_replay)
 
     p = sub.add_parser("report", help="figures and a summary page from replay results")
-    p.add_argument("results", nargs="+", help="one results directory per filter run")
+    p.add_argument("results", nargs="+", help="results directories of gpsins replay --out (one per run, or one "
+                   "holding its runs per mode and stretch)")
     p.add_argument("--out", help="report directory (default: RESULTS/report)")
     p.set_defaults(func=_cmd_report)
 

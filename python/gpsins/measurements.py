@@ -16,17 +16,21 @@ from __future__ import annotations
 
 from array import array
 from collections import Counter
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 from gpsins_logger import bp3010, superstar2 as ss2
 
-from . import logs
+from . import logs, timing
 from .filter import PseudorangeColumns
 
 SECONDS_PER_WEEK = 604800.0
 FIX_PAIR_TOLERANCE_S = 0.05  # an ID 20 and its ID 21 describe the same epoch (times to 1 ms)
+# A receiver measures on its epoch grid: the gpsd Superstar II sample's times of week sit 3 us off whole
+# seconds; clock slews move them by a millisecond at most.
+TOW_GRID_TOLERANCE_S = 2e-3
+TOW_DAMAGED = "gps: measurement blocks whose time of week does not fit between its neighbours (damaged)"
 GPS_EPOCH = np.datetime64("1980-01-06T00:00:00", "ms")
 
 
@@ -41,6 +45,9 @@ class GpsMeasurements:
     ephemerides: list[tuple[float, ss2.EphemerisWords]]  # (receive time, words)
     iono: ss2.IonoUtc | None
     leap_s: int | None
+    # Where GPS time went back (a receiver restart): (GPS record index of the first block after,
+    # system time between the two blocks, time of week before, after).
+    restarts: list[tuple[int, float, float, float]] = field(default_factory=list)
 
     def pseudorange_table(self) -> np.ndarray:
         """(k, 5) [t, prn, pseudorange m, C/N0 dB-Hz, lock count]: GPS satellites of every block."""
@@ -112,17 +119,23 @@ class _Observations:
         return PseudorangeColumns(*cols)
 
 
-def decode_gps(files: logs.SensorFiles, skipped: Counter) -> GpsMeasurements:
-    week = None
-    tows, tstamps = array("d"), array("d")
+PER_EPOCH = (ss2.ID_MEASUREMENTS, ss2.ID_NAV_USER, ss2.ID_NAV_ECEF, ss2.ID_RECEIVER_STATUS)
+
+
+def decode_gps(files: logs.SensorFiles, skipped: Counter, rows: tuple[int, int] | None = None) -> GpsMeasurements:
+    """The GPS records decoded; ``rows``: only the epochs (measurements, fixes, week) of records
+    rows[0] to rows[1] - 1 (one stretch of a restarted receiver), the ephemerides and ionosphere of all."""
+    tows, tstamps, block_rows = array("d"), array("d"), array("q")
     obs = _Observations()
     nav_user: list[tuple[float, ss2.NavUser]] = []
     nav_ecef: list[tuple[float, ss2.NavEcef]] = []
     ephs, iono, leap = [], None, None
     weeks = []  # (index in blocks when seen, week)
-    for fr, st in files.iter_frames():
+    for row, (fr, st) in enumerate(files.iter_frames()):
         try:
             msg_id, payload = ss2.decode_frame(fr)
+            if rows is not None and msg_id in PER_EPOCH and not rows[0] <= row < rows[1]:
+                continue
             if msg_id == ss2.ID_MEASUREMENTS:
                 m = ss2.Measurements.decode(payload)
                 k = len(tows)
@@ -131,6 +144,7 @@ def decode_gps(files: logs.SensorFiles, skipped: Counter) -> GpsMeasurements:
                         obs.add(k, o.prn, m.pseudorange_m(o), o.cn0_dbhz, o.lock_count)
                 tows.append(m.tow_s)
                 tstamps.append(st)
+                block_rows.append(row)
             elif msg_id == ss2.ID_NAV_USER:
                 nav_user.append((st, ss2.NavUser.decode(payload)))
             elif msg_id == ss2.ID_NAV_ECEF:
@@ -152,11 +166,27 @@ def decode_gps(files: logs.SensorFiles, skipped: Counter) -> GpsMeasurements:
         raise logs.LogError("no GPS measurement blocks (ID 23) in the session: GPS time is unknown")
     if not weeks:
         raise logs.LogError("no GPS week in the session (ID 21 or 49)")
-    week = weeks[0][1]
-    tow = np.frombuffer(tows, dtype=np.float64)
+    tow, stamps = np.frombuffer(tows, dtype=np.float64), np.frombuffer(tstamps, dtype=np.float64)
+    good = ~implausible_tows(tow, stamps)
+    if not good.all():
+        skipped[TOW_DAMAGED] += int((~good).sum())
+    tow, stamps, block_rows = tow[good], stamps[good], np.frombuffer(block_rows, dtype=np.int64)[good]
+    back = np.flatnonzero(_wrap_week(np.diff(tow)) < -TOW_GRID_TOLERANCE_S)
+    restarts = [(int(block_rows[k + 1]), 0.5 * (stamps[k] + stamps[k + 1]), float(tow[k]), float(tow[k + 1]))
+                for k in back]
     # Time of week continues past a week rollover (tow drops by a week).
-    tow = tow + SECONDS_PER_WEEK * np.concatenate([[0], np.cumsum(np.diff(tow) < -SECONDS_PER_WEEK / 2)])
-    prs = obs.columns(tow)
+    rollovers = np.concatenate([[0], np.cumsum(np.diff(tow) < -SECONDS_PER_WEEK / 2)])
+    tow = tow + SECONDS_PER_WEEK * rollovers
+    # The week of the first block: what most week messages say, less the rollovers before them.
+    good_before = np.concatenate([[0], np.cumsum(good)])[[i for i, _ in weeks]]
+    vals, counts = np.unique(np.array([w for _, w in weeks]) - rollovers[np.maximum(good_before - 1, 0)],
+                             return_counts=True)
+    week = int(vals[np.argmax(counts)])
+    block_t = np.full(len(good), np.nan)
+    block_t[good] = tow
+    prs = obs.columns(block_t)
+    if not good.all():
+        prs = prs[np.isfinite(prs.t)]
 
     # Pair each ID 21 with the ID 20 of the same epoch, by GPS time (stamps can jump with the clock).
     fixes, sats = [], []
@@ -176,8 +206,39 @@ def decode_gps(files: logs.SensorFiles, skipped: Counter) -> GpsMeasurements:
         fixes.append([t, e.x_m, e.y_m, e.z_m, e.vx_mps, e.vy_mps, e.vz_mps, max(u.hdop, 0.1), max(u.vdop, 0.1),
                       mode])
         sats.append(u.sats_used)
-    return GpsMeasurements(week, tow, np.array(tstamps), prs, np.array(fixes).reshape(-1, 10),
-                           np.array(sats, dtype=int), ephs, iono, leap)
+    return GpsMeasurements(week, tow, stamps.copy(), prs, np.array(fixes).reshape(-1, 10),
+                           np.array(sats, dtype=int), ephs, iono, leap, restarts)
+
+
+def _wrap_week(x: np.ndarray) -> np.ndarray:
+    return (x + SECONDS_PER_WEEK / 2) % SECONDS_PER_WEEK - SECONDS_PER_WEEK / 2
+
+
+def implausible_tows(tow: np.ndarray, stamps: np.ndarray) -> np.ndarray:
+    """Measurement blocks damaged in a way their checksum let through: a time of week that does not
+    fit between its two neighbours on the receiver's epoch grid, while those two agree with each
+    other. Left in, such a time moves the week or the track. A damaged stamp (time on the grid) is
+    the alignment's to catch; a lasting change (a receiver restart, a clock step) is no single record.
+    The first and last block have one pair of neighbours: off the grid against it, or off it in time
+    minus stamp by more than any host delay."""
+    n = len(tow)
+    bad = np.zeros(n, bool)
+    step = _wrap_week(np.diff(tow))
+    if n < 3 or not (step > 0).any():
+        return bad
+    epoch = float(np.median(step[step > 0]))
+
+    def on_grid(x):  # a whole positive number of epochs
+        m = np.round(x / epoch)
+        return (m >= 1) & (np.abs(x - m * epoch) <= TOW_GRID_TOLERANCE_S)
+
+    grid = on_grid(step)  # block k to k + 1
+    neighbours_agree = on_grid(_wrap_week(tow[2:] - tow[:-2]))  # block k - 1 to k + 1
+    bad[1:-1] = neighbours_agree & ~(grid[:-1] & grid[1:])
+    de = np.abs(np.diff(_wrap_week(tow - stamps - (tow[0] - stamps[0]))))
+    bad[0] = grid[1] and not bad[1] and (not grid[0] or de[0] > timing.LATE_S)
+    bad[-1] = grid[-2] and not bad[-2] and (not grid[-1] or de[-1] > timing.LATE_S)
+    return bad
 
 
 def _utc_seconds(u: ss2.NavUser) -> float:
@@ -225,14 +286,40 @@ def read_counting_damage(directory: str | Path, imu_frames: bool = True) -> tupl
 
 
 def decode_session(directory: str | Path) -> Decoded:
-    """The session decoded for replay; its IMU is decoded as it is read (no frames kept)."""
+    """The session decoded for replay, whole; its IMU is decoded as it is read (no frames kept)."""
+    return _decode(directory, split=False)[0]
+
+
+def decode_stretches(directory: str | Path) -> list[Decoded]:
+    """The session decoded for replay, one Decoded per stretch between receiver restarts (GPS time
+    going back): each stretch is on one time line and replays on its own; the IMU records are cut
+    at the system time between the blocks on either side of a restart."""
+    return _decode(directory, split=True)
+
+
+def _decode(directory: str | Path, split: bool) -> list[Decoded]:
     session, skipped = read_counting_damage(directory, imu_frames=False)
     if "gps" not in session.sensors or not session.sensors["gps"].count:
         raise logs.LogError(f"{directory}: no GPS records")
     if "imu" not in session.sensors or not session.sensors["imu"].count:
         raise logs.LogError(f"{directory}: no IMU records")
-    gps = decode_gps(session.sensors["gps"], skipped)
-    return Decoded(gps, valid_imu(session, skipped), skipped, session.sidecar, Path(directory))
+    files = session.sensors["gps"]
+    gps = decode_gps(files, Counter(skipped) if split else skipped)
+    if not split or not gps.restarts:
+        return [Decoded(gps, valid_imu(session, skipped), skipped, session.sidecar, Path(directory))]
+    imu = valid_imu(session, skipped)
+    rows = [0, *(r[0] for r in gps.restarts), files.count]
+    cuts = [-np.inf, *(r[1] for r in gps.restarts), np.inf]
+    out = []
+    for j in range(len(rows) - 1):
+        part = Counter(skipped)
+        inside = (imu.stamps >= cuts[j]) & (imu.stamps < cuts[j + 1])
+        piece = replace(imu, **{name: getattr(imu, name)[inside] for name in ("stamps", "dtheta", "dv", "status",
+                                                                             "counter")})
+        stretch = decode_gps(files, part, (rows[j], rows[j + 1]))
+        stretch.restarts = gps.restarts  # the session's, for the record
+        out.append(Decoded(stretch, piece, part, session.sidecar, Path(directory)))
+    return out
 
 
 def valid_imu(session: logs.SessionLog, skipped: Counter) -> logs.ImuLog:
@@ -243,5 +330,39 @@ def valid_imu(session: logs.SessionLog, skipped: Counter) -> logs.ImuLog:
     bad = _bad_imu(imu.status)
     if bad.any():
         skipped["imu: frames flagged invalid, over range or test failure"] += int(bad.sum())
-        imu.keep(~bad)
+    moved = out_of_place_imu(imu.counter, imu.stamps, imu.rate_hz) & ~bad
+    if moved.any():
+        skipped[IMU_MOVED] += int(moved.sum())
+    if (bad | moved).any():
+        imu.keep(~(bad | moved))
     return imu
+
+
+IMU_MOVED = "imu: records out of place (counter and stamp from elsewhere in the file)"
+IMU_DROPS_MAX = 16  # frames a counter step may skip and still be the next frame of the same stretch
+IMU_MOVED_RUN = 4  # longest run of out-of-place records looked for
+
+
+def out_of_place_imu(counter: np.ndarray, stamps: np.ndarray, rate_hz: float) -> np.ndarray:
+    """Runs of up to IMU_MOVED_RUN records whose frame counter breaks the sequence on both sides
+    while the records around the run follow each other (a counter step of at most IMU_DROPS_MAX
+    more than the run and stamps less than 3/4 of a counter period apart): records moved in the
+    file (bytes copied from elsewhere with their stamps). Left in, the counter would count 256
+    frames too many after them; a real gap moves the counter once, and its stamps show it."""
+    c = np.asarray(counter, dtype=np.int64)
+    n = len(c)
+    moved = np.zeros(n, bool)
+    if n < 3:
+        return moved
+    step = np.diff(c) % 256
+    step[step == 0] = 256
+    breaks = step > IMU_DROPS_MAX  # between record k and k + 1
+    span = 0.75 * 256 / rate_hz
+    for r in range(1, IMU_MOVED_RUN + 1):
+        i = np.arange(1, n - r)  # first of the run; i - 1 and i + r around it
+        ok = breaks[i - 1] & breaks[i + r - 1]
+        bracket = (c[i + r] - c[i - 1]) % 256
+        ok &= (bracket >= 1) & (bracket <= r + 1 + IMU_DROPS_MAX) & (np.abs(stamps[i + r] - stamps[i - 1]) < span)
+        for k in i[ok]:
+            moved[k:k + r] = True
+    return moved

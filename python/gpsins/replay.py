@@ -51,7 +51,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import dataset as dataset_mod, evaluate, filter as flt, measurements, outages as outages_mod
+from . import dataset as dataset_mod, evaluate, filter as flt, logs, measurements, outages as outages_mod
 from . import measurements_ubx, mounting, noise_from_data, reference as reference_mod, results, solution, timing
 from .readers import rinex
 
@@ -104,6 +104,7 @@ class ReplayResult:
     out: Path
     mode: str
     summary: dict
+    stretches: list = field(default_factory=list)  # a restarted receiver's session: every stretch's result
 
 
 def load_session_truth(directory: Path, t_offset: float) -> tuple[evaluate.Truth, dict] | None:
@@ -150,17 +151,20 @@ def is_dataset(source: str | Path) -> bool:
     return p.suffix.lower() == ".toml" and not p.is_dir()
 
 
-def _session_inputs(session: Path, mode: str, config, timing_method: str, gps_latency_s: float,
-                    imu_latency_s: float, truth: bool, nav, overrides: dict) -> Inputs:
-    t0 = time.perf_counter()
+def _decode_stretches(session: Path, config, overrides: dict) -> list:
     if measurements_ubx.is_ublox(session):  # a u-blox receiver: NAV-PVT fixes carry its own accuracy
-        dec = measurements_ubx.decode_session(session, flt.load_config(config, overrides or {})["fix_uere_m"])
-    else:
-        dec = measurements.decode_session(session)
+        return [measurements_ubx.decode_session(session, flt.load_config(config, overrides or {})["fix_uere_m"])]
+    return measurements.decode_stretches(session)
+
+
+def _session_inputs(session: Path, mode: str, config, timing_method: str, gps_latency_s: float,
+                    imu_latency_s: float, truth: bool, nav, overrides: dict, dec, decode_s: float) -> Inputs:
+    """``dec``: the session (or one stretch of it), decoded in ``decode_s``."""
+    t0 = time.perf_counter()
     # A BP3010's increments stay counts of its units while the session is replayed (exact; 200 MB less a day).
     increments = dec.imu.dtheta, dec.imu.dv, dec.imu.lsb
     dec.imu.dtheta = dec.imu.dv = None
-    decode_s = time.perf_counter() - t0
+    decode_s += time.perf_counter() - t0
     t1 = time.perf_counter()
     al = timing.align(dec.gps.tow, dec.gps.stamps, dec.gps.week, dec.imu.stamps, dec.imu.counter, dec.imu.rate_hz,
                       method=timing_method, gps_latency_s=gps_latency_s, imu_latency_s=imu_latency_s)
@@ -448,13 +452,47 @@ def load_inputs(source: str | Path, *, modes=("loose",), config=None, overrides:
                 timing_method: str = "robust", gps_latency_s: float = DEFAULT_GPS_LATENCY_S,
                 imu_latency_s: float = DEFAULT_IMU_LATENCY_S, truth: bool = True,
                 nav: str | Path | None = None) -> Inputs:
-    """A session's or data set's inputs, decoded once for every mode asked for."""
+    """A session's or data set's inputs, decoded once for every mode asked for; a session that a
+    receiver restart split in stretches is refused (:func:`load_stretches` gives each)."""
+    stretches = load_stretches(source, modes=modes, config=config, overrides=overrides, timing_method=timing_method,
+                               gps_latency_s=gps_latency_s, imu_latency_s=imu_latency_s, truth=truth, nav=nav)
+    if len(stretches) > 1:
+        raise logs.LogError(f"{source}: GPS time goes back {len(stretches) - 1} time(s) (receiver restarts): "
+                            f"{len(stretches)} stretches, each to be replayed on its own")
+    return stretches[0]
+
+
+def load_stretches(source: str | Path, *, modes=("loose",), config=None, overrides: dict | None = None,
+                   timing_method: str = "robust", gps_latency_s: float = DEFAULT_GPS_LATENCY_S,
+                   imu_latency_s: float = DEFAULT_IMU_LATENCY_S, truth: bool = True,
+                   nav: str | Path | None = None) -> list[Inputs]:
+    """The inputs of each stretch a session holds between receiver restarts (GPS time going back),
+    each on its own time line and replayed on its own; one for a session without restarts or a
+    data set (arguments as for :func:`load_inputs`)."""
     source = Path(source)
     if is_dataset(source):
-        return _dataset_inputs(source, config, dict(overrides or {}))
-    filter_mode = "tight" if "tight" in modes else "loose"
-    return _session_inputs(source, filter_mode, config, timing_method, gps_latency_s, imu_latency_s, truth, nav,
-                           dict(overrides or {}))
+        return [_dataset_inputs(source, config, dict(overrides or {}))]
+    overrides = dict(overrides or {})
+    t0 = time.perf_counter()
+    decs = _decode_stretches(source, config, overrides)
+    decode_s = (time.perf_counter() - t0) / len(decs)
+    out = []
+    for j, dec in enumerate(decs):
+        inp = _session_inputs(source, "tight" if "tight" in modes else "loose", config, timing_method,
+                              gps_latency_s, imu_latency_s, truth, nav, overrides, dec=dec, decode_s=decode_s)
+        if len(decs) > 1:
+            inp.info["stretch"] = {"index": j + 1, "of": len(decs), "gps_span_s": list(inp.gnss_span)}
+            back = ", ".join(f"by {before - after:.1f} s after GPS time of week {before:.1f} s"
+                             for _, _, before, after in dec.gps.restarts)
+            inp.info["warnings"].append(f"GPS time went back {back} (a receiver restart): stretch {j + 1} of "
+                                        f"{len(decs)}, replayed on its own")
+        out.append(inp)
+    return out
+
+
+def stretch_dir(j: int, n: int) -> str:
+    """Sub-directory of stretch j (from 0) of n in a replay's output ('' for a session in one piece)."""
+    return f"stretch-{j + 1}" if n > 1 else ""
 
 
 def replay(source: str | Path, out: str | Path, *, mode: str = "loose", config=None, overrides: dict | None = None,
@@ -470,14 +508,20 @@ def replay(source: str | Path, out: str | Path, *, mode: str = "loose", config=N
     smoothed.pos, run.json "smoothed"); ``covariance_every``: also the full covariance of every so many
     epochs (covariance.parquet); ``chunk_rows``: IMU samples per filter call (memory, not results);
     ``overlap``: the filter's next chunk runs on a second thread while this one is scored and written
-    (results unchanged; off for one run per core, as Monte Carlo workers are)."""
+    (results unchanged; off for one run per core, as Monte Carlo workers are). A session whose receiver
+    restarted (GPS time going back) is replayed stretch by stretch into ``out/stretch-N``: the result
+    is the first stretch's, with every stretch's in ``stretches``."""
     if mode not in MODES:
         raise ValueError(f"--mode {mode!r}: one of {', '.join(MODES)}")
-    inp = load_inputs(source, modes=(mode,), config=config, overrides=overrides, timing_method=timing_method,
-                      gps_latency_s=gps_latency_s, imu_latency_s=imu_latency_s, truth=truth, nav=nav)
-    return run_mode(inp, out, mode=mode, overrides=overrides, outages=outages, reference=reference,
-                    reference_q=reference_q, point=point, smooth=smooth, covariance_every=covariance_every,
-                    chunk_rows=chunk_rows, aid_heading=aid_heading, overlap=overlap)
+    stretches = load_stretches(source, modes=(mode,), config=config, overrides=overrides,
+                               timing_method=timing_method, gps_latency_s=gps_latency_s,
+                               imu_latency_s=imu_latency_s, truth=truth, nav=nav)
+    results = [run_mode(inp, Path(out) / stretch_dir(j, len(stretches)), mode=mode, overrides=overrides,
+                        outages=outages, reference=reference, reference_q=reference_q, point=point, smooth=smooth,
+                        covariance_every=covariance_every, chunk_rows=chunk_rows, aid_heading=aid_heading,
+                        overlap=overlap) for j, inp in enumerate(stretches)]
+    results[0].stretches = results
+    return results[0]
 
 
 def run_mode(inp: Inputs, out: str | Path, *, mode: str = "loose", overrides: dict | None = None,
@@ -704,6 +748,8 @@ def run_mode(inp: Inputs, out: str | Path, *, mode: str = "loose", overrides: di
                                          "[imu] time_offset_s (final epoch of the forward pass)"}
     if smoothed_summary is not None:
         summary["smoothed"] = smoothed_summary
+    if "stretch" in info:  # one of the stretches a receiver restart split the session into
+        summary["stretch"] = info.pop("stretch")
     if info:
         summary["dataset"] = info
     (out / "run.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")

@@ -76,7 +76,22 @@ def load(path: str | Path, max_epochs: int = MAX_PLOT_EPOCHS) -> Result:
     cfg_path = path / "config.toml"
     cfg = tomllib.loads(cfg_path.read_text(encoding="utf-8")) if cfg_path.exists() else {}
     name = run.get("mode", path.name)
+    if run.get("stretch"):
+        name += f" stretch {run['stretch']['index']}"
     return Result(name, path, a, run, MODE_COLORS.get(name, "tab:blue"), cfg)
+
+
+def result_dirs(path: str | Path) -> list[Path]:
+    """The replay results in a directory ``gpsins replay --out`` wrote: itself, or its runs per mode
+    (``--mode both``) and per stretch (a restarted receiver), in order."""
+    path = Path(path)
+    if (path / "run.json").is_file():
+        return [path]
+    parts = sorted((p for p in path.glob("stretch-*") if p.name[len("stretch-"):].isdigit()),
+                   key=lambda p: int(p.name[len("stretch-"):]))
+    found = [r for part in parts or [path] for r in (part, *(part / m for m in MODE_COLORS))
+             if (r / "run.json").is_file()]
+    return found or [path]
 
 
 def smoothed_companion(r: Result) -> Result | None:
