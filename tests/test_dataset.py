@@ -2,6 +2,7 @@
 and the outage schedule and scoring against hand-computed values."""
 
 import os
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -357,3 +358,19 @@ def test_sigma_floor_table_reaches_the_fix_table(tmp_path):
 def test_bad_sigma_keys_name_the_field(tmp_path, extra, match):
     with pytest.raises(DatasetError, match=match):
         dataset.load(_kfgins_set(tmp_path, extra))
+
+
+def test_what_the_gnss_readers_leave_out_is_counted_with_the_imus(tmp_path):
+    """One .pos row with a nan: the reader drops it and counts it; the data set (and so run.json's
+    skipped) must say so, not only the reader's own result."""
+    for f in ("walk_0827.toml", "imu_1730_sf.csv"):
+        shutil.copy(WALK / f, tmp_path / f)
+    lines = (WALK / "gnss_1730_sf.pos").read_text().splitlines(keepends=True)
+    k = next(i for i, x in enumerate(lines) if not x.startswith("%")) + 10
+    cols = lines[k].split()
+    cols[2] = "nan"  # the latitude
+    lines[k] = "  ".join(cols) + "\n"
+    (tmp_path / "gnss_1730_sf.pos").write_text("".join(lines))
+    ds = dataset.load(tmp_path / "walk_0827.toml")
+    assert len(ds.fixes) == 535
+    assert sum(v for k, v in ds.skipped.items() if k.startswith("GNSS")) == 1, ds.skipped

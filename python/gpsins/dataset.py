@@ -360,6 +360,7 @@ def _merge_nav(navs: list[Navigation]) -> Navigation:
         if n.alpha and not out.alpha:
             out.alpha, out.beta = n.alpha, n.beta
         out.leap_s = out.leap_s if out.leap_s is not None else n.leap_s
+        out.skipped.update(n.skipped)
     return out
 
 
@@ -433,6 +434,7 @@ def load(path: str | Path) -> Dataset:
         if not navs:
             raise DatasetError(path, "a RINEX observation file needs `nav = \"FILE\"`", field="[gnss] nav")
         obs = rinex.read_obs(gfile)
+        skipped.update(obs.skipped)
         ds.pseudoranges, second = obs.gps_l1(), obs.gps_l2
         ds.navigation = _merge_nav(navs)
     else:
@@ -457,6 +459,10 @@ def load(path: str | Path) -> Dataset:
         if dropped:
             skipped["ubx: NAV-PVT without a valid fix"] = dropped
 
+    # What the GNSS readers left out (non-finite rows, cut-short lines, unusable ephemerides) counts
+    # beside the IMU's.
+    for part in (ds.fixes, ds.pseudoranges, ds.navigation):
+        skipped.update(getattr(part, "skipped", None) or {})
     _ionosphere(ds, tg, second, path, skipped)
     ds.vehicle_kind, ds.filter_table, ds.outages = kind, ft, spec
     ds.sigma_floor_m = _quality_table(tg, "sigma_floor_m", path)
