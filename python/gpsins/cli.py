@@ -89,7 +89,8 @@ def _cmd_replay(args: argparse.Namespace) -> int:
     modes = ["loose", "tight"] if args.mode == "both" else [args.mode]
     stretches = replay.load_stretches(args.session, modes=modes, config=args.config, overrides=overrides,
                                       timing_method=args.timing, gps_latency_s=args.gps_latency,
-                                      imu_latency_s=args.imu_latency, truth=not args.no_truth, nav=args.nav)
+                                      imu_latency_s=args.imu_latency, truth=not args.no_truth, nav=args.nav,
+                                      force=args.force)
     if len(stretches) > 1:
         print(f"{args.session}: GPS time goes back {len(stretches) - 1} time(s) (receiver restarts): "
               f"{len(stretches)} stretches, each replayed on its own")
@@ -114,6 +115,9 @@ def _replay_one(args: argparse.Namespace, inp, out: Path, mode: str, overrides: 
           f"{c['updates_rejected']} updates rejected; results in {res.out}")
     for line in res.summary.get("health", []):
         print(f"  WARNING: {line}")
+    for f in res.summary.get("doctor", []):
+        if f["level"] in ("warning", "error"):
+            print(f"  data-set doctor: {f['level']}: {f['check']}: {f['text']}")
     for line in noise_from_data.summary_lines(res.summary):
         print(f"  {line}")
     if res.summary["skipped"]:
@@ -128,6 +132,18 @@ def _replay_one(args: argparse.Namespace, inp, out: Path, mode: str, overrides: 
     if report.shows_outage_table(res.summary):
         report.print_outage_table(res.summary)
     memory.trim()
+
+
+def _cmd_check(args: argparse.Namespace) -> int:
+    from . import dataset, doctor
+
+    if not Path(args.dataset).is_file():
+        raise CommandError(f"{args.dataset}: no such data-set file")
+    diagnosis = doctor.diagnose(dataset.load(args.dataset), ["loose", "tight"] if args.mode == "both" else
+                                [args.mode])
+    for f in diagnosis.findings:
+        print(f.line())
+    return 2 if diagnosis.errors() else 0
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
@@ -270,6 +286,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="aid the filter with the session's dual-antenna heading and pitch (reference.csv), 1 Hz")
     p.add_argument("--covariance-every", type=int, default=0, metavar="N",
                    help="also write the full error-state covariance of every Nth epoch (covariance.parquet)")
+    p.add_argument("--force", action="store_true",
+                   help="replay a data set even where the data-set doctor finds the data at odds with it")
     p.add_argument("--nav", help="RINEX 2 navigation file: ephemerides and Klobuchar when the log lacks them")
     p.add_argument("--config", help="filter configuration: TOML file or preset name (default, report2005)")
     p.add_argument("--set", action="append", metavar="KEY=VALUE",
@@ -318,6 +336,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--axis-up", action="store_true", help="the gyro axis points up (Earth rate along it)")
     p.add_argument("--drift-bias", type=float, help="gyro bias from a drift test, rad/s (else fitted)")
     p.set_defaults(func=_cmd_calibrate)
+
+    p = sub.add_parser("check", help="the data-set doctor: the data against what the data set declares")
+    p.add_argument("dataset", help="data-set TOML")
+    p.add_argument("--mode", choices=("loose", "tight", "both", "ins"), default="loose",
+                   help="the filter mode to check the content for (default loose)")
+    p.set_defaults(func=_cmd_check)
 
     p = sub.add_parser("spp", help="single-point positioning from pseudoranges (session, raw capture or RINEX)")
     p.add_argument("session", nargs="?", help="session directory")

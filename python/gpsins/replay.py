@@ -52,7 +52,8 @@ from pathlib import Path
 import numpy as np
 
 from . import dataset as dataset_mod, evaluate, filter as flt, logs, measurements, outages as outages_mod
-from . import measurements_ubx, mounting, noise_from_data, reference as reference_mod, results, solution, timing
+from . import doctor, measurements_ubx, mounting, noise_from_data, reference as reference_mod, results, solution
+from . import timing
 from .readers import rinex
 
 DEFAULT_GPS_LATENCY_S = 0.0205  # receiver's epoch-to-first-byte delay (assumed 20 ms) + the logger's
@@ -213,10 +214,14 @@ def _spp_fixes(pr, nav, t0: float) -> tuple[np.ndarray, np.ndarray]:
     return np.array(rows, float).reshape(-1, 10), np.array(sats, int)
 
 
-def _dataset_inputs(path: Path, config, overrides: dict) -> Inputs:
+def _dataset_inputs(path: Path, config, overrides: dict, modes=("loose",), force: bool = False) -> Inputs:
     t0 = time.perf_counter()
     ds = dataset_mod.load(path)
     decode_s = time.perf_counter() - t0
+    diagnosis = doctor.diagnose(ds, modes)
+    if diagnosis.errors() and not force:
+        raise dataset_mod.DatasetError(path, "the data contradict the declaration:\n  " + "\n  ".join(
+            f.line() for f in diagnosis.errors()) + "\n(`gpsins check` shows every check; --force replays anyway)")
     first, last = ds.gnss_span()
     week = int(min(first, ds.imu.t_abs[0]) // measurements.SECONDS_PER_WEEK)
     t_week = week * measurements.SECONDS_PER_WEEK
@@ -296,7 +301,9 @@ def _dataset_inputs(path: Path, config, overrides: dict) -> Inputs:
                 "gnss_format": ds.gnss_format, "ionosphere": ds.ionosphere, "vehicle_kind": ds.vehicle_kind,
                 "fix_quality": n_fix_q,
                 "from_data": inp.data_config, "velocity_lag_measured": measured_lag,
-                "ephemerides_prn": ds.navigation.prns() if ds.navigation is not None else []}
+                "ephemerides_prn": ds.navigation.prns() if ds.navigation is not None else [],
+                "doctor": diagnosis.as_dict()}
+    inp.info["warnings"] += [f.line() for f in diagnosis.findings if f.level in ("warning", "error")]
     return inp
 
 
@@ -451,11 +458,12 @@ def _score_stream(stream, ref, schedule, prefix: str = "") -> _Scored:
 def load_inputs(source: str | Path, *, modes=("loose",), config=None, overrides: dict | None = None,
                 timing_method: str = "robust", gps_latency_s: float = DEFAULT_GPS_LATENCY_S,
                 imu_latency_s: float = DEFAULT_IMU_LATENCY_S, truth: bool = True,
-                nav: str | Path | None = None) -> Inputs:
+                nav: str | Path | None = None, force: bool = False) -> Inputs:
     """A session's or data set's inputs, decoded once for every mode asked for; a session that a
     receiver restart split in stretches is refused (:func:`load_stretches` gives each)."""
     stretches = load_stretches(source, modes=modes, config=config, overrides=overrides, timing_method=timing_method,
-                               gps_latency_s=gps_latency_s, imu_latency_s=imu_latency_s, truth=truth, nav=nav)
+                               gps_latency_s=gps_latency_s, imu_latency_s=imu_latency_s, truth=truth, nav=nav,
+                               force=force)
     if len(stretches) > 1:
         raise logs.LogError(f"{source}: GPS time goes back {len(stretches) - 1} time(s) (receiver restarts): "
                             f"{len(stretches)} stretches, each to be replayed on its own")
@@ -465,13 +473,14 @@ def load_inputs(source: str | Path, *, modes=("loose",), config=None, overrides:
 def load_stretches(source: str | Path, *, modes=("loose",), config=None, overrides: dict | None = None,
                    timing_method: str = "robust", gps_latency_s: float = DEFAULT_GPS_LATENCY_S,
                    imu_latency_s: float = DEFAULT_IMU_LATENCY_S, truth: bool = True,
-                   nav: str | Path | None = None) -> list[Inputs]:
+                   nav: str | Path | None = None, force: bool = False) -> list[Inputs]:
     """The inputs of each stretch a session holds between receiver restarts (GPS time going back),
     each on its own time line and replayed on its own; one for a session without restarts or a
-    data set (arguments as for :func:`load_inputs`)."""
+    data set (arguments as for :func:`load_inputs`; ``force``: a data set the doctor finds at odds with
+    its declaration is replayed anyway)."""
     source = Path(source)
     if is_dataset(source):
-        return [_dataset_inputs(source, config, dict(overrides or {}))]
+        return [_dataset_inputs(source, config, dict(overrides or {}), modes, force)]
     overrides = dict(overrides or {})
     t0 = time.perf_counter()
     decs = _decode_stretches(source, config, overrides)
@@ -501,7 +510,7 @@ def replay(source: str | Path, out: str | Path, *, mode: str = "loose", config=N
            nav: str | Path | None = None, outages: str | outages_mod.OutageSpec | None = None,
            reference: str | Path | None = None, reference_q=(1,), point: str = "antenna",
            smooth: bool = False, covariance_every: int = 0, chunk_rows: int = flt.CHUNK_ROWS,
-           aid_heading: bool = False, overlap: bool = True) -> ReplayResult:
+           aid_heading: bool = False, overlap: bool = True, force: bool = False) -> ReplayResult:
     """Replay a session directory or a data-set TOML (see the module doc); ``outages``: FIRST:LENGTH:PERIOD[:END];
     ``reference``: an RTKLIB .pos (its ``reference_q`` epochs) at the antenna point; ``point``: the point
     solution.pos gives (antenna or imu); ``smooth``: also the fixed-interval smoother (smoothed.parquet,
@@ -515,7 +524,7 @@ def replay(source: str | Path, out: str | Path, *, mode: str = "loose", config=N
         raise ValueError(f"--mode {mode!r}: one of {', '.join(MODES)}")
     stretches = load_stretches(source, modes=(mode,), config=config, overrides=overrides,
                                timing_method=timing_method, gps_latency_s=gps_latency_s,
-                               imu_latency_s=imu_latency_s, truth=truth, nav=nav)
+                               imu_latency_s=imu_latency_s, truth=truth, nav=nav, force=force)
     results = [run_mode(inp, Path(out) / stretch_dir(j, len(stretches)), mode=mode, overrides=overrides,
                         outages=outages, reference=reference, reference_q=reference_q, point=point, smooth=smooth,
                         covariance_every=covariance_every, chunk_rows=chunk_rows, aid_heading=aid_heading,
@@ -547,6 +556,9 @@ def run_mode(inp: Inputs, out: str | Path, *, mode: str = "loose", overrides: di
     filter_mode = "loose" if mode == "ins" else mode
     spec = spec if spec is not None else inp.outage_spec
     schedule = outages_mod.schedule(spec, *inp.gnss_span) if spec is not None else np.zeros((0, 2))
+    if spec is not None and not len(schedule):
+        raise logs.LogError(f"{source}: outages {spec.text()}: none falls inside the GNSS span, "
+                            f"{inp.gnss_span[1] - inp.gnss_span[0]:.1f} s from its first epoch")
 
     ins_overrides = {"zero_velocity_updates": False} if mode == "ins" else {}
     cfg = flt.load_config(inp.base_config, {**inp.data_config, **overrides, **ins_overrides, "mode": filter_mode})
@@ -750,6 +762,8 @@ def run_mode(inp: Inputs, out: str | Path, *, mode: str = "loose", overrides: di
         summary["smoothed"] = smoothed_summary
     if "stretch" in info:  # one of the stretches a receiver restart split the session into
         summary["stretch"] = info.pop("stretch")
+    if "doctor" in info:  # what the data-set doctor measured
+        summary["doctor"] = info.pop("doctor")
     if info:
         summary["dataset"] = info
     (out / "run.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
