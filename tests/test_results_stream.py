@@ -3,6 +3,7 @@ gives (forward and smoothed), and the results tables read back what was written,
 decimation and the per-chunk running statistics equal to statistics over everything."""
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pyarrow.parquet as pq
@@ -149,3 +150,17 @@ def test_imu_columns_index_like_the_table():
     assert len(c) == 9
     with pytest.raises(IndexError):
         c[9]
+
+
+def test_run_json_is_strict_json(tmp_path):
+    """RFC 8259 has no NaN: a value a run could not compute is null (the walk's run.json held NaN
+    before: the NIS of a source with no updates, the errors of a run without a truth)."""
+    res = replay.replay(Path(__file__).parent / "data" / "walk_0827" / "walk_0827.toml", tmp_path / "w")
+    text = (res.out / "run.json").read_text()
+
+    def refuse(name):
+        raise ValueError(f"run.json holds {name}")
+
+    json.loads(text, parse_constant=refuse)
+    assert results.json_text({"a": float("nan"), "b": [np.inf, np.float32(2.5)], "c": np.int64(3)}) == \
+        json.dumps({"a": None, "b": [None, 2.5], "c": 3}, indent=2)

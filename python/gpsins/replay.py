@@ -44,7 +44,6 @@ removed before the filter sees anything.
 
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -766,5 +765,5 @@ def run_mode(inp: Inputs, out: str | Path, *, mode: str = "loose", overrides: di
         summary["doctor"] = info.pop("doctor")
     if info:
         summary["dataset"] = info
-    (out / "run.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
+    (out / "run.json").write_text(results.json_text(summary) + "\n", encoding="utf-8")
     return ReplayResult(out, mode, summary)

@@ -21,9 +21,32 @@ several columns (``r_ecef``: x, y, z) is stored as one column per component
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import numpy as np
+
+def plain(x):
+    """JSON-ready: arrays to lists, NumPy scalars to Python's, non-finite numbers to null."""
+    if isinstance(x, dict):
+        return {str(k): plain(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [plain(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return plain(x.tolist())
+    if isinstance(x, (np.bool_, bool)):
+        return bool(x)
+    if isinstance(x, (np.integer, int)):
+        return int(x)
+    if isinstance(x, (np.floating, float)):
+        return float(x) if math.isfinite(x) else None
+    return x
+
+
+def json_text(doc, indent: int = 2) -> str:
+    """Strict JSON (RFC 8259: no NaN or Infinity) of a document that may hold NumPy values."""
+    return json.dumps(plain(doc), indent=indent, allow_nan=False)
+
 
 SOLUTION = "solution.parquet"
 SMOOTHED = "smoothed.parquet"

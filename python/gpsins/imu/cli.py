@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import math
 import sys
 import warnings
@@ -134,7 +133,9 @@ def run_allan(args) -> int:
                                  "fitted_from_tau_s": None if moved else f.fitted_from_tau_s,
                                  "units": units(name),
                                  "slope_readouts": None if moved else f.slope_readouts}
-        Path(args.json).write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
+        from ..results import json_text
+
+        Path(args.json).write_text(json_text(doc, indent=1) + "\n", encoding="utf-8")
     if out:
         out.mkdir(parents=True, exist_ok=True)
         _plots(out, names, results, fits, data, rate)

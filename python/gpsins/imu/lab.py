@@ -28,7 +28,6 @@ Estimates (SI inside):
 
 from __future__ import annotations
 
-import json
 import math
 import tomllib
 from dataclasses import dataclass, field
@@ -36,6 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import results
 from . import allan, calibration, noise_fit, psd, records
 from .records import AXES, RecordError
 
@@ -544,19 +544,11 @@ def run(plan_path: str | Path, out_dir: str | Path, figures: bool = True) -> dic
     y = kalibr_yaml(res)
     if y:
         (out / "imu.yaml").write_text(y, encoding="utf-8")
-    (out / "lab.json").write_text(json.dumps(to_json(res), indent=1, default=_json_default) + "\n", encoding="utf-8")
+    (out / "lab.json").write_text(results.json_text(to_json(res), indent=1) + "\n", encoding="utf-8")
     from . import lab_report
 
     lab_report.write(res, out, figures=figures)
     return res
-
-
-def _json_default(o):
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, (np.floating, np.integer)):
-        return o.item()
-    raise TypeError(type(o))
 
 
 __all__ = ["load_plan", "run_plan", "run", "Plan", "PlanError", "RecordError"]

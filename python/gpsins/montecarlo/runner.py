@@ -10,8 +10,6 @@ from __future__ import annotations
 
 import contextlib
 import csv
-import json
-import math
 import os
 import threading
 import time
@@ -19,6 +17,7 @@ import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from .. import results
 from . import tasks
 
 TABLE = "runs.csv"
@@ -235,7 +234,7 @@ def write_outputs(plan: Plan, summaries: list[dict], wall_s: float, workers: int
               "runs": len(summaries), "failed": sum("error" in s for s in summaries),
               "tables": [p.name for p in files if p.suffix == ".csv"], "groups": groups}
     path = plan.out / AGGREGATE
-    path.write_text(json.dumps(_plain(result), indent=1, allow_nan=False) + "\n", encoding="utf-8")
+    path.write_text(results.json_text(result, indent=1) + "\n", encoding="utf-8")
     files.append(path)
     return result, files
 
@@ -286,20 +285,3 @@ def _cell(v):
     return "" if v is None else v
 
 
-def _plain(x):
-    """JSON-ready: arrays to lists, non-finite numbers to null."""
-    import numpy as np
-
-    if isinstance(x, dict):
-        return {str(k): _plain(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_plain(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return _plain(x.tolist())
-    if isinstance(x, (np.bool_, bool)):
-        return bool(x)
-    if isinstance(x, (np.integer, int)):
-        return int(x)
-    if isinstance(x, (np.floating, float)):
-        return float(x) if math.isfinite(x) else None
-    return x
