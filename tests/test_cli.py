@@ -230,3 +230,24 @@ def test_log_forwards_to_the_logger_parser(tmp_path):
                    f'[imu]\nport = "{tmp_path}"\n')
     p = _run("log", "--config", cfg)
     assert p.returncode == 2 and "gps.port" in p.stderr and "nodev" in p.stderr, p.stderr
+
+
+@pytest.mark.parametrize("speed", ["0", "-2", "1000"])
+def test_the_main_job_refuses_a_speed_it_cannot_serve(capsys, tmp_path, speed):
+    """Before: a ZeroDivisionError traceback (0), "no GPS records" (-2), "no IMU records" (1000)."""
+    _one_line(capsys, ["run", "--speed", speed, "--out", tmp_path / "o"], "--speed", "times real time")
+    assert not (tmp_path / "o" / "session").exists()
+
+
+def test_the_main_job_reruns_into_the_same_out(tmp_path):
+    """Before: "out/session exists; give another --out" (exit 2) on the second run."""
+    drive = tmp_path / "short.toml"
+    drive.write_text('name = "short"\ndescription = "20 s"\n[start]\ngps_week = 1590\ngps_tow_s = 419400.0\n'
+                     'lat_deg = 59.37\nlon_deg = 17.95\nheight_m = 30.0\nheading_deg = 160.0\n'
+                     '[[segment]]\nlabel = "stand"\nduration_s = 12\nspeed_mps = 0\n'
+                     '[[segment]]\nlabel = "go"\nduration_s = 10\nspeed_mps = 5\n')
+    argv = ["run", "--scenario", drive, "--speed", "8", "--out", tmp_path / "o"]
+    assert cli.main([str(a) for a in argv]) == 0
+    assert cli.main([str(a) for a in argv]) == 0
+    assert (tmp_path / "o" / "session").is_dir() and (tmp_path / "o" / "session-2").is_dir()
+    assert "session-2" in (tmp_path / "o" / "run.json").read_text()
