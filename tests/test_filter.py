@@ -253,17 +253,28 @@ def test_config_round_trips_through_toml():
 
 
 def test_imu_noise_turns_into_random_walk_biases_with_the_seed_conversions():
-    noise = {"gyro_arw_rad_per_sqrt_s": 4.36e-5, "gyro_bias_instability_rad_per_s": 1e-4,
-             "gyro_rrw_rad_per_s_sqrt_s": 2e-5, "accel_vrw_mps_per_sqrt_s": 1e-3,
-             "accel_bias_instability_mps2": 0.0, "accel_rrw_mps2_per_sqrt_s": 0.0, "bias_tau_s": 50.0}
+    """[imu_noise] against what the Allan figures mean, computed here without the filter's constants:
+    bias instability B is the flat ADEV floor F = sqrt(2 ln 2 / pi) B (IEEE Std 952 flicker); the Gauss-Markov
+    x' = -x/T + q w standing for it is sized so that its ADEV peak (seed 000 eq. 10.17, maximised on a grid)
+    touches F; over times short against T its variance grows as q^2 t (10.17's Wiener limit), so with the
+    rate random walk K the bias walks with density sqrt(K^2 + q^2). The white share of B is the density w
+    with which the model's ADEV, w^2 / tau + q^2 tau / 3, just reaches F at its lowest."""
+    b_gyro, k_gyro, tau_s = 1e-4, 2e-5, 50.0
+    noise = {"gyro_arw_rad_per_sqrt_s": 4.36e-5, "gyro_bias_instability_rad_per_s": b_gyro,
+             "gyro_rrw_rad_per_s_sqrt_s": k_gyro, "accel_vrw_mps_per_sqrt_s": 1e-3,
+             "accel_bias_instability_mps2": 0.0, "accel_rrw_mps2_per_sqrt_s": 0.0, "bias_tau_s": tau_s}
     c = flt.core_config(flt.load_config(None, {"imu_noise": noise}))
-    # The process noise adds the white share of the flat floor F = 0.664 B: 3 F^4 / (4 q), q = 2 s^2 / T
-    s = 0.664 / 0.617 * 1e-4
-    f2 = (0.664 * 1e-4) ** 2
+    floor = math.sqrt(2.0 * math.log(2.0) / math.pi) * b_gyro
+    tau = np.logspace(-2, 4, 200001) * tau_s
+    x = tau / tau_s
+    gm_avar_unit_q = tau_s ** 2 / tau * (1 - (3 - 4 * np.exp(-x) + np.exp(-2 * x)) / (2 * x))  # q = 1
+    q = floor / math.sqrt(gm_avar_unit_q.max())
     assert np.allclose(c.gyro_arw_rad_per_sqrt_s, 4.36e-5)  # the sensor's N, as the detectors use it
-    assert np.allclose(c.gyro_flicker_white_rad_per_sqrt_s, math.sqrt(3 * f2 * f2 / (4 * 2 * s * s / 50.0)))
-    assert np.allclose(c.accel_flicker_white_mps_per_sqrt_s, 0.0)  # no bias instability
-    assert np.allclose(c.gyro_bias.random_walk_per_sqrt_s, math.sqrt(2e-5 ** 2 + 2 * s * s / 50.0))
+    assert np.allclose(c.gyro_bias.random_walk_per_sqrt_s, math.hypot(k_gyro, q), rtol=1e-3)
+    w = np.asarray(c.gyro_flicker_white_rad_per_sqrt_s)
+    lowest = np.sqrt((w[:, None] ** 2 / tau + q ** 2 * tau / 3).min(axis=1))
+    assert np.allclose(lowest, floor, rtol=1e-3)
+    assert np.allclose(c.accel_flicker_white_mps_per_sqrt_s, 0.0)  # no bias instability, no walk
     assert np.allclose(c.accel_bias.random_walk_per_sqrt_s, 0.0)
 
 

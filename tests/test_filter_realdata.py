@@ -2,6 +2,7 @@
 of fixes, per-fix measurement noise (16-column fixes), the land-vehicle constraint, and the walk
 (real u-blox + MEMS data) replayed loosely against its RTK reference with outages."""
 
+import functools
 import re
 import tomllib
 from importlib import resources
@@ -11,6 +12,7 @@ import numpy as np
 import pytest
 
 from gpsins import _core, filter as flt, replay, sim
+from gpsins import results as results_mod
 from gpsins.sim import dataset_writer as dw, scenario
 
 WALK = Path(__file__).parent / "data" / "walk_0827" / "walk_0827.toml"
@@ -207,6 +209,64 @@ def test_nonholonomic_constraint_reduces_outage_drift_on_a_simulated_car(car_set
 
 # --- the real walk -------------------------------------------------------------------------------
 
+def _rot(axis: int, deg: float) -> np.ndarray:
+    c, s_ = np.cos(np.radians(deg)), np.sin(np.radians(deg))
+    i, j = [(1, 2), (2, 0), (0, 1)][axis]
+    m = np.eye(3)
+    m[i, i] = m[j, j] = c
+    m[i, j], m[j, i] = -s_, s_
+    return m
+
+
+@functools.cache
+def _walk_yaw_from_rtk():
+    """The device's yaw on the walk found without the filter, in numpy: the IMU (the publisher's rotation,
+    roll 180, yaw -90, from the data README) levelled and its gyro bias taken over the standstill before the
+    walk, its attitude integrated from there with yaw 0; the initial yaw is then the rotation that best
+    turns its horizontal velocity increments over 1 s into the RTK fixed positions' (central differences),
+    a 2-D Procrustes fit. Returns GPS seconds of week, the integrated yaw (deg) at the IMU samples, the
+    initial yaw and its standard error from six consecutive blocks of the fit."""
+    imu = np.loadtxt(WALK.parent / "imu_1730_sf.csv", delimiter=",")
+    tow_imu = (imu[:, 0] - 315964800.0) % 604800.0  # GPST counted as Unix seconds
+    m = _rot(2, -90.0) @ _rot(0, 180.0)  # v_body = Rz(yaw) Rx(roll) v_imu
+    f_b, w_b = (imu[:, 1:4] * 9.80665) @ m.T, imu[:, 4:7] @ m.T
+    rows = [ln.split() for ln in (WALK.parent / "gnss_1730_sf.pos").read_text().splitlines() if not ln.startswith("%")]
+    gps0 = np.datetime64("1980-01-06T00:00:00", "ms")
+    tow_pos = np.array([(np.datetime64(r[0].replace("/", "-") + "T" + r[1], "ms") - gps0) / np.timedelta64(1, "s")
+                        for r in rows]) % 604800.0
+    lat, lon, q = (np.array([float(r[k]) for r in rows]) for k in (2, 3, 5))
+    north = np.radians(lat - lat[0]) * 6378137.0
+    east = np.radians(lon - lon[0]) * 6378137.0 * np.cos(np.radians(lat[0]))
+    v_ne = np.column_stack([np.gradient(north, tow_pos), np.gradient(east, tow_pos)])
+    t_move = tow_pos[np.argmax(np.hypot(*v_ne.T) > 0.3)]
+    rest = (tow_imu > tow_imu[0] + 0.5) & (tow_imu < t_move - 1.0)
+    f0, bias = f_b[rest].mean(0), w_b[rest].mean(0)
+    c = _rot(1, np.degrees(np.arctan2(f0[0], np.hypot(f0[1], f0[2])))) @ _rot(0, np.degrees(np.arctan2(-f0[1], -f0[2])))
+    k0 = int(np.flatnonzero(rest)[-1])
+    f_l, yaw = np.zeros((len(imu), 3)), np.zeros(len(imu))
+    f_l[k0] = c @ f_b[k0]
+    for k in range(k0 + 1, len(imu)):
+        phi = (0.5 * (w_b[k] + w_b[k - 1]) - bias) * (tow_imu[k] - tow_imu[k - 1])
+        a = np.linalg.norm(phi)
+        sk = np.array([[0, -phi[2], phi[1]], [phi[2], 0, -phi[0]], [-phi[1], phi[0], 0]]) / max(a, 1e-15)
+        c = c @ (np.eye(3) + np.sin(a) * sk + (1 - np.cos(a)) * sk @ sk)
+        f_l[k], yaw[k] = c @ f_b[k], np.arctan2(c[1, 0], c[0, 0])
+    steps = np.concatenate([[[0.0, 0.0]], np.cumsum(0.5 * (f_l[1:, :2] + f_l[:-1, :2]) * np.diff(tow_imu)[:, None], 0)])
+    i0 = np.arange(1, len(tow_pos) - 5)
+    i1 = i0 + 4  # 1 s at 4 Hz
+    ok = (q[i0 - 1] == 1) & (q[i0] == 1) & (q[i1] == 1) & (q[i1 + 1] == 1) & (tow_pos[i0] > tow_imu[k0])
+    ok &= np.abs(tow_pos[i1] - tow_pos[i0] - 1.0) < 1e-3
+    dv_rtk = (v_ne[i1] - v_ne[i0])[ok]
+    dv_imu = np.column_stack([np.interp(tow_pos[i1], tow_imu, steps[:, j]) - np.interp(tow_pos[i0], tow_imu, steps[:, j])
+                              for j in range(2)])[ok]
+    cross = dv_imu[:, 0] * dv_rtk[:, 1] - dv_imu[:, 1] * dv_rtk[:, 0]
+    dot = np.sum(dv_imu * dv_rtk, axis=1)
+    psi0 = np.degrees(np.arctan2(cross.sum(), dot.sum()))
+    blocks = [np.degrees(np.arctan2(cross[b].sum(), dot[b].sum())) for b in np.array_split(np.arange(len(dot)), 6)]
+    se = float(np.std(_wrap(np.array(blocks) - psi0), ddof=1) / np.sqrt(len(blocks)))
+    return tow_imu, np.degrees(yaw) + psi0, float(psi0), se
+
+
 @pytest.mark.parametrize("name", ["walk_0827.toml", "walk_0827_ubx.toml", "walk_0827_raw.toml"])
 def test_walk_replays_loose_with_the_heading_searched(tmp_path, name):
     """Measured: .pos 2.29 m drift RMS, 0.046 m outside; NAV-PVT 2.33 m, 0.046 m; the IMU as logged (RTKLIB
@@ -221,20 +281,44 @@ def test_walk_replays_loose_with_the_heading_searched(tmp_path, name):
     h = res["scoring"]["horizontal_m"]
     outside = res["scoring"]["outside"]["rms_h_m"]
     found = res["heading_search"]
+    # The heading against the numpy estimate from the RTK positions (_walk_yaw_from_rtk), each within 95 % of
+    # its stated sigma and that estimate's: the search's start (15 deg sigma), and the run's yaw where the
+    # search's window ends (the filter's own sigma, by then a fraction of a degree).
+    tow, yaw_np, psi0, se = _walk_yaw_from_rtk()
+    z = results_mod.load(tmp_path / "walk")
+    k = min(int(np.searchsorted(z["t"], found["t_end"])), len(z["t"]) - 1)
+    d_start = float(_wrap(found["yaw_deg"] - psi0))
+    d_run = float(_wrap(z["ypr_deg"][k, 0] - np.interp(z["t"][k], tow, yaw_np)))
+    sigma_run = float(z["sigma_ypr_deg"][k, 2])  # about the down axis
     print(f"\n{name}: drift RMS {h['rms']:.2f} m (worst {h['worst']:.2f} m), outside RMS {outside:.3f} m, "
-          f"heading {found['yaw_deg']} deg (dominance {found['dominance']:.0f})")
-    # The device points far from where it goes (course about -90 deg; hand-tuned runs used 160 deg).
-    assert abs(_wrap(found["yaw_deg"] + 90.0)) > 45.0 and abs(_wrap(found["yaw_deg"] - 160.0)) < 45.0
+          f"heading {found['yaw_deg']} deg (dominance {found['dominance']:.0f}); from the RTK positions "
+          f"{psi0:.1f} +- {se:.1f} deg; the run's yaw minus that at the window's end {d_run:.1f} deg "
+          f"(sigma {sigma_run:.2f})")
+    # Measured: RTK 151.5 +- 1.3 deg (the device points far from its course, about -90 deg); searched 165 deg on
+    # every copy, the fine grid's edge (the best coarse hypothesis was 180 deg); the run 0.7-0.9 deg below.
+    assert abs(d_start) <= 1.96 * np.hypot(found["sigma_deg"], se)
+    assert abs(d_run) <= 1.96 * np.hypot(sigma_run, se)
     assert h["rms"] < 0.7 * 4.6 < 0.1 * WALK_BASELINE_DRIFT_M
     assert outside < 0.05
     assert res["counters"]["gnss_resets"] == 0 and res["counters"]["imu_gaps_bridged"] == 0
 
 
-def test_walk_forward_drift_meets_the_goal_on_its_schedule(tmp_path):
-    """Issue 16's walk goal, 2.3 m on its schedule 25:15:45:45: .pos 2.29 m (NAV-PVT 2.33 m, just over;
-    the IMU as logged 2.28 m, in the test above). Pooled over shifted schedules it is 2.60 m."""
-    res = replay.replay(WALK, tmp_path / "walk").summary
-    assert res["scoring"]["horizontal_m"]["rms"] <= 2.3
+@pytest.mark.xfail(strict=True, reason="issue 16's goal is 2.3 m drift RMS; pooled over the issue's schedule "
+                   "25:15:45:45 shifted by -10..+10 s (14 outages) the .pos copy drifts 2.60 m (2.29 m on the "
+                   "unshifted schedule, on which this copy's keys were tuned)")
+def test_walk_forward_drift_meets_the_goal_over_shifted_schedules(tmp_path):
+    """Issue 16's walk goal, 2.3 m. Its schedule puts two outages into the walk, and this copy's keys were
+    chosen on it (2.29 m); two outages' RMS moves by a metre when they start a few seconds earlier or later.
+    So the goal is held against the RMS over every outage of the schedule shifted as benchmarks/bench_walk.py
+    does (-10..+10 s): per schedule 4.58, 3.08, 0.62, 2.29, 2.46, 0.97, 2.03 m."""
+    per_outage_m = []
+    for shift_s in (-10, -6, -2, 0, 2, 6, 10):
+        res = replay.replay(WALK, tmp_path / f"walk_{shift_s}", outages=f"{25 + shift_s}:15:45:45").summary
+        per_outage_m += [o["max_h_m"] for o in res["scoring"]["per_outage"] if np.isfinite(o["max_h_m"])]
+    pooled_m = float(np.sqrt(np.mean(np.square(per_outage_m))))
+    print(f"\nwalk drift RMS over {len(per_outage_m)} outages of shifted schedules: {pooled_m:.2f} m")
+    assert len(per_outage_m) == 14
+    assert pooled_m <= 2.3
 
 
 # --- the walk from its publisher's facts alone (walk_0827_facts.toml: no key tuned on the walk) ----------

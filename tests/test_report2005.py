@@ -7,7 +7,8 @@ magnitudes seed 004 states in chapter 7 for its car run, in its units (ENU metre
 
 The report shows one run; here each figure is the median over five simulated runs (seeds 0-4), so that
 a match or a miss is not one noise draw's luck (seed 0 alone once matched the pitch, at 0.42 deg, which the
-median does not). What matches is asserted; what does not is a strict xfail that says by how much, and the
+median does not). The L-O peaks, which scatter most, are compared with one run's 95 % prediction interval
+from the five instead. What matches is asserted; what does not is a strict xfail that says by how much, and the
 preset's description says the same.
 """
 
@@ -20,7 +21,6 @@ from gpsins.sim.session import write_session
 REPORT = {"loose": {"enu_m": (20.0, 10.0, 22.0), "pitch_deg": 0.5, "yaw_deg": 5.0},
           "tight": {"enu_m": (18.0, 22.0, 15.0), "pitch_deg": 0.3, "yaw_deg": 7.0}}
 L_TO_O = ("L-M", "M-N", "N-O")
-FACTOR = 3.0  # "about" read off a figure of one run, against the median of simulated runs
 SEEDS = range(5)
 
 
@@ -66,19 +66,41 @@ def test_pitch_at_the_stop_is_the_reports(runs, mode):
     assert pitch <= 2 * REPORT[mode]["pitch_deg"]
 
 
+def _one_run_interval(peaks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The report's figure is one run's peak; ours scatter by a factor of 2-4 from seed to seed. So the bar is
+    the 95 % prediction interval of one more run from the seeds' log peaks (Student t; the log spread pooled over
+    east, north and up, 3 x (seeds - 1) degrees of freedom): its low and high end per axis."""
+    from scipy.stats import t as student_t
+
+    logs = np.log(peaks)  # (seeds, 3)
+    n = len(logs)
+    s = np.sqrt(logs.var(axis=0, ddof=1).mean())
+    half = student_t.ppf(0.975, 3 * (n - 1)) * s * np.sqrt(1.0 + 1.0 / n)
+    centre = logs.mean(axis=0)
+    return np.exp(centre - half), np.exp(centre + half)
+
+
 def test_tight_l_to_o_errors_are_the_reports_magnitude(runs):
-    peaks = _median(_l_to_o_peaks, runs["tight"])
+    peaks = np.array([_l_to_o_peaks(z) for z in runs["tight"]])
     want = np.array(REPORT["tight"]["enu_m"])
-    assert np.all(peaks >= want / FACTOR) and np.all(peaks <= want * FACTOR), peaks
+    lo, hi = _one_run_interval(peaks)
+    print(f"\ntight L-O peaks per seed (E, N, U m) {np.round(peaks, 1).tolist()}; one run's 95 % interval "
+          f"{np.round(lo, 1)}..{np.round(hi, 1)}; the report {want}")
+    # Measured (seeds 0-4): E 7.7-29.2, N 21.4-62.3, U 3.0-11.0 m; interval E 4.5-58, N 11.5-148, U 1.8-23 m:
+    # that wide because a single run's peak is that uncertain, the report's as much as ours.
+    assert np.all(want >= lo) and np.all(want <= hi), (lo, hi)
 
 
-@pytest.mark.xfail(strict=True, reason="median over seeds 0-4: loose L-O north error peaks at 112 m (81-149 m per "
-                                       "seed) where the simulated receiver's fixes are 100 m off and the report's "
-                                       "tuning has no gate (report: about 10 m)")
+@pytest.mark.xfail(strict=True, reason="seeds 0-4: loose L-O north error peaks at 42-172 m (median 69 m) where "
+                                       "the simulated receiver's fixes are 100 m off and the report's tuning has "
+                                       "no gate; the report's about 10 m is below one run's 95 % interval, 20-347 m")
 def test_loose_l_to_o_errors_are_the_reports_magnitude(runs):
-    peaks = _median(_l_to_o_peaks, runs["loose"])
+    peaks = np.array([_l_to_o_peaks(z) for z in runs["loose"]])
     want = np.array(REPORT["loose"]["enu_m"])
-    assert np.all(peaks >= want / FACTOR) and np.all(peaks <= want * FACTOR), peaks
+    lo, hi = _one_run_interval(peaks)
+    print(f"\nloose L-O peaks per seed (E, N, U m) {np.round(peaks, 1).tolist()}; one run's 95 % interval "
+          f"{np.round(lo, 1)}..{np.round(hi, 1)}; the report {want}")
+    assert np.all(want >= lo) and np.all(want <= hi), (lo, hi)
 
 
 @pytest.mark.xfail(strict=True, reason="median over seeds 0-4 of the yaw error at the stop: 12.9 deg (loose) and "

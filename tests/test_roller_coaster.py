@@ -157,8 +157,10 @@ def test_track_errors_name_the_key():
 
 
 def test_loose_and_tight_filters_ride_three_laps_without_diverging():
-    """Both couplings through 3 laps (after 60 s at rest) of the roller coaster: no divergence,
-    every lap's horizontal error bounded. Figures for the full 11 laps are in the issue's report."""
+    """Both couplings through 3 laps (after 60 s at rest) of the roller coaster: no divergence, and on every
+    lap the position no worse than the receiver's own fixes, at their epochs (both against the truth, in
+    numpy): integrating the IMU with them must not lose what GNSS alone gives. Figures for the full 11 laps
+    are in the issue's report."""
     from gpsins import evaluate
     from gpsins import filter as flt
 
@@ -168,58 +170,87 @@ def test_loose_and_tight_filters_ride_three_laps_without_diverging():
     tr = s.truth
     truth = evaluate.Truth(tr.t, tr.r_ecef, tr.v_ecef, tr.q_eb)
     tight = sim.tight_inputs(s)
+    fixes = sim.fix_table(s)
+    fix_err_m = np.linalg.norm(fixes[:, 1:4] - tr.position_at(fixes[:, 0]), axis=1)
     for mode, extra in (("loose", {}), ("tight", tight)):
         cfg = flt.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), "mode": mode})
-        sol = flt.run(sim.imu_table(s), sim.fix_table(s), cfg, **extra)
+        sol = flt.run(sim.imu_table(s), fixes, cfg, **extra)
         assert not sol.counters["diverged"], mode
         assert sol.t[-1] > s.scenario.duration_s - 1.0
-        err = evaluate.nav_errors(sol, truth)
+        err_m = np.linalg.norm(evaluate.nav_errors(sol, truth).dr, axis=1)
         for label, a, b in s.scenario.segment_times():
-            m = (sol.t >= a) & (sol.t < b)
-            h = np.sqrt(np.mean(np.sum(err.dr[m] ** 2, axis=1)))
-            assert h < 30.0, (mode, label, h)
+            if not label.startswith("Lap"):
+                continue
+            f = (fixes[:, 0] >= a) & (fixes[:, 0] < b) & (fixes[:, 9] >= 2)  # 2-D and 3-D fixes
+            k = np.searchsorted(sol.t, fixes[f, 0]).clip(0, len(sol.t) - 1)
+            rms_sol, rms_fix = np.sqrt(np.mean(err_m[k] ** 2)), np.sqrt(np.mean(fix_err_m[f] ** 2))
+            print(f"{mode} {label}: 3-D RMS at the {f.sum()} fixes {rms_sol:.2f} m, the fixes' own {rms_fix:.2f} m")
+            # Measured: loose 7.93 / 5.44 / 3.94 m, tight 4.24 / 3.77 / 1.39 m; the fixes 8.42 / 6.32 / 5.66 m.
+            assert rms_sol <= rms_fix, (mode, label, rms_sol, rms_fix)
 
 
-def test_gnss_errors_measured_at_the_station_make_both_filters_consistent():
+@pytest.fixture(scope="module")
+def station_ride():
+    """Two laps after the 5-minute initialisation at the station, seed 0."""
+    data, source = scn._read("roller-coaster")
+    data["track"].update(laps=2, rest_before_s=300.0, rest_after_s=10.0)
+    return sim.simulate(scn.parse(data, source), seed=0)
+
+
+@pytest.mark.parametrize("mode", [
+    "loose",
+    pytest.param("tight", marks=pytest.mark.xfail(strict=True, reason=(
+        "with the GNSS errors measured at the station the tight laps' NEES is 5.94, below its chi-square "
+        "band 5.97..12.64 (chi2(9 n) / n, n = 124 s of laps / 20 s multipath = 6.2): under-confident; "
+        "loose 8.8 is inside"))),
+])
+def test_gnss_errors_measured_at_the_station_make_both_filters_consistent(station_ride, mode):
     """Under the steel structure the fixes' errors are multipath, metres and correlated over
     seconds: taken as white, or with the preset's open-sky sizes, the 300 fixes at the station are
     averaged as if nearly independent and both filters are too confident on the laps. Modelled from
     the fixes' scatter at the station (gpsins.fix_scatter, no truth used), the laps' NEES of the 9
-    navigation states comes near its expectation of 9 (seed 0: white 37 loose / 49 tight; preset
-    32 / 13; measured 10.8 / 7.4). Doppler is left out (doppler_sigma_mps = 0): the station at rest cannot
-    measure its errors on the ride, where the simulator's Doppler (the carrier's central difference over 0.2 s)
-    carries the track's jerk, about 0.2 m/s and correlated over each element: with it at the preset's 0.1 m/s
-    the tight laps' NEES is 13.8 (attitude, velocity and position alike over-confident), at 0.3 m/s 8.3."""
+    navigation states comes near its expectation of 9, inside its chi-square band (seed 0: white 37 loose /
+    49 tight; preset 23.0 / 11.9; measured 8.8 / 5.9, band 5.97..12.64). Doppler is left out
+    (doppler_sigma_mps = 0): the station at rest cannot measure its errors on the ride, where the simulator's
+    Doppler (the carrier's central difference over 0.2 s) carries the track's jerk, about 0.2 m/s and
+    correlated over each element: with it at the preset's 0.1 m/s the tight laps' NEES is 13.8 (attitude,
+    velocity and position alike over-confident), at 0.3 m/s 8.3."""
+    from scipy.stats import chi2
+
     from gpsins import evaluate, fix_scatter
     from gpsins import filter as flt
 
-    data, source = scn._read("roller-coaster")
-    data["track"].update(laps=2, rest_before_s=300.0, rest_after_s=10.0)
-    s = sim.simulate(scn.parse(data, source), seed=0)
+    s = station_ride
     tr = s.truth
     truth = evaluate.Truth(tr.t, tr.r_ecef, tr.v_ecef, tr.q_eb)
-    tight = sim.tight_inputs(s)
+    extra = sim.tight_inputs(s) if mode == "tight" else {}
     fixes = sim.fix_table(s)
     segments = s.scenario.segment_times()
     est = fix_scatter.measure(fixes, segments[0][1] + 5.0, segments[0][2])
-    for mode, extra in (("loose", {}), ("tight", tight)):
-        nees = {}
-        for name, over in (("preset", {}), ("measured", fix_scatter.filter_overrides(est, mode))):
-            cfg = flt.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), "mode": mode, "doppler_sigma_mps": 0.0,
-                                         **over})
-            sol = flt.run(sim.imu_table(s), fixes, cfg, covariance=True, **extra)
-            assert not sol.counters["diverged"], (mode, name)
-            err = evaluate.nav_errors(sol, truth)
-            m = np.any([(sol.t >= a) & (sol.t < b) for label, a, b in segments if label.startswith("Lap")], axis=0)
-            nees[name] = float(evaluate.nees(err.e9[m], sol.covariance[m][:, :9, :9]).mean())
-        print(f"{mode}: laps' NEES preset {nees['preset']:.1f}, measured {nees['measured']:.1f}")
-        # The preset's GNSS errors are sized for the open sky (loose white fixes; tight with the ordinary
-        # receiver's 0.6 m multipath): under the steel structure loose is clearly over-confident (27.9
-        # against 8.6). Tight is more confident than with the measured errors (11.1 against 5.7) but no
-        # longer outside the band since its IMU noise covers the bias instability (was above 12).
-        assert nees["preset"] > 1.5 * nees["measured"], (mode, nees)
-        assert mode == "tight" or nees["preset"] > 12.0, (mode, nees)
-        assert 3.0 < nees["measured"] < 13.5, (mode, nees)
+    # The band: the laps' errors follow the structure's multipath, correlated as exp(-t / tau) (the
+    # simulator's multipath_tau_s); their squares as exp(-2 t / tau), so the NEES's mean over T varies as that
+    # of T / tau independent epochs, and the average of those 9-dof values is chi2(9 n) / n, 95 % two-sided.
+    laps_s = sum(b - a for label, a, b in segments if label.startswith("Lap"))
+    n_independent = laps_s / s.scenario.gnss.multipath_tau_s
+    lo, hi = chi2.ppf([0.025, 0.975], 9 * n_independent) / n_independent
+    nees = {}
+    for name, over in (("preset", {}), ("measured", fix_scatter.filter_overrides(est, mode))):
+        cfg = flt.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), "mode": mode, "doppler_sigma_mps": 0.0,
+                                     **over})
+        sol = flt.run(sim.imu_table(s), fixes, cfg, covariance=True, **extra)
+        assert not sol.counters["diverged"], (mode, name)
+        err = evaluate.nav_errors(sol, truth)
+        m = np.any([(sol.t >= a) & (sol.t < b) for label, a, b in segments if label.startswith("Lap")], axis=0)
+        nees[name] = float(evaluate.nees(err.e9[m], sol.covariance[m][:, :9, :9]).mean())
+    print(f"{mode}: laps' NEES preset {nees['preset']:.2f}, measured {nees['measured']:.2f}, "
+          f"band {lo:.2f}..{hi:.2f} ({n_independent:.1f} independent samples)")
+    # The preset's GNSS errors are sized for the open sky (loose white fixes; tight with the ordinary
+    # receiver's 0.6 m multipath): under the steel structure loose is over-confident, above the band
+    # (measured 23.0 against 8.8). Tight is more confident than with the measured errors (11.9 against
+    # 5.9) but inside the band since its IMU noise covers the bias instability (was above 12).
+    assert nees["preset"] > 1.5 * nees["measured"], (mode, nees)
+    assert mode == "tight" or nees["preset"] > hi, (mode, nees)
+    assert lo <= nees["measured"] <= hi, (mode, nees)
 
 
 def _riding(pitch_deg=0.3, roll_deg=0.2):
