@@ -164,3 +164,17 @@ def test_run_json_is_strict_json(tmp_path):
     json.loads(text, parse_constant=refuse)
     assert results.json_text({"a": float("nan"), "b": [np.inf, np.float32(2.5)], "c": np.int64(3)}) == \
         json.dumps({"a": None, "b": [None, 2.5], "c": 3}, indent=2)
+
+
+def test_run_json_says_what_made_it(session, tmp_path):
+    """Version, the configuration's hash (of the config.toml written beside it), the source and the
+    simulation's scenario and seed: enough to make the result again."""
+    import hashlib
+
+    from gpsins import __version__
+
+    res = replay.replay(session, tmp_path / "r")
+    p = json.loads((res.out / "run.json").read_text())["provenance"]
+    assert p["gpsins"] == __version__ and p["source"] == str(session)
+    assert p["config_sha256"] == hashlib.sha256((res.out / "config.toml").read_bytes()).hexdigest()
+    assert p["simulation"]["scenario"] == "default" and p["simulation"]["seed"] == 3

@@ -44,6 +44,10 @@ removed before the filter sees anything.
 
 from __future__ import annotations
 
+import hashlib
+import json
+import shlex
+import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -53,6 +57,7 @@ import numpy as np
 from . import dataset as dataset_mod, evaluate, filter as flt, logs, measurements, outages as outages_mod
 from . import doctor, measurements_ubx, mounting, noise_from_data, reference as reference_mod, results, solution
 from . import timing
+from . import __version__
 from .readers import rinex
 
 DEFAULT_GPS_LATENCY_S = 0.0205  # receiver's epoch-to-first-byte delay (assumed 20 ms) + the logger's
@@ -116,8 +121,10 @@ def load_session_truth(directory: Path, t_offset: float) -> tuple[evaluate.Truth
             z = open_truth(p)
             tow = z["tow_s"] + (int(z["gps_week"]) * 604800.0) - t_offset
             evaluate.release_pages(z["tow_s"])
+            model = json.loads(str(z["model_json"])) if "model_json" in z else {}
             extra = {"seg_labels": z["segment_labels"], "seg_t": z["segment_t"] + float(z["t0_tow_s"]) +
-                     int(z["gps_week"]) * 604800.0 - t_offset}
+                     int(z["gps_week"]) * 604800.0 - t_offset,
+                     "simulation": {"scenario": model.get("scenario"), "seed": model.get("seed"), "truth": str(p)}}
             return evaluate.Truth(tow, z["r_ecef"], z["v_ecef"], z["q_eb"]), extra
     return None
 
@@ -699,7 +706,7 @@ def run_mode(inp: Inputs, out: str | Path, *, mode: str = "loose", overrides: di
     small = dict(week=np.int64(inp.week), fixes=inp.fixes, fix_sats=inp.fix_sats, lever_arm_body_m=lever,
                  outages=schedule)
     if found:
-        small.update(found[1])
+        small.update({k: v for k, v in found[1].items() if k != "simulation"})  # arrays only
     scoring = {}
     if has_ref:
         scored = _score_stream(forward, ref, score_sched)
@@ -712,7 +719,8 @@ def run_mode(inp: Inputs, out: str | Path, *, mode: str = "loose", overrides: di
         small.update(sm_scored.arrays)
     np.savez(out / results.SMALL, **small)
     reference_system = _score_reference_system(ref_system, inp.week, forward.brackets.rows())
-    (out / "config.toml").write_text(flt.to_toml(cfg), encoding="utf-8")
+    config_text = flt.to_toml(cfg)
+    (out / "config.toml").write_text(config_text, encoding="utf-8")
     clock["write_s"] = write_s + time.perf_counter() - t4
     clock["total_s"] = sum(v for k, v in clock.items())
     info = {k: v for k, v in inp.info.items() if k not in ("decode_s", "align_s")}
@@ -759,6 +767,12 @@ def run_mode(inp: Inputs, out: str | Path, *, mode: str = "loose", overrides: di
                                          "[imu] time_offset_s (final epoch of the forward pass)"}
     if smoothed_summary is not None:
         summary["smoothed"] = smoothed_summary
+    # What made this result: enough to make it again.
+    summary["provenance"] = {"gpsins": __version__, "command": shlex.join(["gpsins", *sys.argv[1:]])
+                             if Path(sys.argv[0]).name in ("gpsins", "__main__.py", "cli.py") else None,
+                             "config_sha256": hashlib.sha256(config_text.encode()).hexdigest(),
+                             "source": str(source),
+                             "simulation": (inp.truth[1].get("simulation") if inp.truth is not None else None)}
     if "stretch" in info:  # one of the stretches a receiver restart split the session into
         summary["stretch"] = info.pop("stretch")
     if "doctor" in info:  # what the data-set doctor measured

@@ -849,14 +849,21 @@ def _run_lines(r: Result) -> list[str]:
     if al:
         lines.append(f"alignment: {al['method']}, IMU clock {al['imu_clock_ppm']:+.1f} ppm, "
                      f"{al['imu_frames_missing']} frames missing, clock steps {al['clock_steps_s']}")
+    p = run.get("provenance")
+    if p:
+        sim = p.get("simulation") or {}
+        lines.append(f"made by gpsins {p['gpsins']}" + (f": `{p['command']}`" if p.get("command") else "") +
+                     f"; configuration sha256 {p['config_sha256'][:16]}" +
+                     (f"; scenario {sim['scenario']}, seed {sim['seed']}" if sim.get("scenario") else ""))
     lines += ["counters: " + ", ".join(f"{k} {v}" for k, v in run["counters"].items() if v),
               "skipped: " + (", ".join(f"{k}: {v}" for k, v in run["skipped"].items()) or "nothing")]
     e = run.get("errors") or {}
     if e:
-        lines.append(f"errors vs truth: horizontal RMS {e['horizontal_rms_m']:.2f} m "
-                     f"(max {e['horizontal_max_m']:.2f}), "
-                     f"vertical RMS {e['vertical_rms_m']:.2f} m (max {e['vertical_max_m']:.2f}), mean NEES "
-                     f"{e['nees9_mean']:.2f} (9 dof), inside 3 sigma {100 * e['inside_3_sigma']:.1f} %")
+        inside = e.get("inside_3_sigma")
+        lines.append(f"errors vs truth: horizontal RMS {_fmt(e.get('horizontal_rms_m'))} m "
+                     f"(max {_fmt(e.get('horizontal_max_m'))}), vertical RMS {_fmt(e.get('vertical_rms_m'))} m "
+                     f"(max {_fmt(e.get('vertical_max_m'))}), mean NEES {_fmt(e.get('nees9_mean'))} (9 dof), "
+                     f"inside 3 sigma {_fmt(None if inside is None else 100 * inside, 1)} %")
     sc = run.get("scoring") or {}
     if shows_outage_table(run):
         lines.append(f"against {Path(sc['reference']).name} ({sc['point']} point): RMS of the per-outage maximum "

@@ -57,7 +57,8 @@ def run_constants(b) -> dict[str, np.ndarray]:
     """The run-wide entries: start, the unit's drawn matrices, segments and the models (as JSON)."""
     sc, e = b.scenario, b.imu_errors
     segments = sc.segment_times()
-    model = {"imu": {k: v for k, v in sc.imu.__dict__.items()}, "gnss": dict(sc.gnss.__dict__),
+    model = {"scenario": sc.name, "seed": getattr(b, "seed", None),
+             "imu": {k: v for k, v in sc.imu.__dict__.items()}, "gnss": dict(sc.gnss.__dict__),
              "timing": dict(sc.timing.__dict__), "imu_errors": e.as_dict(),
              "bp3010_lsb": {"dtheta_rad": bp3010.dtheta_lsb_rad(b.imu_rate_hz),
                             "dv_mps": bp3010.dv_lsb_mps(b.imu_rate_hz)}}
