@@ -251,3 +251,20 @@ def test_the_main_job_reruns_into_the_same_out(tmp_path):
     assert cli.main([str(a) for a in argv]) == 0
     assert (tmp_path / "o" / "session").is_dir() and (tmp_path / "o" / "session-2").is_dir()
     assert "session-2" in (tmp_path / "o" / "run.json").read_text()
+
+
+def test_set_help_on_a_data_set_shows_the_values_it_runs_with(capsys):
+    """Before: the preset's values. The facts-only walk runs as a hand-held device with the generic MEMS
+    priors (dataset.GENERIC_MEMS), which the default preset does not hold."""
+    from pathlib import Path
+
+    from gpsins import dataset
+
+    walk = Path(__file__).parent / "data" / "walk_0827" / "walk_0827_facts.toml"
+    assert cli.main(["replay", str(walk), "--out", "unused", "--set", "help"]) == 0
+    out = capsys.readouterr().out
+    assert "platform = handheld" in out
+    want = dataset.GENERIC_MEMS["gyro_bias_residual_rad_per_s"]
+    assert f"gyro_bias_residual_rad_per_s = {want}" in out
+    assert cli.main(["replay", "x", "--out", "unused", "--set", "help"]) == 0
+    assert f"gyro_bias_residual_rad_per_s = {want}" not in capsys.readouterr().out

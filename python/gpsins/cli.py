@@ -67,7 +67,15 @@ def _cmd_replay(args: argparse.Namespace) -> int:
     from . import filter as flt, replay
 
     if args.set and "help" in args.set:
-        print(flt.describe_keys(args.config))
+        if replay.is_dataset(args.session) and Path(args.session).is_file():
+            # The values a replay of this data set starts from: its [filter] table (or --config) and
+            # what it takes from its data; the noise fit, where on, scales the noise at the run.
+            inp = replay.load_inputs(args.session, config=args.config, force=True)
+            print(flt.describe_keys(inp.base_config, inp.data_config,
+                                    f"values for {args.session}: its [filter] table and, from its data, "
+                                    f"{', '.join(sorted(inp.data_config)) or 'nothing'}"))
+        else:
+            print(flt.describe_keys(args.config))
         return 0
     overrides = flt.parse_overrides(args.set or [])
     flt.load_config(args.config, overrides)  # a bad key or value fails here, before any decoding

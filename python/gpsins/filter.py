@@ -272,13 +272,15 @@ def check_config(cfg: dict, where: str = "<config>", only: dict | None = None) -
             _check_value(key, value, kind, where)
 
 
-def describe_keys(source=None) -> str:
-    """The configuration keys with their values in `source` (default preset), and the presets: for --set help."""
-    cfg = load_config(source)
+def describe_keys(source=None, overrides: dict | None = None, title: str | None = None) -> str:
+    """The configuration keys with their values in `source` (default preset) with `overrides` on top
+    (a data set's values from its data), and the presets: for --set help."""
+    cfg = load_config(source, overrides or {})
     core = _core.InsConfig()
     kinds = _key_types()
-    lines = [f"presets: {', '.join(PRESETS)} (--config NAME or a TOML file with preset = NAME)",
-             "keys (--set KEY=VALUE; tables with --set TABLE.KEY=VALUE; vectors as [x, y, z] or one number):"]
+    lines = [title] if title else []
+    lines += [f"presets: {', '.join(PRESETS)} (--config NAME or a TOML file with preset = NAME)",
+              "keys (--set KEY=VALUE; tables with --set TABLE.KEY=VALUE; vectors as [x, y, z] or one number):"]
     for key in sorted(kinds):
         if key == "preset":
             continue
