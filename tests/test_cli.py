@@ -268,3 +268,24 @@ def test_set_help_on_a_data_set_shows_the_values_it_runs_with(capsys):
     assert f"gyro_bias_residual_rad_per_s = {want}" in out
     assert cli.main(["replay", "x", "--out", "unused", "--set", "help"]) == 0
     assert f"gyro_bias_residual_rad_per_s = {want}" not in capsys.readouterr().out
+
+
+def test_a_full_disk_during_replay_is_one_line_and_leaves_nothing_partial(capsys, tmp_path, monkeypatch):
+    """Before: the input's name, a pyarrow traceback at exit, and the partial files left behind."""
+    import errno as errno_mod
+    import gc
+    from pathlib import Path
+
+    from gpsins import solution
+
+    def full(self, *a, **k):
+        raise OSError(errno_mod.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(solution.PosWriter, "add", full)
+    walk = Path(__file__).parent / "data" / "walk_0827" / "walk_0827.toml"
+    out = tmp_path / "o"
+    rc = cli.main(["replay", str(walk), "--out", str(out)])
+    gc.collect()  # the failed run's writers are collected: nothing may print then
+    err = capsys.readouterr().err
+    assert rc == 2 and err.strip() == f"gpsins replay: {out}: no space left on the device", err
+    assert not out.exists()

@@ -44,6 +44,7 @@ removed before the filter sees anything.
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import json
 import shlex
@@ -539,7 +540,30 @@ def replay(source: str | Path, out: str | Path, *, mode: str = "loose", config=N
     return results[0]
 
 
-def run_mode(inp: Inputs, out: str | Path, *, mode: str = "loose", overrides: dict | None = None,
+RESULT_FILES = (results.SOLUTION, results.SMOOTHED, results.UPDATES, results.COVARIANCE, results.SMALL,
+                "solution.pos", "smoothed.pos", "config.toml", "run.json")
+
+
+def run_mode(inp: Inputs, out: str | Path, **options) -> ReplayResult:
+    """One filter mode over decoded inputs (``load_inputs``), written to ``out`` (see ``_run_mode``). A run
+    that fails leaves no partial results behind: the files it writes are removed (the directory too,
+    if it made it and it is left empty); a full disk is said so, naming the results directory."""
+    out = Path(out)
+    made = not out.exists()
+    try:
+        return _run_mode(inp, out, **options)
+    except BaseException as e:
+        for name in RESULT_FILES:
+            (out / name).unlink(missing_ok=True)
+        if made and out.is_dir() and not any(out.iterdir()):
+            out.rmdir()
+        if isinstance(e, OSError) and e.errno == errno.ENOSPC:
+            raise OSError(e.errno, "no space left on the device for the results (the partial ones are removed)",
+                          str(out)) from None
+        raise
+
+
+def _run_mode(inp: Inputs, out: Path, *, mode: str = "loose", overrides: dict | None = None,
              outages: str | outages_mod.OutageSpec | None = None, reference: str | Path | None = None,
              reference_q=(1,), point: str = "antenna", smooth: bool = False, covariance_every: int = 0,
              chunk_rows: int = flt.CHUNK_ROWS, aid_heading: bool = False, last_use: bool = False,

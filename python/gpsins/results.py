@@ -135,14 +135,34 @@ class TableWriter:
         pa, _ = _pa()
         parts = self._pending[::-1] if self.newest_first else self._pending
         table = pa.concat_tables(parts)
-        self._writer.write_table(table, row_group_size=table.num_rows)
         self._pending, self._pending_bytes = [], 0
+        try:
+            self._writer.write_table(table, row_group_size=table.num_rows)
+        except OSError:
+            self._give_up()
+            raise
 
     def close(self) -> None:
         if self._writer is not None:
             self._flush()
-            self._writer.close()
+            try:
+                self._writer.close()
+            except OSError:
+                self._give_up()
+                raise
             self._writer = None
+
+    def __del__(self) -> None:
+        # Collected unclosed: a run that failed (the results are removed); closing now would only write
+        # onto what failed, and its error would print at exit.
+        if getattr(self, "_writer", None) is not None:
+            self._writer.is_open = False
+
+    def _give_up(self) -> None:
+        """A write failed (a full disk): the file is lost; pyarrow must not try to close it again when
+        the writer is collected (a second error, printed as an ignored exception at exit)."""
+        self._writer.is_open = False
+        self._writer = None
 
     def __enter__(self) -> "TableWriter":
         return self
