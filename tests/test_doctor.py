@@ -104,3 +104,48 @@ def test_a_car_imu_offset_left_out_is_found(car):
     print(f.line())
     suggested = float(re.search(r"time_offset_s about ([-+0-9.]+)", f.text).group(1))
     assert f.level == "warning" and abs(suggested - 0.1) < 0.025
+
+
+def test_the_template_for_the_walks_files_guesses_what_the_shipped_data_set_declares(tmp_path):
+    """`gpsins dataset init` on the walk's two files: its columns, units, time scale and format are the
+    ones written by hand in walk_0827.toml; with only the mounting set it passes the doctor and replays."""
+    import tomllib
+
+    for f in ("imu_1730_sf.csv", "gnss_1730_sf.pos"):
+        shutil.copy(WALK / f, tmp_path / f)
+    out = tmp_path / "mine.toml"
+    assert cli.main(["dataset", "init", str(tmp_path / "imu_1730_sf.csv"), str(tmp_path / "gnss_1730_sf.pos"),
+                     "--out", str(out)]) == 0
+    mine, shipped = tomllib.loads(out.read_text()), tomllib.loads((WALK / "walk_0827.toml").read_text())
+    for key in ("format", "columns", "time", "accel_unit", "gyro_unit"):
+        assert mine["imu"][key] == shipped["imu"][key], key
+    assert mine["gnss"]["format"] == shipped["gnss"]["format"]
+    assert cli.main(["dataset", "init", str(tmp_path / "imu_1730_sf.csv"), str(tmp_path / "gnss_1730_sf.pos"),
+                     "--out", str(out)]) == 2  # not over an existing file without --force
+    out.write_text(out.read_text().replace("imu_to_body_ypr_deg = [0.0, 0.0, 0.0]",
+                                           "imu_to_body_ypr_deg = [-90.0, 0.0, 180.0]"))
+    assert not doctor.diagnose(dataset.load(out)).errors()
+    res = replay.replay(out, tmp_path / "r", outages="25:15:45:45")
+    assert res.summary["imu_samples"] == 20454
+
+
+def test_the_template_reads_another_layout(tmp_path):
+    """The walk's IMU rewritten as a person's own logger might: a header line, whitespace, seconds of
+    week, m/s^2 and deg/s, the gyro first."""
+    a = np.loadtxt(WALK / "imu_1730_sf.csv", delimiter=",")[:, :7]
+    sow = a[:, 0] - 315964800.0 - 2381 * 604800.0  # GPS time in Unix seconds -> seconds of week 2381
+    table = np.column_stack([sow, np.degrees(a[:, 4:7]), a[:, 1:4] * 9.80665])
+    f = tmp_path / "own.txt"
+    np.savetxt(f, table, fmt="%.6f", header="sow gx gy gz ax ay az", comments="")
+    shutil.copy(WALK / "gnss_1730_sf.pos", tmp_path / "gnss_1730_sf.pos")
+    out = tmp_path / "own.toml"
+    assert cli.main(["dataset", "init", str(f), str(tmp_path / "gnss_1730_sf.pos"), "--out", str(out)]) == 0
+    import tomllib
+
+    imu = tomllib.loads(out.read_text())["imu"]
+    assert imu["columns"] == ["t", "gx", "gy", "gz", "ax", "ay", "az"]
+    assert (imu["time"], imu["week"], imu["accel_unit"], imu["gyro_unit"], imu["skip_rows"]) == \
+        ("gps_sow", 2381, "m/s^2", "deg/s", 1)
+    out.write_text(out.read_text().replace("imu_to_body_ypr_deg = [0.0, 0.0, 0.0]",
+                                           "imu_to_body_ypr_deg = [-90.0, 0.0, 180.0]"))
+    assert not doctor.diagnose(dataset.load(out)).errors()

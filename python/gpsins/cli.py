@@ -142,6 +142,20 @@ def _replay_one(args: argparse.Namespace, inp, out: Path, mode: str, overrides: 
     memory.trim()
 
 
+def _cmd_dataset_init(args: argparse.Namespace) -> int:
+    from . import dataset_init
+
+    out = Path(args.out)
+    for f in (args.imu_file, args.gnss_file):
+        if not Path(f).is_file():
+            raise CommandError(f"{f}: no such file")
+    if out.exists() and not args.force:
+        raise CommandError(f"{out}: exists; --force replaces it")
+    out.write_text(dataset_init.template(args.imu_file, args.gnss_file, out.parent), encoding="utf-8")
+    print(f"{out}: written; set the lines marked SET, check those marked GUESSED, then `gpsins check {out}`")
+    return 0
+
+
 def _cmd_check(args: argparse.Namespace) -> int:
     from . import dataset, doctor
 
@@ -344,6 +358,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--axis-up", action="store_true", help="the gyro axis points up (Earth rate along it)")
     p.add_argument("--drift-bias", type=float, help="gyro bias from a drift test, rad/s (else fitted)")
     p.set_defaults(func=_cmd_calibrate)
+
+    p = sub.add_parser("dataset", help="data sets: `dataset init IMU_FILE GNSS_FILE` writes a first data-set TOML")
+    dsub = p.add_subparsers(dest="dataset_command", required=True)
+    q = dsub.add_parser("init", help="a commented data-set TOML with what the files show, guesses marked")
+    q.add_argument("imu_file", help="IMU text table (CSV or whitespace: a time column and six axes)")
+    q.add_argument("gnss_file", help="RTKLIB .pos, a UBX stream or a RINEX observation file")
+    q.add_argument("--out", default="dataset.toml", help="the data-set file to write (default dataset.toml)")
+    q.add_argument("--force", action="store_true", help="replace the file if it exists")
+    q.set_defaults(func=_cmd_dataset_init)
 
     p = sub.add_parser("check", help="the data-set doctor: the data against what the data set declares")
     p.add_argument("dataset", help="data-set TOML")
