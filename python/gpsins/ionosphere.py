@@ -27,11 +27,12 @@ from __future__ import annotations
 from collections import Counter
 
 import numpy as np
-from scipy.signal import lfilter
 
-from . import _core
+from . import _core, lazy
 from .readers.common import Navigation, Pseudoranges
 from .readers.galileo_inav import GALILEO_ID_OFFSET
+
+lfilter = lazy.name("scipy.signal", "lfilter")  # 0.6 s of imports a replay without dual frequency never uses
 
 F_L1_HZ = 1575.42e6  # GPS L1 and Galileo E1
 F_SECOND_HZ = {"gps": 1227.60e6, "galileo": 1176.45e6}  # GPS L2, Galileo E5a: what readers give as second
