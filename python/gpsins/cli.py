@@ -115,7 +115,7 @@ def _replay_one(args: argparse.Namespace, inp, out: Path, mode: str, overrides: 
     res = replay.run_mode(inp, out, mode=mode, overrides=overrides, outages=args.outages,
                           reference=args.reference, reference_q=args.reference_q, point=args.point,
                           smooth=args.smooth, covariance_every=args.covariance_every,
-                          aid_heading=args.aid_heading, last_use=last_use)
+                          aid_heading=args.aid_heading, last_use=last_use, estimator=args.estimator)
     c = res.summary["counters"]
     stretch = res.summary.get("stretch")
     where = f" (stretch {stretch['index']} of {stretch['of']})" if stretch else ""
@@ -310,6 +310,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="also write the full error-state covariance of every Nth epoch (covariance.parquet)")
     p.add_argument("--force", action="store_true",
                    help="replay a data set even where the data-set doctor finds the data at odds with it")
+    p.add_argument("--estimator", metavar="MODULE:NAME",
+                   help="run this plug-in estimator in the built-in filter's place (gpsins.estimator documents "
+                        "what it gets and returns), scored the same way")
     p.add_argument("--nav", help="RINEX 2 navigation file: ephemerides and Klobuchar when the log lacks them")
     p.add_argument("--config", help="filter configuration: TOML file or preset name (default, report2005)")
     p.add_argument("--set", action="append", metavar="KEY=VALUE",

@@ -56,7 +56,8 @@ from pathlib import Path
 import numpy as np
 
 from . import dataset as dataset_mod, evaluate, filter as flt, logs, measurements, outages as outages_mod
-from . import doctor, measurements_ubx, mounting, noise_from_data, reference as reference_mod, results, solution
+from . import doctor, estimator as estimator_mod, measurements_ubx, mounting, noise_from_data
+from . import reference as reference_mod, results, solution
 from . import timing
 from . import __version__
 from .readers import rinex
@@ -517,7 +518,8 @@ def replay(source: str | Path, out: str | Path, *, mode: str = "loose", config=N
            nav: str | Path | None = None, outages: str | outages_mod.OutageSpec | None = None,
            reference: str | Path | None = None, reference_q=(1,), point: str = "antenna",
            smooth: bool = False, covariance_every: int = 0, chunk_rows: int = flt.CHUNK_ROWS,
-           aid_heading: bool = False, overlap: bool = True, force: bool = False) -> ReplayResult:
+           aid_heading: bool = False, overlap: bool = True, force: bool = False,
+           estimator: str | None = None) -> ReplayResult:
     """Replay a session directory or a data-set TOML (see the module doc); ``outages``: FIRST:LENGTH:PERIOD[:END];
     ``reference``: an RTKLIB .pos (its ``reference_q`` epochs) at the antenna point; ``point``: the point
     solution.pos gives (antenna or imu); ``smooth``: also the fixed-interval smoother (smoothed.parquet,
@@ -535,9 +537,13 @@ def replay(source: str | Path, out: str | Path, *, mode: str = "loose", config=N
     results = [run_mode(inp, Path(out) / stretch_dir(j, len(stretches)), mode=mode, overrides=overrides,
                         outages=outages, reference=reference, reference_q=reference_q, point=point, smooth=smooth,
                         covariance_every=covariance_every, chunk_rows=chunk_rows, aid_heading=aid_heading,
-                        overlap=overlap) for j, inp in enumerate(stretches)]
+                        overlap=overlap, estimator=estimator) for j, inp in enumerate(stretches)]
     results[0].stretches = results
     return results[0]
+
+
+def lever_arm_body_m(cfg: dict) -> np.ndarray:
+    return np.broadcast_to(np.asarray(cfg.get("lever_arm_body_m", 0.0), float), (3,)).copy()
 
 
 RESULT_FILES = (results.SOLUTION, results.SMOOTHED, results.UPDATES, results.COVARIANCE, results.SMALL,
@@ -567,8 +573,10 @@ def _run_mode(inp: Inputs, out: Path, *, mode: str = "loose", overrides: dict | 
              outages: str | outages_mod.OutageSpec | None = None, reference: str | Path | None = None,
              reference_q=(1,), point: str = "antenna", smooth: bool = False, covariance_every: int = 0,
              chunk_rows: int = flt.CHUNK_ROWS, aid_heading: bool = False, last_use: bool = False,
-             overlap: bool = True) -> ReplayResult:
+             overlap: bool = True, estimator: str | None = None) -> ReplayResult:
     """One filter mode over decoded inputs (``load_inputs``), written to ``out`` (see ``replay``);
+    ``estimator``: ``package.module:name`` of a plug-in estimator run in the built-in filter's place
+    (``gpsins.estimator``), scored and written the same way;
     ``aid_heading``: the session's reference system's dual-antenna heading and pitch (``reference.csv``)
     aid the filter (then it no longer scores the attitude independently); ``last_use``: no later call
     uses ``inp``, so its IMU samples and pseudoranges are let go once the filter has run, before the
@@ -604,7 +612,11 @@ def _run_mode(inp: Inputs, out: Path, *, mode: str = "loose", overrides: dict | 
         tight = dict(pseudoranges=prs if prs is not None else np.zeros((0, 5)), ephemerides=inp.ephemerides,
                      klobuchar=inp.klobuchar, gps_time_offset_s=inp.week * measurements.SECONDS_PER_WEEK)
 
+    if estimator is not None and (mode == "ins" or smooth or aid_heading):
+        raise ValueError(f"--estimator {estimator}: not with --mode ins, --smooth or --aid-heading (the built-in "
+                         "filter's)")
     noise_fit = mount_fit = None
+    # (A plug-in gets the configuration and fixes these make: what the built-in filter would run with.)
     if cfg.get("fit_noise") and filter_mode == "loose" and len(fixes):
         # The statistics from the recording: fitted on the fixes this run uses (outages removed),
         # without the vehicle constraint, whose mounting may not be known yet.
@@ -644,7 +656,13 @@ def _run_mode(inp: Inputs, out: Path, *, mode: str = "loose", overrides: dict | 
             used = fixes[(fixes[:, 0] <= searched["t_end"]) & np.isin(fixes[:, 9], (2, 3))]
             free_from = float(used[-1, 0]) if len(used) else free_from
         fixes = fixes[fixes[:, 0] <= free_from]
-    run = make_run(cfg, fixes, smooth)
+    if estimator is not None:
+        est = estimator_mod.load(estimator)
+        run = estimator_mod.PluginRun(est, estimator, estimator_mod.EstimatorInputs(
+            filter_mode, inp.week, np.asarray(inp.imu[:], dtype=float), fixes, lever_arm_body_m(cfg), dict(cfg),
+            prs[:] if prs is not None else None, inp.ephemerides, inp.klobuchar, schedule), chunk_rows)
+    else:
+        run = make_run(cfg, fixes, smooth)
     if searched:
         run.heading_search = searched
     clock["filter_setup_s"] = time.perf_counter() - t2
@@ -662,7 +680,7 @@ def _run_mode(inp: Inputs, out: Path, *, mode: str = "loose", overrides: dict | 
     has_ref = ref is not None and len(ref[0]) > 0
     score_sched = schedule
     bracket_epochs = np.concatenate([ref[0] if has_ref else np.zeros(0), sys_epochs])
-    lever = np.broadcast_to(np.asarray(cfg.get("lever_arm_body_m", 0.0), float), (3,)).copy()
+    lever = lever_arm_body_m(cfg)
 
     out.mkdir(parents=True, exist_ok=True)
     for stale in (results.SMOOTHED, results.COVARIANCE, "smoothed.pos"):  # from an earlier run into this directory
@@ -779,6 +797,8 @@ def _run_mode(inp: Inputs, out: Path, *, mode: str = "loose", overrides: dict | 
         summary["reference_system"] = reference_system
     if run.heading_search is not None:
         summary["heading_search"] = run.heading_search
+    if estimator is not None:
+        summary["estimator"] = estimator
     if mode == "ins":
         summary["ins"] = {"aiding_until_t": free_from, "fixes_used": int(len(fixes)),
                           "how": "loose filter fed the fixes up to the one that completed the initialisation "

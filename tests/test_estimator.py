@@ -1,0 +1,90 @@
+"""Plug-in estimators (issue 40): the built-in filter wrapped as one gives exactly the native scores;
+any other is scored the same way, checked here against errors computed without the scorer."""
+
+import json
+import sys
+
+import numpy as np
+import pytest
+
+from gpsins import cli, estimator, replay, results, sim
+from gpsins.sim.scenario import parse
+from gpsins.sim.session import write_session
+
+START = {"gps_week": 1590, "gps_tow_s": 419400.0, "lat_deg": 59.37, "lon_deg": 17.95, "height_m": 30.0,
+         "heading_deg": 160.0}
+
+
+@pytest.fixture(scope="module")
+def drive(tmp_path_factory):
+    sc = parse({"name": "plug", "start": START,
+                "segment": [{"label": "stand", "duration_s": 20, "speed_mps": 0},
+                            {"label": "drive", "duration_s": 70, "speed_mps": 10, "turn_deg": 90}]})
+    s = sim.simulate(sc, seed=2)
+    d = tmp_path_factory.mktemp("plug") / "session"
+    write_session(s, d)
+    return s, d
+
+
+def receiver_fixes(inputs):
+    """An estimator that is no filter at all: the receiver's own fixes, no attitude."""
+    f = inputs.fixes[np.isin(inputs.fixes[:, 9], (2, 3))]
+    return {"t": f[:, 0], "r_ecef": f[:, 1:4], "v_ecef": f[:, 4:7], "q_eb": np.full((len(f), 4), np.nan)}
+
+
+def _sections(out):
+    doc = json.loads((out / "run.json").read_text())
+    return {k: doc[k] for k in ("errors", "scoring", "imu_samples", "epochs")}
+
+
+@pytest.mark.parametrize("mode", ["loose", "tight"])
+def test_the_builtin_filter_as_a_plug_in_scores_exactly_as_native(drive, tmp_path, mode):
+    _, d = drive
+    native = replay.replay(d, tmp_path / "native", mode=mode, outages="35:10:25")
+    plugged = replay.replay(d, tmp_path / "plugin", mode=mode, outages="35:10:25",
+                            estimator="gpsins.estimator:builtin")
+    assert plugged.summary["estimator"] == "gpsins.estimator:builtin"
+    assert _sections(native.out) == _sections(plugged.out)
+    a, b = results.load(native.out), results.load(plugged.out)
+    for k in ("t", "r_ecef", "sigma_ned_m", "err_ned_m", "nees9"):
+        assert np.array_equal(a[k], b[k], equal_nan=True), k
+
+
+def test_any_estimator_is_scored_like_the_filter(drive, tmp_path, monkeypatch):
+    """The receiver's fixes as a solution: run.json's horizontal and vertical RMS against the truth are
+    the ones computed here from the simulator's truth with this test's own local-level rotation."""
+    s, d = drive
+    monkeypatch.setitem(sys.modules, "plugin_under_test", sys.modules[__name__])
+    res = replay.replay(d, tmp_path / "fixes", estimator="plugin_under_test:receiver_fixes")
+    f = sim.fix_table(s)
+    f = f[np.isin(f[:, 9], (2, 3))]
+    t = f[:, 0] + START["gps_tow_s"]  # the replay's time base: seconds of the week
+    inside = (f[:, 0] >= s.truth.t[0]) & (f[:, 0] <= s.truth.t[-1])
+    d_ecef = f[inside, 1:4] - s.truth.position_at(f[inside, 0])
+    lat, lon = np.radians(START["lat_deg"]), np.radians(START["lon_deg"])
+    north = np.array([-np.sin(lat) * np.cos(lon), -np.sin(lat) * np.sin(lon), np.cos(lat)])
+    east = np.array([-np.sin(lon), np.cos(lon), 0.0])
+    down = -np.array([np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon), np.sin(lat)])
+    h = np.hypot(d_ecef @ north, d_ecef @ east)
+    e = res.summary["errors"]
+    print(f"{inside.sum()} fixes from t = {t[inside][0]:.1f}: H RMS {np.sqrt(np.mean(h ** 2)):.3f} m here, "
+          f"{e['horizontal_rms_m']:.3f} m by the scorer")
+    assert e["horizontal_rms_m"] == pytest.approx(np.sqrt(np.mean(h ** 2)), rel=1e-3)
+    assert e["vertical_rms_m"] == pytest.approx(np.sqrt(np.mean((d_ecef @ down) ** 2)), rel=1e-3)
+
+
+@pytest.mark.parametrize("spec,says", [("nosuchmodule:f", "cannot import"), ("gpsins.estimator:nosuch", "has no"),
+                                       ("gpsins.estimator", "package.module:name")])
+def test_a_bad_estimator_is_one_line(drive, tmp_path, capsys, spec, says):
+    _, d = drive
+    assert cli.main(["replay", str(d), "--out", str(tmp_path / "o"), "--estimator", spec]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and says in err[0], err
+
+
+def test_a_result_of_the_wrong_shape_is_refused_by_name():
+    with pytest.raises(estimator.EstimatorError, match="r_ecef has shape"):
+        estimator.as_solution({"t": [1.0, 2.0], "r_ecef": np.zeros((3, 3)), "v_ecef": np.zeros((2, 3)),
+                               "q_eb": np.zeros((2, 4))}, "loose", 10, 2, "x:y")
+    with pytest.raises(estimator.EstimatorError, match="increasing"):
+        estimator.as_solution({"t": [2.0, 1.0]}, "loose", 10, 2, "x:y")
