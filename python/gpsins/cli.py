@@ -156,6 +156,22 @@ def _cmd_dataset_init(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_score(args: argparse.Namespace) -> int:
+    from . import report, score
+
+    if not Path(args.solution).is_file():
+        raise CommandError(f"{args.solution}: no such solution file")
+    res = score.score(args.solution, args.against, args.out, fmt=args.format, point=args.point,
+                      outages=args.outages, reference=args.reference, reference_q=args.reference_q)
+    e = res.summary["errors"]
+    print(f"{args.solution}: {res.summary['epochs']} epochs scored; results in {res.out}")
+    if e:
+        print(f"  vs truth: horizontal RMS {e['horizontal_rms_m']:.2f} m, vertical RMS {e['vertical_rms_m']:.2f} m")
+    if report.shows_outage_table(res.summary):
+        report.print_outage_table(res.summary)
+    return 0
+
+
 def _cmd_check(args: argparse.Namespace) -> int:
     from . import dataset, doctor
 
@@ -370,6 +386,18 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--out", default="dataset.toml", help="the data-set file to write (default dataset.toml)")
     q.add_argument("--force", action="store_true", help="replace the file if it exists")
     q.set_defaults(func=_cmd_dataset_init)
+
+    p = sub.add_parser("score", help="score a solution computed elsewhere against a session or data set")
+    p.add_argument("solution", help="RTKLIB .pos or KF-GINS navigation result")
+    p.add_argument("--against", required=True, help="session directory or data-set TOML: truth, reference, outages")
+    p.add_argument("--out", required=True, help="results directory (as gpsins replay --out: gpsins report reads it)")
+    p.add_argument("--format", choices=("pos", "kf-gins"), help="the solution's format (default: by its suffix)")
+    p.add_argument("--point", choices=("antenna", "imu"),
+                   help="where the solution is (default: antenna for a .pos, imu otherwise)")
+    p.add_argument("--outages", metavar="FIRST:LENGTH:PERIOD[:END]", help="the outages to score the drift over")
+    p.add_argument("--reference", help="reference trajectory (RTKLIB .pos) at the antenna point")
+    p.add_argument("--reference-q", type=int, nargs="+", default=[1], metavar="Q")
+    p.set_defaults(func=_cmd_score)
 
     p = sub.add_parser("check", help="the data-set doctor: the data against what the data set declares")
     p.add_argument("dataset", help="data-set TOML")

@@ -573,10 +573,10 @@ def _run_mode(inp: Inputs, out: Path, *, mode: str = "loose", overrides: dict | 
              outages: str | outages_mod.OutageSpec | None = None, reference: str | Path | None = None,
              reference_q=(1,), point: str = "antenna", smooth: bool = False, covariance_every: int = 0,
              chunk_rows: int = flt.CHUNK_ROWS, aid_heading: bool = False, last_use: bool = False,
-             overlap: bool = True, estimator: str | None = None) -> ReplayResult:
+             overlap: bool = True, estimator=None) -> ReplayResult:
     """One filter mode over decoded inputs (``load_inputs``), written to ``out`` (see ``replay``);
-    ``estimator``: ``package.module:name`` of a plug-in estimator run in the built-in filter's place
-    (``gpsins.estimator``), scored and written the same way;
+    ``estimator``: a plug-in estimator, or its ``package.module:name``, run in the built-in filter's
+    place (``gpsins.estimator``), scored and written the same way;
     ``aid_heading``: the session's reference system's dual-antenna heading and pitch (``reference.csv``)
     aid the filter (then it no longer scores the attitude independently); ``last_use``: no later call
     uses ``inp``, so its IMU samples and pseudoranges are let go once the filter has run, before the
@@ -657,7 +657,8 @@ def _run_mode(inp: Inputs, out: Path, *, mode: str = "loose", overrides: dict | 
             free_from = float(used[-1, 0]) if len(used) else free_from
         fixes = fixes[fixes[:, 0] <= free_from]
     if estimator is not None:
-        est = estimator_mod.load(estimator)
+        est = estimator_mod.load(estimator) if isinstance(estimator, str) else estimator
+        estimator = estimator if isinstance(estimator, str) else getattr(est, "__name__", type(est).__name__)
         run = estimator_mod.PluginRun(est, estimator, estimator_mod.EstimatorInputs(
             filter_mode, inp.week, np.asarray(inp.imu[:], dtype=float), fixes, lever_arm_body_m(cfg), dict(cfg),
             prs[:] if prs is not None else None, inp.ephemerides, inp.klobuchar, schedule), chunk_rows)

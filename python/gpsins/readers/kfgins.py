@@ -98,3 +98,25 @@ def read_gnss(path: str | Path, week: int, geoid_height_m: float = 0.0) -> Fixes
     pick = (lambda x: None if x is None else x[order])
     return Fixes(t[order], np.asarray(r).reshape(-1, 3)[order], a[order, 4:7], np.zeros(n, int), np.zeros(n, int),
                  pick(v), pick(sv), path.name, Counter({f"GNSS {k}": n for k, n in skipped.items()}))
+
+
+def read_nav(path: str | Path) -> dict:
+    """KF-GINS's navigation result (``NavResult.nav``): week, seconds of week, latitude, longitude (deg),
+    height (m), velocity north, east, down (m/s), roll, pitch, yaw (deg), at the IMU point. Returns
+    t_abs, r_ecef, v_ecef and q_eb (body to ECEF)."""
+    path = Path(path)
+    a, line_no, skipped = _table(path, 11)
+    t = np.empty(len(a))
+    for week in np.unique(a[:, 0]):
+        m = a[:, 0] == week
+        t[m] = _times(path, a[m, 1], line_no[m], int(week))
+    llh = np.column_stack([np.radians(a[:, 2]), np.radians(a[:, 3]), a[:, 4]])
+    r = np.asarray(_core.geodetic_to_ecef(llh)).reshape(-1, 3)
+    sl, cl, so, co = np.sin(llh[:, 0]), np.cos(llh[:, 0]), np.sin(llh[:, 1]), np.cos(llh[:, 1])
+    vn, ve, vd = a[:, 5], a[:, 6], a[:, 7]
+    v = np.column_stack([-sl * co * vn - so * ve - cl * co * vd, -sl * so * vn + co * ve - cl * so * vd,
+                         cl * vn - sl * vd])  # NED -> ECEF
+    ypr = np.radians(a[:, [10, 9, 8]])
+    q = np.asarray(_core.quat_body_to_ecef(ypr, llh)).reshape(-1, 4)
+    order = np.argsort(t, kind="stable")
+    return {"t_abs": t[order], "r_ecef": r[order], "v_ecef": v[order], "q_eb": q[order], "skipped": skipped}
