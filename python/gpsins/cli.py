@@ -156,6 +156,27 @@ def _cmd_dataset_init(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_batch(args: argparse.Namespace) -> int:
+    from . import batch
+    from .montecarlo.runner import open_client
+
+    if len(args.config) > 2 or (len(args.config) == 2 and args.estimator):
+        raise CommandError("--config twice, or --config (once or not) and --estimator: two arms")
+    if len(args.config) < 2 and not args.estimator:
+        raise CommandError("arm B: a second --config or --estimator")
+    a = batch.Arm(Path(args.config[0]).stem if args.config else "default", args.config[0] if args.config else None)
+    b = batch.Arm(Path(args.config[1]).stem, args.config[1]) if len(args.config) == 2 else \
+        batch.Arm(args.estimator.rpartition(":")[2], a.config, args.estimator)
+    if a.name == b.name:
+        b = batch.Arm(b.name + "-B", b.config, b.estimator)
+    with open_client(args.scheduler, args.workers) as client:
+        comparison = batch.run(args.sources, (a, b), args.out, mode=args.mode, outages=args.outages, client=client)
+    for line in batch.summary_lines(comparison):
+        print(line)
+    print(f"tables and figure in {args.out} (batch.csv, paired.json, paired.png)")
+    return 0
+
+
 def _cmd_score(args: argparse.Namespace) -> int:
     from . import report, score
 
@@ -386,6 +407,18 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--out", default="dataset.toml", help="the data-set file to write (default dataset.toml)")
     q.add_argument("--force", action="store_true", help="replace the file if it exists")
     q.set_defaults(func=_cmd_dataset_init)
+
+    p = sub.add_parser("batch", help="two configurations or estimators over many recordings, paired, on Dask")
+    p.add_argument("sources", nargs="+", help="directories searched for sessions and data sets, lists, or files")
+    p.add_argument("--config", action="append", default=[], metavar="CONFIG",
+                   help="arm A's configuration (preset or TOML); given twice, arm B's too")
+    p.add_argument("--estimator", metavar="MODULE:NAME", help="arm B: this plug-in estimator")
+    p.add_argument("--mode", choices=("loose", "tight"), default="loose")
+    p.add_argument("--outages", metavar="FIRST:LENGTH:PERIOD[:END]", help="outages for every recording")
+    p.add_argument("--scheduler", help="a running Dask scheduler (address or scheduler file); default: local")
+    p.add_argument("--workers", type=int, help="local cluster workers (default: one per core)")
+    p.add_argument("--out", required=True, help="output directory: batch.csv, paired.json, paired.png, the runs")
+    p.set_defaults(func=_cmd_batch)
 
     p = sub.add_parser("score", help="score a solution computed elsewhere against a session or data set")
     p.add_argument("solution", help="RTKLIB .pos or KF-GINS navigation result")

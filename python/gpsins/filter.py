@@ -272,6 +272,12 @@ def check_config(cfg: dict, where: str = "<config>", only: dict | None = None) -
             _check_value(key, value, kind, where)
 
 
+def value(cfg: dict, key: str):
+    """A key's value in force: the configuration's, else the core's default (a preset need not state
+    every key: report2005 has no fix_uere_m)."""
+    return cfg[key] if key in cfg else getattr(_core.InsConfig(), key)
+
+
 def describe_keys(source=None, overrides: dict | None = None, title: str | None = None) -> str:
     """The configuration keys with their values in `source` (default preset) with `overrides` on top
     (a data set's values from its data), and the presets: for --set help."""
@@ -289,7 +295,7 @@ def describe_keys(source=None, overrides: dict | None = None, title: str | None 
                 value = cfg.get(key, {}).get(sub)
                 lines.append(f"  {key}.{sub} = {'(unset)' if value is None else value}")
         else:
-            value = cfg.get(key, getattr(core, key, None))
+            value = cfg.get(key, getattr(core, key, None))  # as value(), without failing on a table-only key
             if isinstance(value, np.ndarray):
                 value = value.tolist()
             lines.append(f"  {key} = {value}  [{kinds[key]}]")

@@ -162,7 +162,8 @@ def is_dataset(source: str | Path) -> bool:
 
 def _decode_stretches(session: Path, config, overrides: dict) -> list:
     if measurements_ubx.is_ublox(session):  # a u-blox receiver: NAV-PVT fixes carry its own accuracy
-        return [measurements_ubx.decode_session(session, flt.load_config(config, overrides or {})["fix_uere_m"])]
+        return [measurements_ubx.decode_session(session, flt.value(flt.load_config(config, overrides or {}),
+                                                                   "fix_uere_m"))]
     return measurements.decode_stretches(session)
 
 
@@ -246,7 +247,7 @@ def _dataset_inputs(path: Path, config, overrides: dict, modes=("loose",), force
         derived["imu_rate_hz"] = float(1.0 / np.median(dt))
     if ds.imu.covers_gaps:
         derived["imu_increments_cover_gaps"] = True
-    uere = float(cfg0["fix_uere_m"])
+    uere = float(flt.value(cfg0, "fix_uere_m"))
     measured_lag = None
     if ds.fixes is not None and len(ds.fixes):
         fixes = dataset_mod.fix_table(ds.fixes, t_week, uere, ds.sigma_floor_m, ds.sigma_default_m,
