@@ -328,3 +328,17 @@ def test_bad_command_lines_fail_in_one_line(short_scenario, tmp_path, capsys):
     assert cli.main(["montecarlo", str(short_scenario), "--seeds", "2", "--out", str(tmp_path / "c")]) == 2
     assert "not empty" in capsys.readouterr().err
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+
+
+def test_montecarlo_takes_a_plug_in_estimator(short_scenario, tmp_path, capsys):
+    """The built-in filter as a plug-in over two seeds: the same errors per seed as the native runs."""
+    runs = {}
+    for name, extra in (("native", []), ("plugin", ["--estimator", "gpsins.estimator:builtin"])):
+        out = tmp_path / name
+        assert cli.main(["montecarlo", str(short_scenario), "--seeds", "2", "--workers", "1", "--out", str(out),
+                         "--quiet", *extra]) == 0
+        runs[name] = _table(out / "runs.csv")
+    assert [r["horizontal_rms_m"] for r in runs["native"]] == [r["horizontal_rms_m"] for r in runs["plugin"]]
+    assert cli.main(["montecarlo", str(short_scenario), "--seeds", "1", "--estimator", "nosuch:x", "--out",
+                     str(tmp_path / "bad"), "--quiet"]) == 2
+    assert "cannot import" in capsys.readouterr().err

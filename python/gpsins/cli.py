@@ -264,6 +264,7 @@ def _montecarlo_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", help="filter configuration: TOML file or preset name")
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override one configuration key")
     p.add_argument("--outages", metavar="FIRST:LENGTH:PERIOD[:END]", help="simulated GNSS outages (as replay)")
+    p.add_argument("--estimator", metavar="MODULE:NAME", help="a plug-in estimator in the built-in filter's place")
     p.add_argument("--out", help="output directory, new or empty (default out/montecarlo-SCENARIO)")
     p.add_argument("--scheduler", metavar="ADDRESS",
                    help="an existing Dask scheduler (tcp://host:port, or its scheduler file) instead of a local "

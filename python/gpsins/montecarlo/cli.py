@@ -58,6 +58,10 @@ def plan_from_args(args, sweep_key: str | None, sweep_texts: list[str]):
                 raise UsageError(f"swept value {sweep_key}={v}: {str(e).replace('--set ', '')}") from None
     if args.outages:
         outages.parse(args.outages)
+    if args.estimator:
+        from .. import estimator
+
+        estimator.load(args.estimator)  # a spec that cannot load fails here, not in every task
     if args.scheduler and args.workers:
         raise UsageError("--workers sizes the local cluster; an existing one (--scheduler) has its own workers")
     if args.workers is not None and args.workers < 1:
@@ -69,7 +73,7 @@ def plan_from_args(args, sweep_key: str | None, sweep_texts: list[str]):
                 config=_shipped_config(args.config),
                 overrides=overrides, outages=args.outages, sweep_key=sweep_key,
                 sweep_values=sweep_texts if sweep_key else [None], sweep_texts=sweep_texts if sweep_key else [""],
-                grid_s=args.grid, keep=args.keep)
+                grid_s=args.grid, keep=args.keep, estimator=args.estimator)
 
 
 def _shipped_config(config: str | None):

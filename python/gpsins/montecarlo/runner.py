@@ -44,6 +44,7 @@ class Plan:
     grid_s: float = 1.0
     alpha: float = 0.05
     keep: str = "all"  # all: sessions and replay results; results: replay results; none: the tables only
+    estimator: str | None = None  # a plug-in estimator (package.module:name) in the built-in filter's place
 
     def overrides_for(self, value) -> dict:
         if self.sweep_key is None:
@@ -140,7 +141,7 @@ def run_plan(plan: Plan, client, progress: bool = True) -> Outcome:
             for mode in plan.modes:
                 run = {"mode": mode, "out": str(plan.run_dir(seed, i, mode)), "config": plan.config,
                        "overrides": plan.overrides_for(value), "outages": plan.outages,
-                       "value": plan.sweep_texts[i] if plan.sweep_key else None}
+                       "estimator": plan.estimator, "value": plan.sweep_texts[i] if plan.sweep_key else None}
                 fut = client.submit(tasks.replay_task, sims[seed], run, plan.grid_s,
                                     key=f"replay-{mode}-{seed}-{i}-{token}", pure=False)
                 futures[fut] = run | {"seed": seed}
@@ -227,7 +228,7 @@ def write_outputs(plan: Plan, summaries: list[dict], wall_s: float, workers: int
             g["figure"] = path.name
             files.append(path)
     result = {"scenario": name, "seeds": plan.seeds, "modes": plan.modes, "config": plan.config,
-              "overrides": plan.overrides, "outages": plan.outages,
+              "overrides": plan.overrides, "outages": plan.outages, "estimator": plan.estimator,
               "sweep": {"key": plan.sweep_key, "values": plan.sweep_texts} if plan.sweep_key else None,
               "grid_s": plan.grid_s, "alpha": plan.alpha, "workers": workers, "wall_time_s": wall_s,
               "task_time_s": _task_times(summaries),

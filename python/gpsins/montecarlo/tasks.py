@@ -80,6 +80,7 @@ def replay_task(simulated: dict, run: dict, grid_s: float) -> dict:
     try:
         res = replay.replay(simulated["session"], run["out"], mode=run["mode"], config=run.get("config"),
                             overrides=run.get("overrides") or {}, outages=run.get("outages"),
+                            estimator=run.get("estimator"),
                             overlap=False)  # a worker is one core's: the cluster runs replays side by side
         out = summarise(Path(run["out"]), res.summary, grid_s)
     except Exception as e:
