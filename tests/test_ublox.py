@@ -16,7 +16,7 @@ import pytest
 from pyubx2 import NMEA_PROTOCOL, UBX_PROTOCOL, UBXReader
 from pyubx2.ubxtypes_configdb import UBX_CONFIG_DATABASE
 
-from gpsins import logs, mainjob, measurements_ubx, replay, sim
+from gpsins import logs, mainjob, measurements_ubx, replay, sim, timing
 from gpsins.emulate import Faults, UbloxEmulators
 from gpsins.sim import ublox as sim_ublox
 from gpsins.sim.scenario import parse
@@ -314,8 +314,12 @@ def test_walk_capture_served_and_recorded_gives_pyubx2s_frames(tmp_path, shared_
     st = session.sensors["gps"].stamps
     raw = [k for k, f in enumerate(got) if (f[2], f[3]) == ubx.RXM_RAWX]
     tow = np.array([struct.unpack_from("<d", got[k], 6)[0] for k in raw])
-    slope = np.polyfit(tow - tow[0], st[raw] - st[raw][0], 1)[0]
-    assert abs(slope * speed - 1.0) < 0.25  # loose: a loaded host may serve it late (served at once: slope 0)
+    # Along the lower envelope (timing's, as the alignment does it): a loaded host stamps a frame late,
+    # never early, so a least-squares line through stalls is no measure of the serving rate (it failed
+    # 2 runs of 8 under load with 0.25). Served at once the slope would be 0; at its timing 1 / speed.
+    _, slope = timing.lower_envelope(tow - tow[0], st[raw] - st[raw][0])
+    print(f"RAWX stamps against their time of week: slope x speed {slope * speed:.4f}")
+    assert abs(slope * speed - 1.0) < 0.05
 
 
 @pytest.mark.parametrize("imu", ["esf", "bp3010"])
