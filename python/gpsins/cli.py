@@ -177,6 +177,27 @@ def _cmd_batch(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_live(args: argparse.Namespace) -> int:
+    from . import filter as flt, live
+
+    overrides = flt.parse_overrides(args.set or [])
+
+    def started(info):
+        if info["nmea_port"] is not None:
+            print(f"NMEA on tcp://127.0.0.1:{info['nmea_port']}", flush=True)
+
+    def round_done(st):
+        s = st["sigma_ned_m"]
+        print(f"t {st['t']:.1f} s: {st['llh_deg_m'][0]:.7f} {st['llh_deg_m'][1]:.7f} {st['llh_deg_m'][2]:.2f} m, "
+              f"sigma N/E/D {s[0]:.2f}/{s[1]:.2f}/{s[2]:.2f} m, fixes used {st['counters']['fixes_accepted']}",
+              flush=True)
+
+    live.run(args.session, args.out, mode=args.mode, config=args.config, overrides=overrides,
+             nmea_port=args.nmea_port, nmea_every=args.nmea_every, interval_s=args.interval,
+             gps_latency_s=args.gps_latency, imu_latency_s=args.imu_latency, on_start=started, on_round=round_done)
+    return 0
+
+
 def _cmd_score(args: argparse.Namespace) -> int:
     from . import report, score
 
@@ -420,6 +441,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--workers", type=int, help="local cluster workers (default: one per core)")
     p.add_argument("--out", required=True, help="output directory: batch.csv, paired.json, paired.png, the runs")
     p.set_defaults(func=_cmd_batch)
+
+    p = sub.add_parser("live", help="navigate live beside the logger: follow a session as it is written")
+    p.add_argument("session", help="the session directory the logger is writing (read only)")
+    p.add_argument("--out", required=True, help="output directory: live.pos, live.f64, status.jsonl")
+    p.add_argument("--mode", choices=("loose", "tight"), default="loose")
+    p.add_argument("--config", help="filter configuration: TOML file or preset name")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override one configuration key")
+    p.add_argument("--nmea-port", type=int, metavar="PORT",
+                   help="serve NMEA GGA, RMC, GST on this TCP port of the loopback interface (0: any free)")
+    p.add_argument("--nmea-every", type=int, default=1, metavar="N", help="one sentence set every N epochs")
+    p.add_argument("--interval", type=float, default=1.0, metavar="S", help="seconds between rounds (default 1)")
+    p.add_argument("--gps-latency", type=float, default=0.0, help="as replay's")
+    p.add_argument("--imu-latency", type=float, default=0.0, help="as replay's")
+    p.set_defaults(func=_cmd_live)
 
     p = sub.add_parser("score", help="score a solution computed elsewhere against a session or data set")
     p.add_argument("solution", help="RTKLIB .pos or KF-GINS navigation result")

@@ -229,6 +229,10 @@ class PosWriter:
             self._blocks.append((self._f.tell(), len(text)))
         self._f.write(text)
 
+    def flush(self) -> None:
+        """What is written so far readable by another process (a live solution)."""
+        self._f.flush()
+
     def close(self) -> None:
         self._f.close()
         if not self.reversed:

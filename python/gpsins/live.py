@@ -1,0 +1,263 @@
+"""Live navigation beside the logger (``gpsins live SESSION_DIR --out DIR``).
+
+A separate process follows the session the logger is writing, read only: about once a second it
+reads what is on disk (parts as they rotate, damaged records skipped as replay skips them), aligns
+the clocks on everything so far (the robust alignment, re-fitted each time), feeds the IMU samples,
+fixes and pseudoranges that are new since the last round to the streaming filter (the C++ core, as a
+replay's chunks are fed), and writes:
+
+- ``live.pos``: the solution at the IMU point, RTKLIB-style, growing (flushed each round);
+- ``live.f64``: the same epochs at full precision, rows of EPOCH_COLUMNS float64 (``read_epochs``);
+- ``status.jsonl``: one JSON line per round: the last epoch's time, position, attitude, their sigmas,
+  the GNSS state, the filter's counters, the alignment's warnings;
+- NMEA 0183 GGA, RMC and GST of every output epoch (or every ``nmea_every``-th) to the clients of a TCP
+  port on the loopback interface (``--nmea-port``), for gpsd, QGIS or OpenCPN.
+
+What it does not do yet (issue 39): a status page, following the newest session under a root, the main
+job showing it. Against a replay of the finished session: samples fed early were timed by the clock map
+of their round, which the later rounds refine (a fraction of a millisecond), so the two solutions agree
+to about a millimetre, not bit for bit; ``tests/test_live.py`` measures it.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import socket
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+from . import evaluate, filter as flt, logs, measurements, nmea, results, solution, timing
+
+DEFAULT_LEAP_S = 18  # GPS - UTC since 2017, for NMEA times when the receiver has not said
+FIX_WAIT_S = 2.5  # measurements this long past the last fix: no fix is coming for them (an outage)
+EPOCH_COLUMNS = ("t", "x", "y", "z", "vx", "vy", "vz", "qw", "qx", "qy", "qz", "sigma_n", "sigma_e", "sigma_d")
+
+
+def read_epochs(path: str | Path) -> dict:
+    """live.f64 as arrays: t (s of the week), r_ecef, v_ecef, q_eb, sigma_ned_m (whole rows only)."""
+    a = np.fromfile(path, dtype="<f8")
+    a = a[:len(a) // len(EPOCH_COLUMNS) * len(EPOCH_COLUMNS)].reshape(-1, len(EPOCH_COLUMNS))
+    return {"t": a[:, 0], "r_ecef": a[:, 1:4], "v_ecef": a[:, 4:7], "q_eb": a[:, 7:11], "sigma_ned_m": a[:, 11:14]}
+
+
+class NmeaServer:
+    """Sentences to every client of a loopback TCP port; a client that stops reading is dropped."""
+
+    def __init__(self, port: int = 0):
+        self._sock = socket.create_server(("127.0.0.1", port))
+        self.port = self._sock.getsockname()[1]
+        self._clients: list[socket.socket] = []
+        self._lock = threading.Lock()
+        self._stop = False
+        threading.Thread(target=self._accept, name="gpsins-nmea", daemon=True).start()
+
+    def _accept(self) -> None:
+        self._sock.settimeout(0.2)
+        while not self._stop:
+            try:
+                c, _ = self._sock.accept()
+            except (socket.timeout, OSError):
+                continue
+            c.settimeout(1.0)
+            with self._lock:
+                self._clients.append(c)
+
+    def send(self, text: str) -> None:
+        data = text.encode("ascii")
+        with self._lock:
+            for c in list(self._clients):
+                try:
+                    c.sendall(data)
+                except OSError:
+                    self._clients.remove(c)
+                    c.close()
+
+    def close(self) -> None:
+        self._stop = True
+        with self._lock:
+            for c in self._clients:
+                c.close()
+            self._clients.clear()
+        self._sock.close()
+
+
+class Follower:
+    """The streaming filter over a growing session; ``poll()`` feeds what is new and returns the
+    solution of the new epochs (or None)."""
+
+    def __init__(self, session: str | Path, *, mode: str = "loose", config=None, overrides: dict | None = None,
+                 gps_latency_s: float = 0.0, imu_latency_s: float = 0.0, hold_s: float = 0.0):
+        from .replay import DEFAULT_GPS_LATENCY_S, DEFAULT_IMU_LATENCY_S
+
+        if mode not in ("loose", "tight"):
+            raise ValueError(f"--mode {mode!r}: loose or tight")
+        self.session, self.mode = Path(session), mode
+        self.cfg = flt.load_config(config, {**(overrides or {}), "mode": mode})
+        if flt.needs_heading_search(self.cfg):
+            raise ValueError("live: a hand-held platform's heading search needs the whole recording; give "
+                             "initial_yaw_deg")
+        self.gps_latency_s = gps_latency_s or DEFAULT_GPS_LATENCY_S
+        self.imu_latency_s = imu_latency_s or DEFAULT_IMU_LATENCY_S
+        self.filter = None
+        self.week: int | None = None
+        self.leap_s = DEFAULT_LEAP_S
+        self.t_fed = self.fix_fed = self.pr_fed = -math.inf
+        self.n_imu = self.n_fix = self.n_pr = 0
+        self.ephemerides_seen: set = set()
+        self.warnings: list[str] = []
+        self.counters: dict = {}
+        self.scale_factors = False
+        # IMU samples held back this long behind the newest GPS time: their clock map then has GPS
+        # blocks on both sides and changes little in later rounds (the price: that much later).
+        self.hold_s = hold_s
+
+    def poll(self, final: bool = False) -> flt.Solution | None:
+        """Feed what is new; ``final``: the session is complete, feed everything held back."""
+        try:
+            dec = measurements.decode_session(self.session)
+            al = timing.align(dec.gps.tow, dec.gps.stamps, dec.gps.week, dec.imu.stamps, dec.imu.counter,
+                              dec.imu.rate_hz, gps_latency_s=self.gps_latency_s, imu_latency_s=self.imu_latency_s)
+        except (logs.LogError, timing.AlignmentError, FileNotFoundError):
+            return None  # not enough on disk yet to know GPS time (or no session yet)
+        if self.week is None:
+            self.week = int(dec.gps.week)
+        elif dec.gps.week != self.week:
+            return None  # another stretch (a receiver restart): replay it on its own
+        self.leap_s = dec.gps.leap_s if dec.gps.leap_s is not None else self.leap_s
+        self.warnings = list(al.warnings)
+        imu = flt.ImuColumns(al.imu_t, dec.imu.dtheta, dec.imu.dv, dec.imu.lsb)
+        newest = float(dec.gps.tow[-1])
+        last_fix = float(dec.gps.fixes[-1, 0]) if len(dec.gps.fixes) else -math.inf
+        # A fix reaches the file a fraction of a second after its epoch's measurements: samples past
+        # the last fix wait for the next one (fed later it would be late for the filter, and the
+        # solution no longer the replay's), unless the receiver has gone on without fixes (an outage).
+        limit = last_fix if newest - last_fix < FIX_WAIT_S else newest
+        upto = np.inf if final else min(newest - self.hold_s, limit)
+        new = np.flatnonzero((al.imu_t > self.t_fed + 0.5 / dec.imu.rate_hz) & (al.imu_t <= upto))
+        if not len(new):
+            return None
+        rows = np.asarray(imu[int(new[0]):int(new[-1]) + 1], dtype=float)
+        t_end = float(rows[-1, 0])
+        fixes = dec.gps.fixes
+        fx = fixes[(fixes[:, 0] > self.fix_fed) & (fixes[:, 0] <= t_end)]
+        prs = None
+        if self.mode == "tight":
+            p = dec.gps.pseudoranges
+            pt = np.asarray(p.t)
+            take = np.flatnonzero((pt > self.pr_fed) & (pt <= t_end))
+            prs = p[int(take[0]):int(take[-1]) + 1] if len(take) else np.zeros((0, 5))
+        if self.filter is None:
+            setup = flt._setup(rows[:0], fixes[:0], self.cfg, self.mode, [],
+                               (dec.gps.iono.alpha, dec.gps.iono.beta) if dec.gps.iono else None,
+                               self.week * measurements.SECONDS_PER_WEEK)
+            self.filter, self.scale_factors = setup.core_filter, setup.scale_factors
+        if self.mode == "tight":
+            for e in dec.gps.decoded_ephemerides():
+                key = (e.prn, e.week, e.iode, e.toe_s)
+                if key not in self.ephemerides_seen:
+                    self.ephemerides_seen.add(key)
+                    self.filter.add_ephemeris(e)
+        out = self.filter.run(rows, np.ascontiguousarray(fx), prs, 1, True, False, 256.0, False, self.n_imu,
+                              self.n_fix, self.n_pr, None, 0)
+        self.n_imu, self.n_fix = self.n_imu + len(rows), self.n_fix + len(fx)
+        self.t_fed = t_end
+        if len(fx):
+            self.fix_fed = float(fx[-1, 0])
+        if prs is not None and len(prs):
+            self.n_pr += len(prs)
+            self.pr_fed = float(prs[-1, 0])
+        self.counters = out["counters"]
+        sol = flt.Solution.from_batch(out, self.mode, self.scale_factors)
+        return sol if len(sol.t) else None
+
+
+def session_finished(session: Path) -> bool:
+    try:
+        side = json.loads((session / "session.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    return side.get("state") == "stopped"
+
+
+def run(session: str | Path, out: str | Path, *, mode: str = "loose", config=None, overrides=None,
+        nmea_port: int | None = None, nmea_every: int = 1, interval_s: float = 1.0, gps_latency_s: float = 0.0,
+        imu_latency_s: float = 0.0, hold_s: float = 0.0, until_finished: bool = True, max_s: float | None = None, on_round=None,
+        on_start=None) -> dict:
+    """Follow the session until the logger stops it (or ``max_s``); returns the last status. ``on_start``
+    gets {"nmea_port": port} once the port listens; ``on_round`` each round's status."""
+    session, out = Path(session), Path(out)
+    if out.resolve() == session.resolve() or session.resolve() in out.resolve().parents:
+        raise ValueError(f"{out}: live never writes into the session directory; give another --out")
+    out.mkdir(parents=True, exist_ok=True)
+    fol = Follower(session, mode=mode, config=config, overrides=overrides, gps_latency_s=gps_latency_s,
+                   imu_latency_s=imu_latency_s, hold_s=hold_s)
+    server = NmeaServer(nmea_port) if nmea_port is not None else None
+    if on_start is not None:
+        on_start({"nmea_port": server.port if server else None})
+    pos = None
+    status: dict = {}
+    t0 = time.monotonic()
+    try:
+        with open(out / "status.jsonl", "w", encoding="utf-8") as status_file, open(out / "live.f64", "wb") as table:
+            while True:
+                finished = until_finished and session_finished(session)
+                sol = fol.poll(final=finished)
+                if sol is not None:
+                    if pos is None:
+                        pos = solution.PosWriter(out / "live.pos", fol.week, f"gpsins live, mode {mode}, IMU point")
+                    a = solution.epoch_arrays(sol)
+                    pos.add(sol.t, a["llh"], a["sigma_ned_m"], np.zeros(len(sol.t), int))
+                    pos.flush()
+                    table.write(np.column_stack([sol.t, sol.r_ecef, sol.v_ecef, sol.q_eb, a["sigma_ned_m"]])
+                                .astype("<f8").tobytes())
+                    table.flush()
+                    status = _status(fol, sol, a)
+                    status_file.write(results.json_text(status, indent=None) + "\n")
+                    status_file.flush()
+                    if server is not None:
+                        _send_nmea(server, fol, sol, a, nmea_every)
+                    if on_round is not None:
+                        on_round(status)
+                elif finished:
+                    break
+                if max_s is not None and time.monotonic() - t0 > max_s:
+                    break
+                if not finished:
+                    time.sleep(interval_s)
+    finally:
+        if pos is not None:
+            pos.close()
+        if server is not None:
+            server.close()
+    return status
+
+
+def _status(fol: Follower, sol: flt.Solution, a: dict) -> dict:
+    k = -1
+    return {"t": float(sol.t[k]), "week": fol.week, "llh_deg_m": [math.degrees(a["llh"][k, 0]),
+                                                                  math.degrees(a["llh"][k, 1]), a["llh"][k, 2]],
+            "r_ecef": a["r_ecef"][k], "ypr_deg": a["ypr_deg"][k], "sigma_ned_m": a["sigma_ned_m"][k],
+            "sigma_ypr_deg": a["sigma_ypr_deg"][k], "heading_known": bool(sol.heading_known[k]),
+            "imu_fed": fol.n_imu, "fixes_fed": fol.n_fix, "pseudoranges_fed": fol.n_pr,
+            "counters": {c: fol.counters.get(c) for c in ("fixes_accepted", "fixes_rejected", "gnss_resets",
+                                                          "imu_gap_restarts", "pseudoranges_used", "diverged")},
+            "warnings": fol.warnings}
+
+
+def _send_nmea(server: NmeaServer, fol: Follower, sol: flt.Solution, a: dict, every: int) -> None:
+    base = fol.week * measurements.SECONDS_PER_WEEK
+    llh = a["llh"]
+    c = evaluate.c_en(llh[:, 0], llh[:, 1])
+    v_ned = np.einsum("nji,nj->ni", c, sol.v_ecef)
+    lines = []
+    for k in range(0, len(sol.t), max(1, every)):
+        aided = bool(sol.heading_known[k])
+        t = base + float(sol.t[k])
+        lines += [nmea.gga(t, fol.leap_s, llh[k, 0], llh[k, 1], llh[k, 2], aided, 0, 1.0),
+                  nmea.rmc(t, fol.leap_s, llh[k, 0], llh[k, 1], v_ned[k], aided),
+                  nmea.gst(t, fol.leap_s, a["sigma_ned_m"][k])]
+    server.send("".join(lines))

@@ -1,0 +1,142 @@
+"""gpsins live (issue 39, first part): the streaming filter beside the real logger daemon, following the
+session as the pty emulators serve a drive; against the replay of the finished session; NMEA parsed by
+pynmea2."""
+
+import math
+import socket
+import threading
+import time
+
+import numpy as np
+import pynmea2
+import pytest
+
+from gpsins import live, mainjob, measurements, replay, results, sim
+from gpsins.sim.scenario import parse
+
+START = {"gps_week": 1590, "gps_tow_s": 419400.0, "lat_deg": 59.37, "lon_deg": 17.95, "height_m": 30.0,
+         "heading_deg": 160.0}
+SPEED = 4.0
+
+
+class NmeaClient(threading.Thread):
+    def __init__(self, port: int):
+        super().__init__(daemon=True)
+        self.port, self.data, self.stop = port, b"", False
+
+    def run(self):
+        deadline = time.monotonic() + 60
+        while not self.stop and time.monotonic() < deadline:
+            try:
+                with socket.create_connection(("127.0.0.1", self.port), timeout=1.0) as s:
+                    s.settimeout(0.5)
+                    while not self.stop:
+                        try:
+                            chunk = s.recv(65536)
+                        except socket.timeout:
+                            continue
+                        if not chunk:
+                            return
+                        self.data += chunk
+            except OSError:
+                time.sleep(0.1)
+
+
+@pytest.fixture(scope="module")
+def followed(tmp_path_factory):
+    """A 75 s drive served at 4x through the emulators and recorded by the daemon, followed live."""
+    root = tmp_path_factory.mktemp("live")
+    sc = parse({"name": "live", "start": START,
+                "segment": [{"label": "stand", "duration_s": 20, "speed_mps": 0},
+                            {"label": "drive", "duration_s": 55, "speed_mps": 10, "turn_deg": 90}]})
+    s = sim.simulate(sc, seed=4)
+    lat = mainjob.replay_latencies("superstar2", SPEED)
+    session = root / "session"
+    rounds = []
+    port_box = {}
+
+    def follow():
+        port_box["status"] = live.run(session, root / "live", interval_s=0.25, nmea_port=0, max_s=120,
+                                      on_round=rounds.append, on_start=port_box.update, **lat)
+
+    th = threading.Thread(target=follow, daemon=True)
+    th.start()
+    deadline = time.monotonic() + 10
+    while "nmea_port" not in port_box and time.monotonic() < deadline:
+        time.sleep(0.05)
+    client = NmeaClient(port_box["nmea_port"])
+    client.start()
+    mainjob.record_drive(s, root, SPEED, session=session)
+    th.join(60)
+    client.stop = True
+    client.join(5)
+    return s, session, root / "live", rounds, client.data, lat
+
+
+def test_live_follows_the_drive_and_ends_with_the_session(followed):
+    s, session, out, rounds, _, _ = followed
+    assert len(rounds) >= 10  # one a round while the drive was served (about 19 s at 4x)
+    e = live.read_epochs(out / "live.f64")
+    assert np.all(np.diff(e["t"]) > 0)
+    assert e["t"][-1] > START["gps_tow_s"] + s.scenario.duration_s - 1.0
+    assert (out / "live.pos").stat().st_size > 0 and not any(p.name.startswith("live") for p in session.iterdir())
+
+
+def test_one_round_over_a_finished_session_is_the_replay(followed, tmp_path):
+    """Everything on disk in one round: the same alignment and chunks as the replay, bit for bit."""
+    _, session, _, _, _, lat = followed
+    live.run(session, tmp_path / "one", **lat)
+    z, e = results.load(replay.replay(session, tmp_path / "replay", **lat).out), live.read_epochs(
+        tmp_path / "one" / "live.f64")
+    assert np.array_equal(e["t"], z["t"]) and np.array_equal(e["r_ecef"], z["r_ecef"])
+
+
+def _live_against_replay(followed, tmp_path):
+    _, session, out, _, _, lat = followed
+    z, e = results.load(replay.replay(session, tmp_path / "replay", **lat).out), live.read_epochs(out / "live.f64")
+    assert len(e["t"]) == len(z["t"])  # the same IMU samples, each timed by its own round's clock map
+    return np.abs(e["t"] - z["t"]), np.linalg.norm(e["r_ecef"] - z["r_ecef"], axis=1)
+
+
+def test_live_times_its_samples_as_the_replay_does(followed, tmp_path):
+    """Samples fed in a round were timed by that round's clock map, which later GPS blocks refine:
+    within the robust alignment's own accuracy of 1 ms (issue 36) of the whole session's."""
+    dt, dr = _live_against_replay(followed, tmp_path)
+    print(f"live against replay: time difference max {1e3 * dt.max():.3f} ms, position max {1e3 * dr.max():.2f} mm, "
+          f"median {1e3 * np.median(dr):.3f} mm")
+    assert dt.max() < 1e-3
+
+
+@pytest.mark.xfail(strict=True, reason="issue 39 asks 1 mm against the replay once the alignment has settled; the "
+                   "online map is re-fitted on all blocks so far, so a sample fed early keeps that round's time: "
+                   "0.02-0.52 ms off the final fit at 4x on a loaded machine, 2.0-4.2 mm in position in four runs "
+                   "(holding samples back 3 or 10 s behind the newest block does not close it); a causal map, the "
+                   "same online and in replay, would make them equal")
+def test_live_agrees_with_the_replay_to_a_millimetre(followed, tmp_path):
+    _, dr = _live_against_replay(followed, tmp_path)
+    assert dr.max() < 1e-3
+
+
+def test_nmea_sentences_parse_and_match_the_solution(followed):
+    _, session, out, _, data, _ = followed
+    lines = data.decode("ascii").split("\r\n")[:-1]  # whole sentences: the client may stop mid-way
+    gga = [pynmea2.parse(x, check=True) for x in lines if x.startswith("$GPGGA")]
+    rmc = [pynmea2.parse(x, check=True) for x in lines if x.startswith("$GPRMC")]
+    gst = [pynmea2.parse(x, check=True) for x in lines if x.startswith("$GPGST")]
+    assert len(gga) == len(rmc) == len(gst) > 1000
+    e = live.read_epochs(out / "live.f64")
+    from gpsins import _core
+
+    llh = _core.ecef_to_geodetic(e["r_ecef"])
+    # The last sentence is the last epoch (epochs and sentences one to one, in order).
+    assert math.isclose(gga[-1].latitude, math.degrees(llh[-1, 0]), abs_tol=1e-7)
+    assert math.isclose(gga[-1].longitude, math.degrees(llh[-1, 1]), abs_tol=1e-7)
+    assert math.isclose(float(gga[-1].altitude), llh[-1, 2], abs_tol=1e-3)
+    assert math.isclose(float(gst[-1].std_dev_latitude), e["sigma_ned_m"][-1, 0], abs_tol=1e-3)
+    # UTC is GPS time less the leap seconds the receiver states (15 in 2010, the simulated week).
+    leap = measurements.decode_session(session).gps.leap_s
+    assert leap == 15
+    utc = gga[-1].timestamp
+    sod = utc.hour * 3600 + utc.minute * 60 + utc.second + utc.microsecond * 1e-6
+    want = (e["t"][-1] - leap) % 86400  # seconds of week -> of day (the week starts at 0 h)
+    assert abs(sod - want) < 0.011
