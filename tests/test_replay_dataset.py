@@ -193,34 +193,66 @@ def test_tight_walk_with_galileo_beats_gps_alone_and_ignores_the_galileo_clock(w
 
 def _yaw_difference_deg(a, b) -> np.ndarray:
     """a's yaw minus b's (results tables) at a's epochs where both know their heading, wrapped to +-180 deg."""
-    k = np.searchsorted(b["t"], a["t"]).clip(0, len(b["t"]) - 1)
+    both = _both_know_heading(a, b)
     yb = np.interp(a["t"], b["t"], np.unwrap(np.radians(b["ypr_deg"][:, 0])))
-    both = a["heading_known"].astype(bool) & b["heading_known"][k].astype(bool)
     return np.degrees(np.angle(np.exp(1j * (np.radians(a["ypr_deg"][both, 0]) - yb[both]))))
+
+
+def _both_know_heading(a, b) -> np.ndarray:
+    k = np.searchsorted(b["t"], a["t"]).clip(0, len(b["t"]) - 1)
+    return a["heading_known"].astype(bool) & b["heading_known"][k].astype(bool)
 
 
 def test_tight_walk_doppler_gives_the_heading_pseudoranges_cannot(walk_runs, tmp_path):
     """At walking speed pseudoranges' metres hardly show the heading; RAWX's Doppler (0.1-0.2 m/s) does. With it
-    the tight run's yaw follows the loose run's (RTK fixes: its heading is known to a degree) and its drift and
-    error shrink; without it (doppler_sigma_mps = 0) the yaw wanders from where the heading search set it."""
+    the tight run's yaw follows the loose run's (RTK fixes) closer and its drift and error shrink; without it
+    (doppler_sigma_mps = 0) the yaw wanders from where the heading search set it. "Closer" is a one-sided sign
+    test at 95 % over 15 s blocks of the walk (the yaw difference's autocorrelation first reaches zero after
+    12.5 s, so the blocks are about independent): the block medians of |yaw - loose yaw|, with against without;
+    the drift in each of the schedule's two outages, and the error outside them."""
+    from scipy.stats import binomtest
+
     res, d = walk_runs[("walk_0827_ubx.toml", "tight")]
     s = json.loads((d / "run.json").read_text())
     assert s["counters"]["range_rates_used"] > 3000 and s["counters"]["range_rates_rejected"] == 0
     s_nod, d_nod = _replay_edited_walk(tmp_path, "[filter.imu_noise]", "doppler_sigma_mps = 0.0\n\n[filter.imu_noise]")
     assert s_nod["counters"]["range_rates_used"] == 0
     loose = results_mod.load(walk_runs[("walk_0827_ubx.toml", "loose")][1])
-    dy = np.abs(_yaw_difference_deg(results_mod.load(d), loose))
-    dy_nod = np.abs(_yaw_difference_deg(results_mod.load(d_nod), loose))
-    drift, drift_nod = s["scoring"]["horizontal_m"]["rms"], s_nod["scoring"]["horizontal_m"]["rms"]
+    blocks = {}
+    for name, z in (("with", results_mod.load(d)), ("without", results_mod.load(d_nod))):
+        dy = np.abs(_yaw_difference_deg(z, loose))
+        t = z["t"][_both_know_heading(z, loose)]
+        k = ((t - t[0]) // 15.0).astype(int)
+        blocks[name] = np.array([np.median(dy[k == j]) for j in range(k.max() + 1)])
+    closer = int(np.sum(blocks["with"] < blocks["without"]))
+    p = binomtest(closer, len(blocks["with"]), 0.5, alternative="greater").pvalue
+    drift = [o["max_h_m"] for o in s["scoring"]["per_outage"]]
+    drift_nod = [o["max_h_m"] for o in s_nod["scoring"]["per_outage"]]
     out, out_nod = s["scoring"]["outside"]["rms_h_m"], s_nod["scoring"]["outside"]["rms_h_m"]
-    print(f"\ntight walk, yaw minus the loose run's: median {np.median(dy):.1f} deg with Doppler, "
-          f"{np.median(dy_nod):.1f} deg without; drift RMS {drift:.2f} / {drift_nod:.2f} m; "
-          f"outside H RMS {out:.2f} / {out_nod:.2f} m")
-    # Measured: 1.2 deg against 4.8 deg; drift 13.7 against 26.3 m (most of what is left is the standing error of
-    # single-frequency ranges without an ionosphere model: about 8 m before the first outage begins). Before the
-    # heading search's runs started at its own 15 deg sigma: 0.8 against 20.2 deg, 12.7 against 37.1 m.
-    assert np.median(dy) < 3.0 and np.median(dy_nod) > 2.5 * np.median(dy)
-    assert drift < 0.6 * drift_nod and out < out_nod
+    print(f"\ntight walk, median |yaw - loose yaw| per 15 s: with Doppler {np.round(blocks['with'], 1)}, without "
+          f"{np.round(blocks['without'], 1)} deg: closer in {closer} of {len(blocks['with'])} (p {p:.4f}); drift per "
+          f"outage {np.round(drift, 2)} / {np.round(drift_nod, 2)} m; outside H RMS {out:.2f} / {out_nod:.2f} m")
+    # Measured: closer in 9 of 9 blocks (median 1.2 against 4.8 deg over the walk); drift 8.70 / 17.3 against
+    # 9.11 / 36.0 m (most of what is left is the standing error of single-frequency ranges without an
+    # ionosphere model: about 8 m before the first outage begins); outside 9.05 against 10.56 m.
+    assert p < 0.05
+    assert len(drift) == len(drift_nod) == 2 and np.all(np.array(drift) < np.array(drift_nod)) and out < out_nod
+
+
+@pytest.mark.xfail(strict=True, reason="tight walk with Doppler: median |yaw - loose yaw| 1.24 deg against "
+                   "0.6745 x the runs' stated sigmas, 0.31 deg (tight 0.44, loose 0.14 deg): the yaw is "
+                   "about 4x over-confident")
+def test_tight_walk_yaw_follows_the_loose_run_within_their_sigmas(walk_runs):
+    """The tight run's yaw (with Doppler) and the loose run's (RTK fixes) estimate the same heading: if each
+    is Gaussian with its stated sigma, |difference| has the median 0.6745 sqrt(sigma_t^2 + sigma_l^2) or less
+    (their errors share the IMU, which only makes the difference smaller)."""
+    z = results_mod.load(walk_runs[("walk_0827_ubx.toml", "tight")][1])
+    loose = results_mod.load(walk_runs[("walk_0827_ubx.toml", "loose")][1])
+    dy = np.abs(_yaw_difference_deg(z, loose))
+    both = _both_know_heading(z, loose)
+    sigma = np.hypot(z["sigma_ypr_deg"][both, 2], np.interp(z["t"][both], loose["t"], loose["sigma_ypr_deg"][:, 2]))
+    print(f"\nmedian |yaw - loose yaw| {np.median(dy):.2f} deg, 0.6745 x stated {0.6745 * np.median(sigma):.2f} deg")
+    assert np.median(dy) <= 0.6745 * np.median(sigma)
 
 
 def test_fix_sigmas_floors_defaults_and_zeros():
@@ -287,8 +319,15 @@ def sim_set(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
-def right_run(sim_set, tmp_path_factory):
-    return _run_variant(sim_set, tmp_path_factory.mktemp("right"), "right")
+def right_dir(sim_set, tmp_path_factory):
+    """The right run's results directory and what _run_variant gives."""
+    d = tmp_path_factory.mktemp("right")
+    return d / "right", _run_variant(sim_set, d, "right")
+
+
+@pytest.fixture(scope="module")
+def right_run(right_dir):
+    return right_dir[1]
 
 
 def _run_variant(sim_set, tmp_path, name, edit=lambda s: s, **kw):
@@ -357,20 +396,51 @@ def test_a_lagged_fix_velocity_is_measured_and_moved_to_its_fix(sim_set, tmp_pat
     assert v_lag < 0.5 * v_none and nis_lag < 0.8 * nis_none and nis_lag < 1.2
 
 
+def _h_rms_between_outages(sim, out: Path, summary: dict) -> np.ndarray:
+    """IMU-point horizontal error RMS against the simulator's truth (as _run_variant) over each stretch
+    with GNSS between the run's outages (from 5 s after the heading is known)."""
+    z = results_mod.load(out)
+    sc = sim.scenario
+    t_run = (z["t"] + int(z["week"]) * 604800.0 - (sc.start.gps_week * 604800.0 + sc.start.gps_tow_s))[::20]
+    e = np.array([earth.ecef_to_ned_matrix(*earth.ecef_to_geodetic(r)[:2]).T @ (x - r)
+                  for x, r in zip(z["r_ecef"][::20], sim.truth.position_at(t_run))])
+    h2 = e[:, 0] ** 2 + e[:, 1] ** 2
+    t_first = t_run[np.flatnonzero(z["heading_known"][::20])[0]] + 5.0
+    outages = np.array(summary["outages"]["schedule"]) - sc.start.gps_tow_s
+    starts, ends = np.concatenate([[t_first], outages[:, 1]]), np.concatenate([outages[:, 0], [np.inf]])
+    rms = [np.sqrt(h2[(t_run >= a) & (t_run < b)].mean()) for a, b in zip(starts, ends)
+           if ((t_run >= a) & (t_run < b)).sum() >= 10]
+    return np.array(rms)
+
+
 @pytest.mark.parametrize("name, edit", [
     ("no_lever", lambda s: re.sub(r"antenna_m = .*", "antenna_m = [0.0, 0.0, 0.0]", s)),
     ("mount_yaw_10", lambda s: re.sub(r"imu_to_body_ypr_deg = .*", "imu_to_body_ypr_deg = [-80.0, 3.0, 180.0]", s)),
     ("no_offset", lambda s: re.sub(r"time_offset_s = .*", "time_offset_s = 0.0", s)),
 ])
-def test_a_wrong_lever_mounting_or_offset_is_visibly_worse(sim_set, right_run, tmp_path, name, edit):
-    right, in_right, rms_right = right_run
-    wrong, in_wrong, rms_wrong = _run_variant(sim_set, tmp_path, name, edit)
-    dr, dw_ = right["scoring"]["horizontal_m"]["rms"], wrong["scoring"]["horizontal_m"]["rms"]
-    print(f"\n{name}: IMU-point H RMS {rms_wrong:.3f} m (right {rms_right:.3f}), inside 3 sigma {in_wrong} "
-          f"(right {in_right}), drift RMS {dw_:.2f} m (right {dr:.2f})")
-    # Measured (IMU-point H RMS against the right run's 0.71 m; 3-sigma coverage): no lever 1.31x, coverage
-    # 0.03; mounting yaw 10 deg off 1.01x, coverage 0.52; offset left out 1.28x (drift 3.51 against 2.82 m).
-    assert rms_wrong > 1.25 * rms_right or in_wrong.min() < 0.8
+def test_a_wrong_lever_mounting_or_offset_is_visibly_worse(sim_set, right_dir, tmp_path, name, edit):
+    """One criterion for every case: where GNSS holds the position (between outages: the right run is at
+    the fixes' centimetres there, while in the outages the drift's own scatter hides a systematic error) the
+    wrong run's IMU-point horizontal RMS is worse than the right run's in a one-sided paired t-test at 95 %
+    over the stretches between the four outages. The closed forms say by how much for two of them: a lever
+    left out puts the IMU point at the antenna, |L_h| = 0.671 m off; a mounting 10 deg off in yaw turns that
+    lever by 10 deg, 2 sin(5 deg) |L_h| = 0.117 m."""
+    from scipy.stats import t as student_t
+
+    sim, _ = sim_set
+    right_out, (right, _, rms_right) = right_dir
+    wrong, _, rms_wrong = _run_variant(sim_set, tmp_path, name, edit)
+    per_right = _h_rms_between_outages(sim, right_out, right)
+    per_wrong = _h_rms_between_outages(sim, tmp_path / name, wrong)
+    diff = per_wrong - per_right
+    t_stat = diff.mean() / (diff.std(ddof=1) / np.sqrt(len(diff)))
+    t_crit = student_t.ppf(0.95, len(diff) - 1)
+    print(f"\n{name}: IMU-point H RMS between outages {np.round(per_wrong, 3)} m (right {np.round(per_right, 3)}), "
+          f"paired t {t_stat:.1f} (95 %: {t_crit:.2f}); over the whole run {rms_wrong:.3f} m (right {rms_right:.3f})")
+    # Measured: right 0.013-0.015 m; no lever 0.67-0.70 m; mounting 0.12-0.13 m; offset left out 0.016-0.031 m
+    # (t 3.0). Over the whole run, outages included: 1.30x, 1.01x and 1.29x the right run's 0.71 m.
+    assert len(diff) == 4
+    assert t_stat > t_crit, (per_wrong, per_right)
 
 
 def test_rates_with_every_fifth_row_missing_are_integrated_once(sim_set, right_run, tmp_path):
@@ -609,14 +679,12 @@ def test_without_the_offset_state_nothing_reports_one(right_run):
     assert "time_offset" not in right
 
 
-@pytest.mark.xfail(strict=True, reason="known: after the restart the estimate leaves the truth. Measured: 44.0 ms "
-                   "(sigma 7.6) before the 2 s gap, 38.4 ms just after, -70 ms 2.5 s later and -41.8 +- 3.1 ms at the "
-                   "end; also without the fix velocities (-21.7 +- 5.6 ms), while bridging the gap instead "
-                   "(max_gap_s = 5) keeps 41.4 +- 5.8 ms. The variance is carried (7.1 ms after), the estimate is "
-                   "then pulled by the updates after the restart; not yet understood")
 def test_an_imu_gap_restart_keeps_the_offset_estimate_and_its_sigma(sim_set, tmp_path):
     """The offset is a property of the sensors: a restart after an IMU gap (here 2 s cut out at 80 s, where the
-    estimate has settled) resets the navigation but carries dt_imu and its variance over."""
+    estimate has settled) resets the navigation but carries dt_imu and its variance over. The gap falls in a
+    turn; a heading taken from a fix inside it, while the IMU was still missing, left the yaw 11 deg off and let the
+    constant-velocity coast teach the offset (issue 36: -80 +- 4 ms at the end; now 45 +- 7 ms, 49 +- 7 without the
+    gap)."""
     sim, path = sim_set
     lines = (path.parent / "imu.csv").read_text().splitlines(keepends=True)
     t = np.array([float(x.split(",", 1)[0]) for x in lines[1:]])

@@ -203,12 +203,18 @@ InputStatus InsFilter<NB, NC, NT>::push_imu(double t_s, const Vec3& dtheta_rad, 
   if (!std::isfinite(t_s) || !dtheta_rad.allFinite() || !dv_mps.allFinite()) return InputStatus::NonFinite;
   if (have_time_ && !(t_s > t_last_)) return InputStatus::TimeNotIncreasing;
   double span = have_time_ ? t_s - t_last_ : dt_nominal_;
+  double cover = 1.0;  // the share of this sample's increments its step stands for
   ++counters_.imu_samples;
   if (!have_time_) {
     have_time_ = true;
     t_last_ = t_s - span;
   } else if (span > cfg_.max_gap_s) {
     restart_after_gap(span - dt_nominal_, t_s - dt_nominal_);
+    // Increments that cover every step cover the gap too: the navigation restarts one
+    // nominal step before this sample, so only that step's share of them is applied (all
+    // of them in one step were beyond the range and replaced by nothing, 10 ms of free fall
+    // after a 2 s gap; without a range they left 19 m/s of climb and a 2 deg tilt).
+    if (cfg_.imu_increments_cover_gaps) cover = dt_nominal_ / span;
     span = dt_nominal_;
   } else {
     track_step(span);
@@ -218,13 +224,14 @@ InputStatus InsFilter<NB, NC, NT>::push_imu(double t_s, const Vec3& dtheta_rad, 
   // were lost: bridged with the previous rates. So is a sample beyond the range.
   const bool gap = !cfg_.imu_increments_cover_gaps && span > 1.5 * dt_nominal_;
   const double dt = gap ? dt_nominal_ : span;
-  const double over = out_of_range(dtheta_rad, dv_mps, dt);
+  const Vec3 dtheta_s = dtheta_rad * cover, dv_s = dv_mps * cover;
+  const double over = out_of_range(dtheta_s, dv_s, dt);
   const bool bad = over > 1.05;
   if (bad) {
     ++counters_.imu_samples_rejected;
     event(kImuSampleRejected, over);
   }
-  const Increment inc = calibrated(dt, dtheta_rad, dv_mps);
+  const Increment inc = calibrated(dt, dtheta_s, dv_s);
   if (gap || bad) {
     if (gap) ++counters_.imu_gaps_bridged;
     Increment bridge;
@@ -344,8 +351,8 @@ void InsFilter<NB, NC, NT>::event(int kind, double value) {
 // biases are carried; the heading becomes unknown (the vehicle may have turned),
 // roll and pitch get their initial spread on top, velocity and position the
 // spread of an unknown acceleration over the gap. Fixes inside the gap are used
-// at their times on a constant-velocity coast. Before initialisation the
-// levelling starts over.
+// at their times on a constant-velocity coast; they set no heading. Before
+// initialisation the levelling starts over.
 template <int NB, int NC, int NT>
 void InsFilter<NB, NC, NT>::restart_after_gap(double gap_s, double t_end) {
   ++counters_.imu_gap_restarts;
@@ -407,6 +414,11 @@ void InsFilter<NB, NC, NT>::restart_after_gap(double gap_s, double t_end) {
     core_.note_transition(move);
     t_last_ += dt;
   };
+  // No heading from these fixes: without the IMU the attitude cannot follow the vehicle
+  // to the gap's end (a turn through it left the yaw 11 deg off), and a heading known would
+  // let the constant-velocity coast's misfit teach the time offset. The first fix after
+  // the gap sets it, as at the start.
+  coasting_ = true;
   while (pending_count_ > 0 && pending_[0].t_s < t_end) {
     const FixInput fix = pending_[0];
     std::copy(pending_.begin() + 1, pending_.begin() + pending_count_, pending_.begin());
@@ -414,6 +426,7 @@ void InsFilter<NB, NC, NT>::restart_after_gap(double gap_s, double t_end) {
     coast(fix.t_s - t_last_);
     process_fix(fix);
   }
+  coasting_ = false;
   coast(t_end - t_last_);
   t_last_ = t_end;
 }
@@ -1072,7 +1085,15 @@ void InsFilter<NB, NC, NT>::set_heading(const FixInput& fix, const Vec3& v_ecef,
   // starts afresh. Velocity and position restart at the fix.
   const Vec3 up_b = core_.nav.q_eb.conjugate() * core_.nav.r_ecef_m.normalized();
   const Mat3 keep = Mat3::Identity() - up_b * up_b.transpose();
+  const Mat3 c_old = core_.nav.q_eb.toRotationMatrix();
   core_.nav.q_eb = quat_body_to_ecef(e, llh.lat_rad, llh.lon_rad);
+  if constexpr (NT == 1) {
+    // The last step's acceleration (the offset column of the velocity fix that follows) was
+    // mechanised with the old heading: its specific-force part turns with the attitude.
+    const Vec3 gamma = normal_gravity_ecef(core_.nav.r_ecef_m), w_ie = earth_rate_ecef();
+    const Vec3 f_e = accel_ecef_ - gamma + 2.0 * w_ie.cross(core_.nav.v_ecef_mps);
+    accel_ecef_ = core_.nav.q_eb.toRotationMatrix() * c_old.transpose() * f_e + gamma - 2.0 * w_ie.cross(v_ecef);
+  }
   core_.nav.r_ecef_m = fix.r_ecef_m - core_.nav.q_eb * cfg_.lever_arm_body_m - fix_error_estimate(fix);
   core_.nav.v_ecef_mps = v_ecef;
   if constexpr (NT == 1) core_.nav.r_ecef_m += v_ecef * core_.time_offset_s;  // as in reset_to_fix
@@ -1162,7 +1183,7 @@ void InsFilter<NB, NC, NT>::process_fix(const FixInput& fix) {
   // Heading from the course over ground once moving, if not configured: at
   // heading_min_speed_mps from any course, below it from a measured velocity
   // whose course is accurate enough (sigma_v / speed), as a walk's must be.
-  if (!heading_known_) {
+  if (!heading_known_ && !coasting_) {
     Vec3 v = fix.v_ecef_mps;
     double sigma_v_mps = std::numeric_limits<double>::infinity();  // per horizontal axis
     if (v.allFinite())

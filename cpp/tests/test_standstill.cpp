@@ -3,7 +3,10 @@
 // synthetic vehicle standing at a known place.
 #include <doctest/doctest.h>
 
+#include <cmath>
+#include <limits>
 #include <random>
+#include <vector>
 
 #include "gpsins/earth.hpp"
 #include "gpsins/ins_filter.hpp"
@@ -195,4 +198,62 @@ TEST_CASE("no reset onto fixes whose DOP the receiver saturates") {
   CHECK(f.counters().gnss_resets == 0);
   CHECK(f.counters().fixes_rejected >= 20);
   CHECK((f.core().nav.r_ecef_m - s.r).norm() < 5.0);
+}
+
+TEST_CASE("fixes inside a long IMU gap set no heading; increments covering the gap count for one step") {
+  // Driving straight at 10 m/s on yaw 0.5 rad, the body fixed in ECEF: 100 Hz increments
+  // that cover their whole step (rates integrated), 5 Hz fixes with velocity, and 2 s of
+  // IMU samples missing at 20 s while the fixes go on.
+  const Stand s;
+  const Vec3 v = rot_ned_to_ecef(s.site.lat_rad, s.site.lon_rad) * Vec3(10.0 * std::cos(0.5), 10.0 * std::sin(0.5), 0.0);
+  auto r_at = [&](double t) { return Vec3(s.r + v * t); };
+  auto f_body = [&](double t) {  // at constant ECEF velocity C f = -gamma + 2 w_ie x v
+    return Vec3(s.q.conjugate() * (2.0 * earth_rate_ecef().cross(v) - normal_gravity_ecef(r_at(t))));
+  };
+  InsConfig c = stand_config();
+  c.initial_yaw_rad = std::numeric_limits<double>::quiet_NaN();
+  c.imu_rate_hz = 100.0;
+  c.imu_increments_cover_gaps = true;
+  c.use_fix_velocity = true;
+  c.zero_velocity_updates = false;  // a quiet IMU at constant velocity looks like standing
+  InsFilter<5, 0, 1> f(c);
+  std::vector<FilterEvent> events;
+  f.set_event_log(&events);
+  const double dt = 0.01;
+  double t_prev = 0.0;
+  int next_fix = 1;
+  auto sample = [&](double t) {
+    while (0.2 * next_fix <= t + 1e-9) {
+      FixInput x = fix_at(0.2 * next_fix, r_at(0.2 * next_fix));
+      x.v_ecef_mps = v;
+      f.push_fix(x);
+      ++next_fix;
+    }
+    const double span = t - t_prev;  // what the increments cover
+    REQUIRE(f.push_imu(t, s.w_body * span, f_body(t - 0.5 * span) * span) == InputStatus::Ok);
+    t_prev = t;
+  };
+  for (int k = 1; k <= 2000; ++k) sample(k * dt);
+  REQUIRE(f.heading_known());
+  const double offset_var = f.core().P(InsFilter<5, 0, 1>::Core::kTimeOffset, InsFilter<5, 0, 1>::Core::kTimeOffset);
+  sample(22.05);  // the first sample after the gap
+  CHECK(f.counters().imu_gap_restarts == 1);
+  CHECK(f.counters().imu_samples_rejected == 0);
+  // Not the course at a fix inside the gap: without the IMU the attitude could not follow a turn to its end.
+  CHECK_FALSE(f.heading_known());
+  CHECK((f.core().nav.v_ecef_mps - v).norm() < 0.02);  // the 2 s increment over 10 ms: 10 ms of free fall
+  // The offset is carried over the coast, its variance too (plus one step of its random walk).
+  CHECK(f.core().P(InsFilter<5, 0, 1>::Core::kTimeOffset, InsFilter<5, 0, 1>::Core::kTimeOffset) ==
+        doctest::Approx(offset_var).epsilon(1e-3));
+  for (int k = 2206; k <= 3000; ++k) sample(k * dt);
+  std::vector<double> heading_set;
+  for (const auto& e : events)
+    if (e.kind == kHeadingSet) heading_set.push_back(e.t_s);
+  REQUIRE(heading_set.size() == 2);
+  CHECK(heading_set[1] == doctest::Approx(22.2));  // the first fix after the gap
+  CHECK(f.heading_known());
+  CHECK(f.counters().imu_samples_rejected == 0);
+  CHECK_FALSE(f.counters().diverged);
+  CHECK((f.core().nav.r_ecef_m - r_at(30.0)).norm() < 0.5);
+  CHECK((f.core().nav.v_ecef_mps - v).norm() < 0.05);
 }

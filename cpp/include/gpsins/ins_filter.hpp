@@ -290,6 +290,7 @@ class InsFilter {
 
   bool initialised_ = false;
   bool heading_known_ = false;
+  bool coasting_ = false;  // restart_after_gap is using the gap's fixes on its constant-velocity coast
   bool have_time_ = false;
   double t_last_ = 0.0;
   double dt_nominal_ = 1.0 / 64.0;
