@@ -9,10 +9,13 @@ its solution as a mapping (or any object with these attributes):
 - ``t`` (n,): GPS seconds since the start of ``inputs.week``, increasing;
 - ``r_ecef`` (n, 3) m and ``v_ecef`` (n, 3) m/s of the IMU point; ``q_eb`` (n, 4) Hamilton w, x, y, z,
   body (forward-right-down) to ECEF (NaN where it has no attitude);
-- optional: ``sigma`` (n, >= 9) standard deviations of attitude (rad, NED), velocity (m/s, NED) and
-  position (m, NED) errors in that order, as the built-in filter's; ``covariance`` (n, >= 9, >= 9) in
-  the same order (NEES uses it, else the sigmas as a diagonal one, else none); ``gyro_bias``, ``accel_bias`` (n, 3); ``heading_known`` (n,) bool; ``updates``, the
-  built-in filter's update table (kind, t, dof, nis, accepted, ...), for NIS.
+- optional: ``sigma`` (n, >= 9) standard deviations of the attitude error (rad, about the local north,
+  east and down axes), velocity (m/s, NED) and position (m, NED) errors, in that order; ``covariance``
+  (n, >= 9, >= 9) in the same order and axes (NEES uses it, else the sigmas as a diagonal one, else none;
+  the replay turns both into the built-in filter's axes: attitude on the body side, velocity and
+  position in ECEF); ``gyro_bias``, ``accel_bias`` (n, 3); ``heading_known`` (n,) bool; ``updates``, the
+  built-in filter's update table (kind, t, dof, nis, accepted, ...), for NIS; ``counters`` (fixes_accepted,
+  updates_rejected, ...), for run.json and the terminal.
 
 The replay then scores, writes and reports it exactly as its own: errors against the truth or the
 reference, drift per outage, NEES where it gives sigmas or covariances, NIS where it gives updates.
@@ -27,7 +30,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import filter as flt
+from . import _core, evaluate, filter as flt
 
 UPDATE_COLUMNS = {"t": (np.float64, ()), "kind": (np.int32, ()), "id": (np.int32, ()), "dof": (np.int32, ()),
                   "nis": (np.float64, ()), "gate": (np.float64, ()), "log_det_s": (np.float64, ()),
@@ -110,24 +113,35 @@ def as_solution(out, mode: str, n_imu: int, n_fixes: int, spec: str) -> flt.Solu
             raise EstimatorError(f"{spec}: {name} has shape {v.shape}, expected ({n}, {width})")
         return v
 
-    sigma = arr("sigma", 9, False)
+    sigma = arr("sigma", 9, False)[:, :9]
     cov = _get(out, "covariance")
     if cov is not None:
         cov = np.asarray(cov, dtype=float)
         if cov.ndim != 3 or cov.shape[0] != n or min(cov.shape[1:]) < 9:
             raise EstimatorError(f"{spec}: covariance has shape {cov.shape}, expected ({n}, >= 9, >= 9)")
-        if not np.isfinite(sigma).any():
-            sigma = np.sqrt(np.clip(np.diagonal(cov, axis1=1, axis2=2), 0.0, None))
+        cov = cov[:, :9, :9]
     known = _get(out, "heading_known")
     known = np.ones(n, bool) if known is None else np.asarray(known, bool).reshape(-1)
     updates = _get(out, "updates") or {k: np.zeros((0,) + shape, dtype) for k, (dtype, shape) in
                                        UPDATE_COLUMNS.items()}
     counters = {"imu_samples": int(n_imu), "fixes": int(n_fixes), "fixes_accepted": 0, "updates_rejected": 0,
-                "diverged": False}
+                "diverged": False, **dict(_get(out, "counters") or {})}  # the plug-in's own, where it counts
     return flt.Solution(mode, sigma.shape[1], t, arr("r_ecef", 3, True)[:, :3], arr("v_ecef", 3, True)[:, :3],
                         arr("q_eb", 4, True)[:, :4], arr("gyro_bias", 3, False, 0.0)[:, :3],
                         arr("accel_bias", 3, False, 0.0)[:, :3], sigma, np.zeros(n, bool), known, dict(updates),
                         counters, covariance=cov)
+
+
+def filter_axes(cov_ned: np.ndarray, q_eb: np.ndarray, r_ecef: np.ndarray) -> np.ndarray:
+    """(n, 9, 9) covariances from a plug-in's axes (attitude about N, E, D; velocity, position NED) to
+    the built-in filter's (attitude on the body side, q_true = q (x) exp(dtheta); velocity, position ECEF)."""
+    llh = _core.ecef_to_geodetic(r_ecef)
+    c_en = evaluate.c_en(llh[:, 0], llh[:, 1])  # NED -> ECEF
+    c_be = np.swapaxes(_core.dcm_from_quat(q_eb), 1, 2)  # ECEF -> body
+    t = np.zeros((len(cov_ned), 9, 9))
+    t[:, 0:3, 0:3] = c_be @ c_en
+    t[:, 3:6, 3:6] = t[:, 6:9, 6:9] = c_en
+    return t @ cov_ned @ np.swapaxes(t, 1, 2)
 
 
 class PluginRun:
@@ -136,7 +150,9 @@ class PluginRun:
     sample), so the replay writes and scores it as its own, to the last bit."""
 
     def __init__(self, estimator, spec: str, inputs: EstimatorInputs, chunk_rows: int = flt.CHUNK_ROWS):
-        self._out = as_solution(estimator(inputs), inputs.mode, len(inputs.imu), len(inputs.fixes), spec)
+        result = estimator(inputs)
+        self._ned = not isinstance(result, flt.Solution)  # the built-in's own is in the filter's axes already
+        self._out = as_solution(result, inputs.mode, len(inputs.imu), len(inputs.fixes), spec)
         self.counters = dict(self._out.counters)
         self.fixes_after_end = int(self._out.extra.get("fixes_after_end", 0))
         self.heading_search = None
@@ -156,13 +172,15 @@ class PluginRun:
             e = (ev_t > t_lo) & (ev_t <= t_hi)
             pick = (lambda x: None if x is None else x[a:b])
             cov = pick(s.covariance)
-            if covariance and cov is None:
-                # Sigmas only: NEES with them as a diagonal covariance (NaN without either).
-                sig = s.sigma[a:b, :9]
-                cov = np.zeros((b - a, 9, 9))
-                cov[:, np.arange(9), np.arange(9)] = sig ** 2
-            yield flt.Solution(s.mode, s.n_states, s.t[a:b], s.r_ecef[a:b], s.v_ecef[a:b], s.q_eb[a:b],
-                               s.gyro_bias[a:b], s.accel_bias[a:b], s.sigma[a:b], s.standstill[a:b],
+            sigma = s.sigma[a:b]
+            if self._ned:  # a plug-in's NED axes turned into the filter's, chunk by chunk (memory)
+                if cov is None:  # sigmas only: a diagonal covariance (NaN without them)
+                    cov = np.zeros((b - a, 9, 9))
+                    cov[:, np.arange(9), np.arange(9)] = sigma[:, :9] ** 2
+                cov = filter_axes(cov[:, :9, :9], s.q_eb[a:b], s.r_ecef[a:b])
+                sigma = np.sqrt(np.clip(np.diagonal(cov, axis1=1, axis2=2), 0.0, None))
+            yield flt.Solution(s.mode, sigma.shape[1], s.t[a:b], s.r_ecef[a:b], s.v_ecef[a:b], s.q_eb[a:b],
+                               s.gyro_bias[a:b], s.accel_bias[a:b], sigma, s.standstill[a:b],
                                s.heading_known[a:b], {k: np.asarray(v)[u] for k, v in s.updates.items()},
                                self.counters, pick(s.scale_factors), pick(s.clock),
                                cov if covariance else None, {},
