@@ -329,3 +329,24 @@ def test_no_standstill_begins_while_braking_after_a_gnss_outage():
     assert sol.counters["gnss_resets"] == 0
     err = evaluate.nav_errors(sol, truth_of(s)).r_ned
     assert np.max(np.hypot(err[:, 0], err[:, 1])) < 8.0
+
+
+def test_a_long_imu_gap_costs_no_more_than_its_length(default_drive):
+    """60 s without the IMU while the fixes go on (issue 37): before, the queued fixes were used on the
+    state of the gap's start, rejected, and reset the filter 7 times onto it (diverged); now those beyond
+    max_gap_s are counted and left, the restart coasts through the rest, and once the gap has been over
+    as long as it lasted the errors are inside the filter's own 3 sigma again."""
+    s = default_drive
+    imu = sim.imu_table(s)
+    keep = ~((imu[:, 0] >= 100) & (imu[:, 0] < 160))
+    sol = run_default(s, imu[keep])
+    c = sol.counters
+    print(f"60 s gap: resets {c['gnss_resets']}, fixes in the gap left {c['fixes_in_imu_gap']}, "
+          f"late {c['fixes_late']}, diverged {c['diverged']}")
+    assert c["imu_gap_restarts"] == 1 and c["gnss_resets"] == 0 and not c["diverged"]
+    assert c["fixes_in_imu_gap"] > 0
+    err = evaluate.nav_errors(sol, truth_of(s))
+    after = sol.t > 160 + 60
+    inside = np.abs(err.e9[after]) <= 3 * sol.sigma[after, :9]
+    print(f"from 220 s: inside 3 sigma {inside.mean(axis=0).round(3)}")
+    assert inside.mean() > 0.99

@@ -119,6 +119,7 @@ py::dict counters_dict(const Counters& c) {
   d["fixes_without_solution"] = c.fixes_without_solution;
   d["fixes_before_alignment"] = c.fixes_before_alignment;
   d["fixes_late"] = c.fixes_late;
+  d["fixes_in_imu_gap"] = c.fixes_in_imu_gap;
   d["zero_velocity_updates"] = c.zero_velocity_updates;
   d["zero_rate_updates"] = c.zero_rate_updates;
   d["nonholonomic_updates"] = c.nonholonomic_updates;

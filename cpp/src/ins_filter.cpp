@@ -191,8 +191,15 @@ InputStatus InsFilter<NB, NC, NT>::push_fix(const FixInput& given) {
     const FixInput oldest = pending_[0];
     std::copy(pending_.begin() + 1, pending_.end(), pending_.begin());
     --pending_count_;
-    ++counters_.fixes_late;
-    if (initialised_) process_fix(oldest); else ++counters_.fixes_before_alignment;
+    if (have_time_ && oldest.t_s - t_last_ > cfg_.max_gap_s) {
+      // The IMU has stopped for longer than a gap is bridged: used now, on a state that has not
+      // moved, it would be rejected (and a run of them reset the filter onto a stale state); the
+      // restart after the gap coasts through the newest queued ones.
+      ++counters_.fixes_in_imu_gap;
+    } else {
+      ++counters_.fixes_late;
+      if (initialised_) process_fix(oldest); else ++counters_.fixes_before_alignment;
+    }
   }
   pending_[static_cast<std::size_t>(pending_count_++)] = fix;
   return InputStatus::Ok;

@@ -139,6 +139,7 @@ struct Counters {
   std::int64_t fixes_without_solution = 0;
   std::int64_t fixes_before_alignment = 0;
   std::int64_t fixes_late = 0;
+  std::int64_t fixes_in_imu_gap = 0;  // not used: queued beyond max_gap_s ahead of the IMU (a gap restarts anyway)
   std::int64_t zero_velocity_updates = 0;
   std::int64_t zero_rate_updates = 0;
   std::int64_t nonholonomic_updates = 0;
