@@ -149,3 +149,19 @@ def test_the_template_reads_another_layout(tmp_path):
     out.write_text(out.read_text().replace("imu_to_body_ypr_deg = [0.0, 0.0, 0.0]",
                                            "imu_to_body_ypr_deg = [-90.0, 0.0, 180.0]"))
     assert not doctor.diagnose(dataset.load(out)).errors()
+
+
+def test_a_reference_from_another_time_is_refused(tmp_path):
+    """Before: tables of nan. The walk's own .pos, its times moved a week on, as --reference."""
+    lines = (WALK / "gnss_1730_sf.pos").read_text().splitlines(keepends=True)
+    moved = []
+    for x in lines:
+        if x.startswith("%") or not x.strip():
+            moved.append(x)
+            continue
+        day = np.datetime64(x[:10].replace("/", "-")) + np.timedelta64(7, "D")
+        moved.append(str(day).replace("-", "/") + x[10:])
+    ref = tmp_path / "later.pos"
+    ref.write_text("".join(moved))
+    assert cli.main(["replay", str(WALK / "walk_0827.toml"), "--reference", str(ref), "--out",
+                     str(tmp_path / "o")]) == 2

@@ -675,6 +675,10 @@ def _run_mode(inp: Inputs, out: Path, *, mode: str = "loose", overrides: dict | 
     if reference is not None:
         f = dataset_mod.load_reference(reference, reference_q)
         ref = (f.t_abs - inp.week * measurements.SECONDS_PER_WEEK, f.r_ecef, f.source)
+        t_imu = (float(inp.imu[0, 0]), float(inp.imu[len(inp.imu) - 1, 0]))
+        if not np.any((ref[0] >= t_imu[0]) & (ref[0] <= t_imu[1])):
+            raise logs.LogError(f"{reference}: none of its {len(ref[0])} epochs (Q {list(reference_q)}) falls inside "
+                                f"the IMU's span (GPS week {inp.week}, {t_imu[0]:.1f} to {t_imu[1]:.1f} s of week)")
     scored_point = "antenna"
     sys_epochs = (ref_system.gps_seconds() - inp.week * measurements.SECONDS_PER_WEEK) if ref_system else np.zeros(0)
     if ref is None and found:
