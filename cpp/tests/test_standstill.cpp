@@ -200,7 +200,7 @@ TEST_CASE("no reset onto fixes whose DOP the receiver saturates") {
   CHECK((f.core().nav.r_ecef_m - s.r).norm() < 5.0);
 }
 
-TEST_CASE("fixes inside a long IMU gap set no heading; increments covering the gap count for one step") {
+TEST_CASE("fixes inside a long IMU gap set no heading, and increments covering the gap count for one step") {
   // Driving straight at 10 m/s on yaw 0.5 rad, the body fixed in ECEF: 100 Hz increments
   // that cover their whole step (rates integrated), 5 Hz fixes with velocity, and 2 s of
   // IMU samples missing at 20 s while the fixes go on.
