@@ -133,3 +133,21 @@ def test_score_of_a_kf_gins_navigation_file(drive, tmp_path):
 def _ned_rows(lat: float, lon: float) -> np.ndarray:
     sl, cl, so, co = np.sin(lat), np.cos(lat), np.sin(lon), np.cos(lon)
     return np.array([[-sl * co, -sl * so, cl], [-so, co, 0.0], [-cl * co, -cl * so, -sl]])
+
+
+def test_report_puts_any_number_of_named_results_side_by_side(drive, tmp_path, monkeypatch):
+    """Built-in, plug-in and outside results on one page, each named by the user (five, past the
+    palette's first four)."""
+    _, d = drive
+    monkeypatch.setitem(sys.modules, "plugin_under_test", sys.modules[__name__])
+    outs = {"native-loose": replay.replay(d, tmp_path / "l").out, "native-tight": replay.replay(
+        d, tmp_path / "t", mode="tight").out,
+            "wrapped": replay.replay(d, tmp_path / "w", estimator="gpsins.estimator:builtin").out,
+            "receiver": replay.replay(d, tmp_path / "f", estimator="plugin_under_test:receiver_fixes").out}
+    assert cli.main(["score", str(outs["native-loose"] / "solution.pos"), "--against", str(d), "--out",
+                     str(tmp_path / "s")]) == 0
+    outs["from-file"] = tmp_path / "s"
+    assert cli.main(["report", *[f"{k}={v}" for k, v in outs.items()], "--out", str(tmp_path / "page")]) == 0
+    page = (tmp_path / "page" / "report.md").read_text()
+    for name in outs:
+        assert f"## {name}" in page, name

@@ -229,16 +229,20 @@ def _cmd_check(args: argparse.Namespace) -> int:
 def _cmd_report(args: argparse.Namespace) -> int:
     from . import report
 
-    out = args.out or Path(args.results[0]) / "report"
-    args.results = [r for path in args.results for r in report.result_dirs(path)]
-    for path in args.results:
-        from . import results
+    from . import results
 
+    given = [report.named(a) for a in args.results]
+    out = args.out or Path(given[0][1]) / "report"
+    runs = []
+    for name, path in given:  # a directory of several runs: NAME becomes "NAME loose", "NAME tight", ...
+        dirs = report.result_dirs(path)
+        runs += [(d, None if name is None else name if len(dirs) == 1 else f"{name} {d.name}") for d in dirs]
+    for path, _ in runs:
         if not results.exists(path) or not (Path(path) / "run.json").is_file():
             raise CommandError(f"{path}: no {results.SOLUTION}, {results.SMALL} and run.json; give a directory "
                                "written by gpsins replay --out")
-    page = report.make_report(args.results, out)
-    report.print_comparison(args.results)
+    page = report.make_report(runs, out)
+    report.print_comparison(runs)
     print(f"report: {page} (self-contained: {page.with_suffix('.html')})")
     return 0
 
@@ -383,8 +387,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_replay)
 
     p = sub.add_parser("report", help="figures and a summary page from replay results")
-    p.add_argument("results", nargs="+", help="results directories of gpsins replay --out (one per run, or one "
-                   "holding its runs per mode and stretch)")
+    p.add_argument("results", nargs="+", metavar="[NAME=]RESULTS",
+                   help="results directories of gpsins replay --out or gpsins score (one per run, or one holding "
+                        "its runs per mode and stretch), each named NAME on the figures and tables if given")
     p.add_argument("--out", help="report directory (default: RESULTS/report)")
     p.set_defaults(func=_cmd_report)
 

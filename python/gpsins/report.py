@@ -32,7 +32,7 @@ KIND_FIX3, KIND_FIX2, KIND_PR, KIND_RR = 1, 2, 6, 9
 KIND_NAMES = {KIND_FIX3: "3D fix", KIND_FIX2: "2D fix", KIND_PR: "pseudorange", KIND_RR: "range rate"}
 PER_SATELLITE = (KIND_PR, KIND_RR)
 MODE_COLORS = {"loose": "tab:blue", "tight": "tab:orange", "ins": "tab:red"}
-OTHER_COLORS = ("tab:purple", "tab:brown", "tab:pink")
+OTHER_COLORS = ("tab:purple", "tab:brown", "tab:pink", "tab:olive", "tab:gray", "k", "tab:green", "y", "m", "c")
 RECEIVER_COLOR = "tab:green"
 AXIS_STYLES = ("-", "--", ":")
 SECONDS_PER_WEEK = 604800.0
@@ -66,17 +66,29 @@ class Result:
 MAX_PLOT_EPOCHS = 100_000  # a longer run's epochs are decimated for the figures (its numbers come from run.json)
 
 
-def load(path: str | Path, max_epochs: int = MAX_PLOT_EPOCHS) -> Result:
+def load(path: str | Path, max_epochs: int = MAX_PLOT_EPOCHS, name: str | None = None) -> Result:
+    """A run's results; named ``name`` (the user's), else by its mode, plug-in estimator and stretch."""
     path = Path(path)
     stride = max(1, -(-results.epochs(path) // max_epochs))
     a = results.load(path, stride=stride)
     run = json.loads((path / "run.json").read_text(encoding="utf-8"))
     cfg_path = path / "config.toml"
     cfg = tomllib.loads(cfg_path.read_text(encoding="utf-8")) if cfg_path.exists() else {}
-    name = run.get("mode", path.name)
-    if run.get("stretch"):
-        name += f" stretch {run['stretch']['index']}"
-    return Result(name, path, a, run, MODE_COLORS.get(name, "tab:blue"), cfg)
+    mode = run.get("mode", path.name)
+    if name is None:
+        name = mode
+        if run.get("estimator"):
+            name += " " + str(run["estimator"]).rpartition(".")[2]
+        if run.get("stretch"):
+            name += f" stretch {run['stretch']['index']}"
+    color = MODE_COLORS.get(mode, "tab:blue") if not run.get("estimator") else OTHER_COLORS[0]
+    return Result(name, path, a, run, color, cfg)
+
+
+def named(arg: str) -> tuple[str | None, str]:
+    """``NAME=RESULTS`` -> (NAME, RESULTS); a plain RESULTS has no name of its own."""
+    head, sep, tail = arg.partition("=")
+    return (head, tail) if sep and head and "/" not in head else (None, arg)
 
 
 def result_dirs(path: str | Path) -> list[Path]:
@@ -110,14 +122,17 @@ def smoothed_companion(r: Result) -> Result | None:
 
 
 def _load_all(paths) -> list[Result]:
-    results = [p if isinstance(p, Result) else load(p) for p in paths]
+    """Results from directories, (directory, name) pairs or loaded Results."""
+    results = [p if isinstance(p, Result) else load(p[0], name=p[1]) if isinstance(p, tuple) else load(p)
+               for p in paths]
     names = {r.name for r in results}
     results = [x for r in results for x in (r, None if f"{r.name} smoothed" in names else smoothed_companion(r))
                if x is not None]
     used = set()
-    for r in results:  # two runs of the same mode get different colours
+    for r in results:  # two runs of the same mode get different colours (cycled past ten)
         if r.color in used:
-            r.color = next(c for c in OTHER_COLORS if c not in used)
+            free = [c for c in OTHER_COLORS if c not in used]
+            r.color = free[0] if free else OTHER_COLORS[len(used) % len(OTHER_COLORS)]
         used.add(r.color)
     return results
 

@@ -266,7 +266,9 @@ def _fig_biases(results, base, tx, truth):
         for row, (key, k0) in enumerate((("gyro_bias", 9), ("accel_bias", 12))):
             for i in range(3):
                 ax = axs[row, i]
-                est, sig = scale[row] * r.a[key][:, i], scale[row] * r.a["sigma"][:, k0 + i]
+                # A plug-in's sigma may hold only the 9 navigation states: no band for its biases.
+                sigma = r.a["sigma"][:, k0 + i] if r.a["sigma"].shape[1] > k0 + i else np.full(len(t), np.nan)
+                est, sig = scale[row] * r.a[key][:, i], scale[row] * sigma
                 ax.fill_between(t, est - 3 * sig, est + 3 * sig, color=r.color, alpha=BAND_ALPHA, lw=0)
                 ax.plot(t, est, color=r.color, lw=0.9, label=r.name)
     if truth is not None:
@@ -291,6 +293,8 @@ def _fig_biases(results, base, tx, truth):
 def _fig_bias_sigma(results, base, tx):
     fig, axs = plt.subplots(2, 1, figsize=(10, 6), sharex=True)
     for r in results:
+        if r.a["sigma"].shape[1] < 15:  # a plug-in that states no bias sigmas
+            continue
         t = r.a["t"] - tx.t0
         for i, ls in enumerate(AXIS_STYLES):
             axs[0].plot(t, np.degrees(r.a["sigma"][:, 9 + i]) * 3600, ls, color=r.color, lw=0.9)
