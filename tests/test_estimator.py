@@ -151,3 +151,34 @@ def test_report_puts_any_number_of_named_results_side_by_side(drive, tmp_path, m
     page = (tmp_path / "page" / "report.md").read_text()
     for name in outs:
         assert f"## {name}" in page, name
+
+
+def test_score_of_a_csv_with_declared_columns(drive, tmp_path, capsys):
+    """The same solution as a CSV (seconds of week, latitude/longitude/height, NED velocity, a column to
+    skip, quaternion) scores as the replay itself; a bad value is named by line and column."""
+    _, d = drive
+    own = replay.replay(d, tmp_path / "own")
+    z = results.load(own.out)
+    k = z["heading_known"]
+    llh = z["llh"][k]
+    c = np.stack([_ned_rows(lat, lon) for lat, lon in llh[:, :2]])
+    v_ned = np.einsum("nij,nj->ni", c, z["v_ecef"][k])
+    table = np.column_stack([z["t"][k], np.degrees(llh[:, 0]), np.degrees(llh[:, 1]), llh[:, 2], v_ned,
+                             np.zeros(k.sum()), z["q_eb"][k]])
+    f = tmp_path / "mine.csv"
+    np.savetxt(f, table, fmt="%.12f", delimiter=",", header="sow,lat,lon,h,vn,ve,vd,unused,qw,qx,qy,qz")
+    cols = "t,lat_deg,lon_deg,h_m,vn,ve,vd,-,qw,qx,qy,qz"
+    week = str(int(z["week"]))
+    assert cli.main(["score", str(f), "--columns", cols, "--time", "gps_sow", "--week", week, "--against", str(d),
+                     "--out", str(tmp_path / "scored")]) == 0
+    a = json.loads((own.out / "run.json").read_text())["errors"]
+    b = json.loads((tmp_path / "scored" / "run.json").read_text())["errors"]
+    assert b["horizontal_rms_m"] == pytest.approx(a["horizontal_rms_m"], abs=1e-4)
+    lines = f.read_text().splitlines()
+    lines[5] = lines[5].replace(",", ",x", 1)
+    f.write_text("\n".join(lines) + "\n")
+    capsys.readouterr()
+    assert cli.main(["score", str(f), "--columns", cols, "--time", "gps_sow", "--week", week, "--against", str(d),
+                     "--out", str(tmp_path / "bad")]) == 2
+    err = capsys.readouterr().err
+    assert "mine.csv:6: column 2 (lat_deg)" in err, err

@@ -204,7 +204,8 @@ def _cmd_score(args: argparse.Namespace) -> int:
     if not Path(args.solution).is_file():
         raise CommandError(f"{args.solution}: no such solution file")
     res = score.score(args.solution, args.against, args.out, fmt=args.format, point=args.point,
-                      outages=args.outages, reference=args.reference, reference_q=args.reference_q)
+                      outages=args.outages, reference=args.reference, reference_q=args.reference_q,
+                      columns=args.columns.split(",") if args.columns else None, time=args.time, week=args.week)
     e = res.summary["errors"]
     print(f"{args.solution}: {res.summary['epochs']} epochs scored; results in {res.out}")
     if e:
@@ -465,7 +466,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("solution", help="RTKLIB .pos or KF-GINS navigation result")
     p.add_argument("--against", required=True, help="session directory or data-set TOML: truth, reference, outages")
     p.add_argument("--out", required=True, help="results directory (as gpsins replay --out: gpsins report reads it)")
-    p.add_argument("--format", choices=("pos", "kf-gins"), help="the solution's format (default: by its suffix)")
+    p.add_argument("--format", choices=("pos", "kf-gins", "csv"), help="the solution's format (default: by its "
+                   "suffix; csv with --columns)")
+    p.add_argument("--columns", help="a CSV's columns, e.g. t,lat_deg,lon_deg,h_m,vn,ve,vd,roll_deg,pitch_deg,"
+                   "yaw_deg or t,x,y,z,vx,vy,vz,qw,qx,qy,qz ('-' skips one)")
+    p.add_argument("--time", default="gps_abs", choices=("gps_abs", "gpst_unix", "utc_unix", "gps_sow"),
+                   help="a CSV's time scale (default gps_abs: GPS seconds since 1980-01-06)")
+    p.add_argument("--week", type=int, help="the GPS week of a CSV's seconds of week")
     p.add_argument("--point", choices=("antenna", "imu"),
                    help="where the solution is (default: antenna for a .pos, imu otherwise)")
     p.add_argument("--outages", metavar="FIRST:LENGTH:PERIOD[:END]", help="the outages to score the drift over")

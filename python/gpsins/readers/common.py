@@ -206,3 +206,10 @@ def finite_rows(a: np.ndarray) -> np.ndarray:
 
 
 NON_FINITE_ROWS = "rows with a value written as nan or inf (dropped)"
+
+
+def ned_to_ecef_vectors(v_ned: np.ndarray, lat_rad: np.ndarray, lon_rad: np.ndarray) -> np.ndarray:
+    """(n, 3) vectors from local north, east, down to ECEF at each row's latitude and longitude."""
+    sl, cl, so, co = np.sin(lat_rad), np.cos(lat_rad), np.sin(lon_rad), np.cos(lon_rad)
+    n, e, d = v_ned[:, 0], v_ned[:, 1], v_ned[:, 2]
+    return np.column_stack([-sl * co * n - so * e - cl * co * d, -sl * so * n + co * e - cl * so * d, cl * n - sl * d])

@@ -18,7 +18,8 @@ from pathlib import Path
 import numpy as np
 
 from .. import _core
-from .common import NON_FINITE_ROWS, SECONDS_PER_WEEK, Fixes, ReaderError, finite_rows, read_text_lines
+from .common import (NON_FINITE_ROWS, SECONDS_PER_WEEK, Fixes, ReaderError, finite_rows, ned_to_ecef_vectors,
+                     read_text_lines)
 from .imu_csv import ImuData, to_gps_seconds
 
 
@@ -112,10 +113,7 @@ def read_nav(path: str | Path) -> dict:
         t[m] = _times(path, a[m, 1], line_no[m], int(week))
     llh = np.column_stack([np.radians(a[:, 2]), np.radians(a[:, 3]), a[:, 4]])
     r = np.asarray(_core.geodetic_to_ecef(llh)).reshape(-1, 3)
-    sl, cl, so, co = np.sin(llh[:, 0]), np.cos(llh[:, 0]), np.sin(llh[:, 1]), np.cos(llh[:, 1])
-    vn, ve, vd = a[:, 5], a[:, 6], a[:, 7]
-    v = np.column_stack([-sl * co * vn - so * ve - cl * co * vd, -sl * so * vn + co * ve - cl * so * vd,
-                         cl * vn - sl * vd])  # NED -> ECEF
+    v = ned_to_ecef_vectors(a[:, 5:8], llh[:, 0], llh[:, 1])
     ypr = np.radians(a[:, [10, 9, 8]])
     q = np.asarray(_core.quat_body_to_ecef(ypr, llh)).reshape(-1, 4)
     order = np.argsort(t, kind="stable")
