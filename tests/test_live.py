@@ -56,7 +56,7 @@ def followed(tmp_path_factory):
     port_box = {}
 
     def follow():
-        port_box["status"] = live.run(session, root / "live", interval_s=0.25, nmea_port=0, max_s=120,
+        port_box["status"] = live.run(session, root / "live", interval_s=0.25, nmea_port=0, http_port=0, max_s=120,
                                       on_round=rounds.append, on_start=port_box.update, **lat)
 
     th = threading.Thread(target=follow, daemon=True)
@@ -66,15 +66,43 @@ def followed(tmp_path_factory):
         time.sleep(0.05)
     client = NmeaClient(port_box["nmea_port"])
     client.start()
+    page = PagePoller(port_box["http_port"])
+    page.start()
     mainjob.record_drive(s, root, SPEED, session=session)
     th.join(60)
-    client.stop = True
+    client.stop = page.stop = True
     client.join(5)
-    return s, session, root / "live", rounds, client.data, lat
+    page.join(5)
+    port_box["page"] = page
+    return s, session, root / "live", rounds, client.data, lat, page
+
+
+class PagePoller(threading.Thread):
+    """The status page as a browser polls it: the page, then status.json and track.json each 0.5 s."""
+
+    def __init__(self, port: int):
+        super().__init__(daemon=True)
+        self.base, self.stop, self.html, self.statuses, self.track = f"http://127.0.0.1:{port}", False, "", [], {}
+
+    def run(self):
+        import json
+        import urllib.request
+
+        while not self.stop:
+            try:
+                if not self.html:
+                    self.html = urllib.request.urlopen(self.base + "/", timeout=2).read().decode()
+                st = json.loads(urllib.request.urlopen(self.base + "/status.json", timeout=2).read())
+                if st:
+                    self.statuses.append(st)
+                    self.track = json.loads(urllib.request.urlopen(self.base + "/track.json", timeout=2).read())
+            except OSError:
+                pass
+            time.sleep(0.5)
 
 
 def test_live_follows_the_drive_and_ends_with_the_session(followed):
-    s, session, out, rounds, _, _ = followed
+    s, session, out, rounds, _, _, _ = followed
     assert len(rounds) >= 10  # one a round while the drive was served (about 19 s at 4x)
     e = live.read_epochs(out / "live.f64")
     assert np.all(np.diff(e["t"]) > 0)
@@ -84,7 +112,7 @@ def test_live_follows_the_drive_and_ends_with_the_session(followed):
 
 def test_one_round_over_a_finished_session_is_the_replay(followed, tmp_path):
     """Everything on disk in one round: the same alignment and chunks as the replay, bit for bit."""
-    _, session, _, _, _, lat = followed
+    _, session, _, _, _, lat, _ = followed
     live.run(session, tmp_path / "one", **lat)
     z, e = results.load(replay.replay(session, tmp_path / "replay", **lat).out), live.read_epochs(
         tmp_path / "one" / "live.f64")
@@ -92,7 +120,7 @@ def test_one_round_over_a_finished_session_is_the_replay(followed, tmp_path):
 
 
 def _live_against_replay(followed, tmp_path):
-    _, session, out, _, _, lat = followed
+    _, session, out, _, _, lat, _ = followed
     z, e = results.load(replay.replay(session, tmp_path / "replay", **lat).out), live.read_epochs(out / "live.f64")
     assert len(e["t"]) == len(z["t"])  # the same IMU samples, each timed by its own round's clock map
     return np.abs(e["t"] - z["t"]), np.linalg.norm(e["r_ecef"] - z["r_ecef"], axis=1)
@@ -109,7 +137,7 @@ def test_live_times_its_samples_as_the_replay_does(followed, tmp_path):
 
 @pytest.mark.xfail(strict=True, reason="issue 39 asks 1 mm against the replay once the alignment has settled; the "
                    "online map is re-fitted on all blocks so far, so a sample fed early keeps that round's time: "
-                   "0.02-0.52 ms off the final fit at 4x on a loaded machine, 2.0-4.2 mm in position in four runs "
+                   "0.02-0.52 ms off the final fit at 4x on a loaded machine, 1.4-4.7 mm in position in seven runs "
                    "(holding samples back 3 or 10 s behind the newest block does not close it); a causal map, the "
                    "same online and in replay, would make them equal")
 def test_live_agrees_with_the_replay_to_a_millimetre(followed, tmp_path):
@@ -118,7 +146,7 @@ def test_live_agrees_with_the_replay_to_a_millimetre(followed, tmp_path):
 
 
 def test_nmea_sentences_parse_and_match_the_solution(followed):
-    _, session, out, _, data, _ = followed
+    _, session, out, _, data, _, _ = followed
     lines = data.decode("ascii").split("\r\n")[:-1]  # whole sentences: the client may stop mid-way
     gga = [pynmea2.parse(x, check=True) for x in lines if x.startswith("$GPGGA")]
     rmc = [pynmea2.parse(x, check=True) for x in lines if x.startswith("$GPRMC")]
@@ -140,3 +168,51 @@ def test_nmea_sentences_parse_and_match_the_solution(followed):
     sod = utc.hour * 3600 + utc.minute * 60 + utc.second + utc.microsecond * 1e-6
     want = (e["t"][-1] - leap) % 86400  # seconds of week -> of day (the week starts at 0 h)
     assert abs(sod - want) < 0.011
+
+
+def test_the_status_page_shows_the_status_stream(followed):
+    """What the page serves while the drive goes is the status stream's rounds, number for number; the
+    track is the solution's, north and east of its first epoch."""
+    import json
+
+    _, _, out, _, _, _, page = followed
+    assert "<svg" in page.html and "status.json" in page.html and len(page.statuses) >= 5
+    lines = [json.loads(x) for x in (out / "status.jsonl").read_text().splitlines()]
+    by_t = {x["t"]: x for x in lines}
+    for st in page.statuses:
+        assert st == by_t[st["t"]]
+    nis = page.statuses[-1]["nis_per_dof"]
+    assert "fix_3d" in nis and nis["fix_3d"]["band"][0] < 1.0 < nis["fix_3d"]["band"][1]
+    e = live.read_epochs(out / "live.f64")
+    from gpsins import _core, evaluate
+
+    llh0 = _core.ecef_to_geodetic(e["r_ecef"][:1])
+    ned = (e["r_ecef"] - e["r_ecef"][0]) @ evaluate.c_en(llh0[:, 0], llh0[:, 1])[0]
+    got = np.column_stack([page.track["north"], page.track["east"]])
+    # Every track point is a solution epoch's, to the page's centimetre (rounding: at most 7.1 mm).
+    d = np.min(np.linalg.norm(got[:, None, :] - ned[None, :, :2], axis=2), axis=1)
+    assert d.max() < 0.0072
+
+
+def test_follow_root_moves_to_the_session_the_logger_starts_next(followed, tmp_path):
+    import json
+    import shutil
+
+    _, session, _, _, _, lat, _ = followed
+    root = tmp_path / "sessions"
+    shutil.copytree(session, root / "a")
+    done = {}
+    th = threading.Thread(target=lambda: done.update(got=live.run_root(root, tmp_path / "out", max_s=20,
+                                                                       interval_s=0.2, **lat)), daemon=True)
+    th.start()
+    deadline = time.monotonic() + 15
+    while not (tmp_path / "out" / "a" / "live.pos").exists() and time.monotonic() < deadline:
+        time.sleep(0.1)
+    shutil.copytree(session, root / "b")  # the logger restarted: a newer session
+    side = json.loads((root / "b" / "session.json").read_text())
+    side["start"]["realtime"] += 100.0
+    (root / "b" / "session.json").write_text(json.dumps(side))
+    th.join(30)
+    assert [p.name for p in done["got"]] == ["a", "b"]
+    a, b = (live.read_epochs(tmp_path / "out" / n / "live.f64") for n in ("a", "b"))
+    assert len(a["t"]) == len(b["t"]) > 1000

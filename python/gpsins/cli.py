@@ -185,6 +185,8 @@ def _cmd_live(args: argparse.Namespace) -> int:
     def started(info):
         if info["nmea_port"] is not None:
             print(f"NMEA on tcp://127.0.0.1:{info['nmea_port']}", flush=True)
+        if info["http_port"] is not None:
+            print(f"status page on http://127.0.0.1:{info['http_port']}/", flush=True)
 
     def round_done(st):
         s = st["sigma_ned_m"]
@@ -192,9 +194,14 @@ def _cmd_live(args: argparse.Namespace) -> int:
               f"sigma N/E/D {s[0]:.2f}/{s[1]:.2f}/{s[2]:.2f} m, fixes used {st['counters']['fixes_accepted']}",
               flush=True)
 
-    live.run(args.session, args.out, mode=args.mode, config=args.config, overrides=overrides,
-             nmea_port=args.nmea_port, nmea_every=args.nmea_every, interval_s=args.interval,
-             gps_latency_s=args.gps_latency, imu_latency_s=args.imu_latency, on_start=started, on_round=round_done)
+    options = dict(mode=args.mode, config=args.config, overrides=overrides, nmea_port=args.nmea_port,
+                   nmea_every=args.nmea_every, http_port=args.http_port, interval_s=args.interval,
+                   gps_latency_s=args.gps_latency, imu_latency_s=args.imu_latency, on_start=started,
+                   on_round=round_done)
+    if args.follow_root:
+        live.run_root(args.session, args.out, **options)
+    else:
+        live.run(args.session, args.out, **options)
     return 0
 
 
@@ -449,7 +456,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_batch)
 
     p = sub.add_parser("live", help="navigate live beside the logger: follow a session as it is written")
-    p.add_argument("session", help="the session directory the logger is writing (read only)")
+    p.add_argument("session", help="the session directory the logger is writing (read only); with --follow-root "
+                   "the logger's root of sessions")
+    p.add_argument("--follow-root", action="store_true",
+                   help="SESSION is the logger's root: follow its newest session, and the next when the logger "
+                        "starts one; each into OUT/SESSION_NAME")
+    p.add_argument("--http-port", type=int, metavar="PORT",
+                   help="serve the status page on this port of the loopback interface (0: any free)")
     p.add_argument("--out", required=True, help="output directory: live.pos, live.f64, status.jsonl")
     p.add_argument("--mode", choices=("loose", "tight"), default="loose")
     p.add_argument("--config", help="filter configuration: TOML file or preset name")

@@ -13,8 +13,8 @@ replay's chunks are fed), and writes:
 - NMEA 0183 GGA, RMC and GST of every output epoch (or every ``nmea_every``-th) to the clients of a TCP
   port on the loopback interface (``--nmea-port``), for gpsd, QGIS or OpenCPN.
 
-What it does not do yet (issue 39): a status page, following the newest session under a root, the main
-job showing it. Against a replay of the finished session: samples fed early were timed by the clock map
+``--http-port`` serves a status page (``live_page``); ``run_root`` follows the newest session under a
+logger's root and moves on when the logger starts another (a restart). Against a replay of the finished session: samples fed early were timed by the clock map
 of their round, which the later rounds refine (a fraction of a millisecond), so the two solutions agree
 to about a millimetre, not bit for bit; ``tests/test_live.py`` measures it.
 """
@@ -184,11 +184,12 @@ def session_finished(session: Path) -> bool:
 
 
 def run(session: str | Path, out: str | Path, *, mode: str = "loose", config=None, overrides=None,
-        nmea_port: int | None = None, nmea_every: int = 1, interval_s: float = 1.0, gps_latency_s: float = 0.0,
-        imu_latency_s: float = 0.0, hold_s: float = 0.0, until_finished: bool = True, max_s: float | None = None, on_round=None,
-        on_start=None) -> dict:
-    """Follow the session until the logger stops it (or ``max_s``); returns the last status. ``on_start``
-    gets {"nmea_port": port} once the port listens; ``on_round`` each round's status."""
+        nmea_port: int | None = None, nmea_every: int = 1, http_port: int | None = None, interval_s: float = 1.0,
+        gps_latency_s: float = 0.0, imu_latency_s: float = 0.0, hold_s: float = 0.0, until_finished: bool = True,
+        max_s: float | None = None, on_round=None, on_start=None, stop_when=None) -> dict:
+    """Follow the session until the logger stops it (or ``max_s``, or ``stop_when()`` is true: a newer
+    session under a root); returns the last status. ``on_start`` gets {"nmea_port", "http_port"} once
+    they listen; ``on_round`` each round's status."""
     session, out = Path(session), Path(out)
     if out.resolve() == session.resolve() or session.resolve() in out.resolve().parents:
         raise ValueError(f"{out}: live never writes into the session directory; give another --out")
@@ -196,8 +197,13 @@ def run(session: str | Path, out: str | Path, *, mode: str = "loose", config=Non
     fol = Follower(session, mode=mode, config=config, overrides=overrides, gps_latency_s=gps_latency_s,
                    imu_latency_s=imu_latency_s, hold_s=hold_s)
     server = NmeaServer(nmea_port) if nmea_port is not None else None
+    page = None
+    if http_port is not None:
+        from .live_page import StatusPage
+
+        page = StatusPage(http_port)
     if on_start is not None:
-        on_start({"nmea_port": server.port if server else None})
+        on_start({"nmea_port": server.port if server else None, "http_port": page.port if page else None})
     pos = None
     status: dict = {}
     t0 = time.monotonic()
@@ -215,16 +221,20 @@ def run(session: str | Path, out: str | Path, *, mode: str = "loose", config=Non
                     table.write(np.column_stack([sol.t, sol.r_ecef, sol.v_ecef, sol.q_eb, a["sigma_ned_m"]])
                                 .astype("<f8").tobytes())
                     table.flush()
-                    status = _status(fol, sol, a)
-                    status_file.write(results.json_text(status, indent=None) + "\n")
+                    status = json.loads(results.json_text(_status(fol, sol, a), indent=None))
+                    status_file.write(json.dumps(status) + "\n")
                     status_file.flush()
                     if server is not None:
                         _send_nmea(server, fol, sol, a, nmea_every)
+                    if page is not None:
+                        page.update(status, sol.r_ecef, evaluate.c_en(a["llh"][:1, 0], a["llh"][:1, 1])[0].T)
                     if on_round is not None:
                         on_round(status)
                 elif finished:
                     break
                 if max_s is not None and time.monotonic() - t0 > max_s:
+                    break
+                if stop_when is not None and stop_when():
                     break
                 if not finished:
                     time.sleep(interval_s)
@@ -233,7 +243,42 @@ def run(session: str | Path, out: str | Path, *, mode: str = "loose", config=Non
             pos.close()
         if server is not None:
             server.close()
+        if page is not None:
+            page.close()
     return status
+
+
+def newest_session(root: Path) -> Path | None:
+    """The newest session directory under a logger's root (by its sidecar's start time)."""
+    best, best_t = None, -math.inf
+    for side in Path(root).glob("*/session.json"):
+        try:
+            start = json.loads(side.read_text(encoding="utf-8")).get("start", {})
+        except (OSError, ValueError):
+            continue
+        t = start.get("realtime", side.stat().st_mtime) if isinstance(start, dict) else side.stat().st_mtime
+        if t > best_t:
+            best, best_t = side.parent, t
+    return best
+
+
+def run_root(root: str | Path, out: str | Path, *, max_s: float | None = None, interval_s: float = 1.0,
+             **options) -> list[Path]:
+    """Follow the newest session under ``root``, and the next when the logger starts one (a restart):
+    each into ``out/SESSION_NAME``. Until ``max_s`` (None: until stopped). Returns the sessions followed."""
+    root, out = Path(root), Path(out)
+    done: list[Path] = []
+    t0 = time.monotonic()
+    while max_s is None or time.monotonic() - t0 < max_s:
+        current = newest_session(root)
+        if current is None or current in done:
+            time.sleep(interval_s)
+            continue
+        done.append(current)
+        left = None if max_s is None else max(0.0, max_s - (time.monotonic() - t0))
+        run(current, out / current.name, interval_s=interval_s, max_s=left,
+            stop_when=lambda: newest_session(root) not in (current, None), **options)
+    return done
 
 
 def _status(fol: Follower, sol: flt.Solution, a: dict) -> dict:
@@ -245,7 +290,24 @@ def _status(fol: Follower, sol: flt.Solution, a: dict) -> dict:
             "imu_fed": fol.n_imu, "fixes_fed": fol.n_fix, "pseudoranges_fed": fol.n_pr,
             "counters": {c: fol.counters.get(c) for c in ("fixes_accepted", "fixes_rejected", "gnss_resets",
                                                           "imu_gap_restarts", "pseudoranges_used", "diverged")},
-            "warnings": fol.warnings}
+            "nis_per_dof": _nis(sol.updates), "warnings": fol.warnings}
+
+
+def _nis(updates: dict) -> dict:
+    """This round's accepted updates per source: mean NIS per degree of freedom, and the 95 % band of
+    that mean for white innovations of that many degrees of freedom (chi-square)."""
+    from scipy.stats import chi2
+
+    out = {}
+    kind, dof, nis = (np.asarray(updates.get(k, ())) for k in ("kind", "dof", "nis"))
+    ok = np.asarray(updates.get("accepted", np.ones(len(kind), bool)), bool) & (dof > 0)
+    for k in np.unique(kind[ok]):
+        m = ok & (kind == k)
+        total = float(dof[m].sum())
+        lo, hi = chi2.ppf([0.025, 0.975], total) / total
+        out[flt.UPDATE_KINDS.get(int(k), str(int(k)))] = {"mean": float(nis[m].sum() / total), "n": int(m.sum()),
+                                                          "band": [float(lo), float(hi)]}
+    return out
 
 
 def _send_nmea(server: NmeaServer, fol: Follower, sol: flt.Solution, a: dict, every: int) -> None:
