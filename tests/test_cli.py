@@ -251,6 +251,10 @@ def test_the_main_job_reruns_into_the_same_out(tmp_path):
     assert cli.main([str(a) for a in argv]) == 0
     assert (tmp_path / "o" / "session").is_dir() and (tmp_path / "o" / "session-2").is_dir()
     assert "session-2" in (tmp_path / "o" / "run.json").read_text()
+    # gpsins live navigated beside the logger during the drive (issue 39): its solution is there.
+    from gpsins import live
+
+    assert len(live.read_epochs(tmp_path / "o" / "live" / "live.f64")["t"]) > 500
 
 
 def test_set_help_on_a_data_set_shows_the_values_it_runs_with(capsys):

@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import evaluate, filter as flt, logs, measurements, nmea, results, solution, timing
+from . import evaluate, filter as flt, logs, measurements, measurements_ubx, nmea, results, solution, timing
 
 DEFAULT_LEAP_S = 18  # GPS - UTC since 2017, for NMEA times when the receiver has not said
 FIX_WAIT_S = 2.5  # measurements this long past the last fix: no fix is coming for them (an outage)
@@ -118,7 +118,10 @@ class Follower:
     def poll(self, final: bool = False) -> flt.Solution | None:
         """Feed what is new; ``final``: the session is complete, feed everything held back."""
         try:
-            dec = measurements.decode_session(self.session)
+            if measurements_ubx.is_ublox(self.session):  # its NAV-PVT fixes carry their own accuracy
+                dec = measurements_ubx.decode_session(self.session, flt.value(self.cfg, "fix_uere_m"))
+            else:
+                dec = measurements.decode_session(self.session)
             al = timing.align(dec.gps.tow, dec.gps.stamps, dec.gps.week, dec.imu.stamps, dec.imu.counter,
                               dec.imu.rate_hz, gps_latency_s=self.gps_latency_s, imu_latency_s=self.imu_latency_s)
         except (logs.LogError, timing.AlignmentError, FileNotFoundError):

@@ -13,6 +13,8 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
 from . import dump, logs, sim
 from .emulate import Emulators, UbloxEmulators
 from .sim import ublox as sim_ublox
@@ -52,9 +54,9 @@ root = "{root}"
 
 
 def record_drive(simulation: sim.Simulation, out: Path, speed: float = 1.0, device: str = "superstar2",
-                 session: Path | None = None) -> Path:
+                 session: Path | None = None, progress=None) -> Path:
     """Serve a simulation on ptys and record it with the logger daemon; returns the session directory
-    (``session``, by default OUT/session)."""
+    (``session``, by default OUT/session). ``progress()``: text for the end of the progress line."""
     devdir, session = out / "dev", session or out / "session"
     cfg = _logger_config(out / "logger.toml", devdir, out / "sessions", device)
     if device == "ublox":
@@ -75,7 +77,9 @@ def record_drive(simulation: sim.Simulation, out: Path, speed: float = 1.0, devi
         t0 = time.monotonic()
         while not em.wait(1.0):
             done = min(1.0, (time.monotonic() - t0) / total)
-            print(f"\r  recording: {100 * done:5.1f} % of {total:.0f} s", end="", flush=True)
+            extra = progress() if progress is not None else ""
+            clear = "\033[K" if sys.stdout.isatty() else ""  # the rest of a longer line before
+            print(f"\r  recording: {100 * done:5.1f} % of {total:.0f} s{extra}{clear}", end="", flush=True)
         print()
         time.sleep(0.3)  # the last frames through the logger
         proc.send_signal(signal.SIGINT)
@@ -103,6 +107,34 @@ def replay_latencies(device: str, speed: float) -> dict:
     return {"gps_latency_s": MEASUREMENT_DELAY_S / speed + replay.DEFAULT_IMU_LATENCY_S}
 
 
+def _live_beside(simulation: sim.Simulation, session: Path, out: Path, device: str, speed: float) -> dict:
+    """gpsins live following the session as it is recorded, in a thread; the dict it returns holds the
+    latest round's error against the simulator's truth as text for the progress line."""
+    import threading
+
+    from . import evaluate, live
+
+    shown: dict = {}
+    tow0 = simulation.scenario.start.gps_tow_s
+
+    def on_round(st):
+        t = st["t"] - tow0
+        if not st["heading_known"] or not simulation.truth.t[0] <= t <= simulation.truth.t[-1]:
+            return
+        r_true = simulation.truth.position_at(np.array([t]))[0]
+        lat, lon = np.radians(st["llh_deg_m"][0]), np.radians(st["llh_deg_m"][1])
+        ned = evaluate.c_en(np.array([lat]), np.array([lon]))[0].T @ (np.asarray(st["r_ecef"]) - r_true)
+        s = st["sigma_ned_m"]
+        shown["text"] = (f"; live: H error {np.hypot(ned[0], ned[1]):5.2f} m (sigma {np.hypot(s[0], s[1]):4.2f}), "
+                         f"V {abs(ned[2]):5.2f} m")
+
+    limit = simulation.scenario.duration_s / speed + 120.0
+    threading.Thread(target=live.run, args=(session, out), name="gpsins-live", daemon=True,
+                     kwargs=dict(interval_s=1.0, max_s=limit, on_round=on_round,
+                                 **replay_latencies(device, speed))).start()
+    return shown
+
+
 def run(args: argparse.Namespace) -> int:
     from .cli import CommandError
 
@@ -123,9 +155,11 @@ def run(args: argparse.Namespace) -> int:
     from .sim.session import write_truth
 
     write_truth(simulation, out / "truth.npz")
-    print(f"2. serving it on emulated serial devices at {args.speed:g}x real time, recording with the logger daemon")
+    print(f"2. serving it on emulated serial devices at {args.speed:g}x real time, recording with the logger daemon "
+          f"and navigating live beside it (gpsins live, {out / 'live'})")
     device = getattr(args, "device", "superstar2")
-    session = record_drive(simulation, out, args.speed, device, session)
+    shown = _live_beside(simulation, session, out / "live", device, args.speed)
+    session = record_drive(simulation, out, args.speed, device, session, progress=lambda: shown.get("text", ""))
     summary = dump.session_summary(session)
     dump.print_summary(summary, sys.stdout)
     got = logs.read_session(session)
