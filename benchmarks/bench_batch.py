@@ -1,5 +1,5 @@
-"""gpsins batch on 1 and 2 local workers: the same 10 simulated sessions (the default 287 s drive, seeds
-0-9), default against report2005; prints each wall time and the speed-up (short drives measure Dask's
+"""gpsins batch on 1 and 2 local workers: the same 20 simulated sessions (the default 287 s drive, seeds
+0-19), default against report2005; prints each wall time and the speed-up (short drives measure Dask's
 overheads, not the replays).
 
     python benchmarks/bench_batch.py [N_SESSIONS]
@@ -15,7 +15,7 @@ from gpsins.montecarlo.runner import open_client
 from gpsins.sim.session import write_session
 
 
-def main(n: int = 10) -> None:
+def main(n: int = 20) -> None:
     root = Path(tempfile.mkdtemp(prefix="bench_batch_"))
     sc = sim.load("default")
     for seed in range(n):
@@ -33,4 +33,4 @@ def main(n: int = 10) -> None:
 
 
 if __name__ == "__main__":
-    main(int(sys.argv[1]) if len(sys.argv) > 1 else 10)
+    main(int(sys.argv[1]) if len(sys.argv) > 1 else 20)

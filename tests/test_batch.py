@@ -13,7 +13,7 @@ from gpsins.montecarlo.runner import open_client
 from gpsins.sim.scenario import parse
 from gpsins.sim.session import write_session
 
-from test_montecarlo import dask_cluster  # noqa: F401 (the fixture: `dask scheduler` and `dask worker`)
+from test_montecarlo import external_cluster
 
 START = {"gps_week": 1590, "gps_tow_s": 419400.0, "lat_deg": 59.37, "lon_deg": 17.95, "height_m": 30.0,
          "heading_deg": 160.0}
@@ -64,18 +64,19 @@ def test_two_presets_paired_over_ten_recordings_on_two_local_workers(recordings,
     assert (tmp_path / "b" / "paired.png").stat().st_size > 10000
 
 
-def test_batch_on_a_scheduler_the_user_runs(recordings, tmp_path, dask_cluster):  # noqa: F811
-    """A plug-in as arm B, on `dask scheduler` and `dask worker` started as separate processes."""
-    address, worker_pids = dask_cluster
+def test_batch_on_a_scheduler_the_user_runs(recordings, tmp_path):
+    """A plug-in as arm B, on `dask scheduler` and two `dask worker` processes started separately."""
     root, _ = recordings
     from dask.distributed import Client
 
     arms = (batch.Arm("default"), batch.Arm("builtin", None, "gpsins.estimator:builtin"))
-    with Client(address) as client:
-        comparison = batch.run([root / "sessions" / "s0", root / "sessions" / "s1"], arms, tmp_path / "b",
+    with external_cluster(tmp_path, 2) as (address, worker_pids), Client(address) as client:
+        comparison = batch.run([root / "sessions" / f"s{k}" for k in range(4)], arms, tmp_path / "b",
                                client=client)
+    rows = list(csv.DictReader(open(tmp_path / "b" / "batch.csv")))
+    assert len(worker_pids) == 2 and {int(r["worker_pid"]) for r in rows} == worker_pids  # both worked
     # The built-in filter as a plug-in is the built-in filter: every difference is zero.
-    assert comparison["h_rms_m"]["n"] == 2 and comparison["h_rms_m"]["mean_difference"] == 0.0
+    assert comparison["h_rms_m"]["n"] == 4 and comparison["h_rms_m"]["mean_difference"] == 0.0
 
 
 def test_a_recording_that_fails_is_a_row_not_a_lost_batch(recordings, tmp_path):

@@ -2,6 +2,7 @@
 inputs, and whole runs on a scheduler and a worker started as separate processes with Dask's own
 command-line tools, checked against the same seeds run in this process."""
 
+import contextlib
 import csv
 import json
 import math
@@ -158,7 +159,14 @@ def _stop(proc: subprocess.Popen) -> None:
 @pytest.fixture(scope="module")
 def dask_cluster(tmp_path_factory):
     """`dask scheduler` and `dask worker` (one process, one thread), as a user starts them."""
-    root = tmp_path_factory.mktemp("dask")
+    with external_cluster(tmp_path_factory.mktemp("dask"), 1) as found:
+        yield found
+
+
+@contextlib.contextmanager
+def external_cluster(root, workers: int):
+    """A scheduler and ``workers`` worker processes of one thread, started as separate processes on
+    the loopback interface; yields the scheduler's address and the workers' process ids."""
     sched_file = root / "scheduler.json"
     env = {**os.environ, "PYTHONPATH": _python_path()}
     procs = []
@@ -173,13 +181,13 @@ def dask_cluster(tmp_path_factory):
             time.sleep(0.2)
         address = json.loads(sched_file.read_text())["address"]
         procs.append(subprocess.Popen(
-            [sys.executable, "-m", "dask", "worker", address, "--nthreads", "1", "--nworkers", "1",
+            [sys.executable, "-m", "dask", "worker", address, "--nthreads", "1", "--nworkers", str(workers),
              "--no-dashboard", "--death-timeout", "120", "--memory-limit", "0", "--local-directory", str(root)],
             env=env, cwd=root, stdout=subprocess.DEVNULL, stderr=open(root / "worker.log", "w")))
         from dask.distributed import Client
 
         with Client(address, timeout=f"{START_TIMEOUT_S}s") as c:
-            c.wait_for_workers(1, timeout=START_TIMEOUT_S)
+            c.wait_for_workers(workers, timeout=START_TIMEOUT_S)
             worker_pids = set(c.run(os.getpid).values())
         yield address, worker_pids
     finally:

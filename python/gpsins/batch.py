@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import csv
 import math
+import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -69,7 +70,7 @@ def replay_task(recording: str, arm: Arm, mode: str, outages: str | None, out: s
     """One recording replayed by one arm, as the row of the batch table."""
     from . import replay
 
-    row = {"recording": recording, "arm": arm.name, "out": out}
+    row = {"recording": recording, "arm": arm.name, "out": out, "worker_pid": os.getpid()}
     t0 = time.perf_counter()
     try:
         res = replay.replay(recording, out, mode=mode, config=arm.config, outages=outages, overlap=False,
@@ -127,7 +128,7 @@ def run(sources, arms: tuple[Arm, Arm], out: str | Path, *, mode: str = "loose",
     rows = client.gather(futures)
     wall = time.perf_counter() - t0
     with open(out / "batch.csv", "w", newline="", encoding="utf-8") as f:
-        cols = ["recording", "arm", *METRICS, "wall_s", "error", "out"]
+        cols = ["recording", "arm", *METRICS, "wall_s", "error", "out", "worker_pid"]
         w = csv.DictWriter(f, fieldnames=cols, extrasaction="ignore")
         w.writeheader()
         w.writerows(rows)
