@@ -216,3 +216,34 @@ def test_follow_root_moves_to_the_session_the_logger_starts_next(followed, tmp_p
     assert [p.name for p in done["got"]] == ["a", "b"]
     a, b = (live.read_epochs(tmp_path / "out" / n / "live.f64") for n in ("a", "b"))
     assert len(a["t"]) == len(b["t"]) > 1000
+
+
+def test_the_status_page_renders_in_a_real_browser(followed):
+    """Headless Chromium (Debian's, installed by .ci/setup) loads the page, runs its script and shows the
+    last round's numbers: the time, position, sigmas and the track drawn from the solution."""
+    import json
+    import shutil
+    import subprocess
+
+    from gpsins.live_page import StatusPage
+    from gpsins import evaluate
+
+    browser = shutil.which("chromium")
+    assert browser, "chromium is not installed (.ci/setup installs it)"
+    _, _, out, _, _, _, _ = followed
+    st = json.loads((out / "status.jsonl").read_text().splitlines()[-1])
+    e = live.read_epochs(out / "live.f64")
+    page = StatusPage(0)
+    try:
+        lat, lon = np.radians(st["llh_deg_m"][:2])
+        page.update(st, e["r_ecef"], evaluate.c_en(np.array([lat]), np.array([lon]))[0].T)
+        dom = subprocess.run([browser, "--headless", "--no-sandbox", "--disable-gpu", "--virtual-time-budget=3000",
+                              "--dump-dom", f"http://127.0.0.1:{page.port}/"], capture_output=True, text=True,
+                             timeout=90).stdout
+    finally:
+        page.close()
+    assert f"t = {st['t']:.1f} s of GPS week {st['week']}" in dom
+    assert f"{st['llh_deg_m'][0]:.7f} / {st['llh_deg_m'][1]:.7f}" in dom
+    assert " / ".join(f"{x:.3f}" for x in st["sigma_ned_m"]) in dom
+    points = dom.split('id="track"')[1].split('points="')[1].split('"')[0].split()
+    assert len(points) >= 50  # the track drawn (the page keeps about 50 points a round)
