@@ -10,13 +10,11 @@ from scipy import stats
 
 from gpsins import batch, replay, sim
 from gpsins.montecarlo.runner import open_client
-from gpsins.sim.scenario import parse
 from gpsins.sim.session import write_session
 
+from drives import stand_and_drive
 from test_montecarlo import external_cluster
 
-START = {"gps_week": 1590, "gps_tow_s": 419400.0, "lat_deg": 59.37, "lon_deg": 17.95, "height_m": 30.0,
-         "heading_deg": 160.0}
 WALK = "data/walk_0827"
 
 
@@ -24,9 +22,7 @@ WALK = "data/walk_0827"
 def recordings(tmp_path_factory):
     """Eight simulated sessions (60 s each, seeds 0-7) and the walk's data sets, in one directory tree."""
     root = tmp_path_factory.mktemp("batch")
-    sc = parse({"name": "short", "start": START,
-                "segment": [{"label": "stand", "duration_s": 15, "speed_mps": 0},
-                            {"label": "drive", "duration_s": 45, "speed_mps": 10, "turn_deg": 90}]})
+    sc = stand_and_drive("short", 15, 45)
     for seed in range(8):
         write_session(sim.simulate(sc, seed=seed), root / "sessions" / f"s{seed}")
     from pathlib import Path

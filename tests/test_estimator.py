@@ -9,18 +9,14 @@ import numpy as np
 import pytest
 
 from gpsins import cli, estimator, replay, results, sim
-from gpsins.sim.scenario import parse
 from gpsins.sim.session import write_session
 
-START = {"gps_week": 1590, "gps_tow_s": 419400.0, "lat_deg": 59.37, "lon_deg": 17.95, "height_m": 30.0,
-         "heading_deg": 160.0}
+from drives import START, stand_and_drive
 
 
 @pytest.fixture(scope="module")
 def drive(tmp_path_factory):
-    sc = parse({"name": "plug", "start": START,
-                "segment": [{"label": "stand", "duration_s": 20, "speed_mps": 0},
-                            {"label": "drive", "duration_s": 70, "speed_mps": 10, "turn_deg": 90}]})
+    sc = stand_and_drive("plug", 20, 70)
     s = sim.simulate(sc, seed=2)
     d = tmp_path_factory.mktemp("plug") / "session"
     write_session(s, d)

@@ -12,10 +12,9 @@ import pynmea2
 import pytest
 
 from gpsins import live, mainjob, measurements, replay, results, sim
-from gpsins.sim.scenario import parse
 
-START = {"gps_week": 1590, "gps_tow_s": 419400.0, "lat_deg": 59.37, "lon_deg": 17.95, "height_m": 30.0,
-         "heading_deg": 160.0}
+from drives import START, stand_and_drive
+
 SPEED = 4.0
 
 
@@ -46,9 +45,7 @@ class NmeaClient(threading.Thread):
 def followed(tmp_path_factory):
     """A 75 s drive served at 4x through the emulators and recorded by the daemon, followed live."""
     root = tmp_path_factory.mktemp("live")
-    sc = parse({"name": "live", "start": START,
-                "segment": [{"label": "stand", "duration_s": 20, "speed_mps": 0},
-                            {"label": "drive", "duration_s": 55, "speed_mps": 10, "turn_deg": 90}]})
+    sc = stand_and_drive("live", 20, 55)
     s = sim.simulate(sc, seed=4)
     lat = mainjob.replay_latencies("superstar2", SPEED)
     session = root / "session"

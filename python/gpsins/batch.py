@@ -136,12 +136,15 @@ def run(sources, arms: tuple[Arm, Arm], out: str | Path, *, mode: str = "loose",
     comparison = {"arms": [vars(a) for a in arms], "recordings": len(recs), "wall_s": wall,
                   "failed": [r for r in rows if "error" in r]}
     for m in METRICS:
-        a = np.array([by[(str(r), arms[0].name)].get(m, np.nan) for r in recs], float)
-        b = np.array([by[(str(r), arms[1].name)].get(m, np.nan) for r in recs], float)
-        comparison[m] = paired(a, b, m)
+        comparison[m] = paired(_values(recs, by, arms[0], m), _values(recs, by, arms[1], m), m)
     (out / "paired.json").write_text(results.json_text(comparison) + "\n", encoding="utf-8")
     _figure(recs, by, arms, out / "paired.png")
     return comparison
+
+
+def _values(recs, by: dict, arm: Arm, metric: str) -> np.ndarray:
+    """One arm's figure per recording (NaN where it failed or has none)."""
+    return np.array([by[(str(r), arm.name)].get(metric, np.nan) for r in recs], float)
 
 
 def _figure(recs, by, arms, path: Path) -> None:
@@ -153,8 +156,7 @@ def _figure(recs, by, arms, path: Path) -> None:
     fig, axes = plt.subplots(1, len(METRICS), figsize=(4.2 * len(METRICS), 4.0))
     labels = {"h_rms_m": "horizontal RMS (m)", "drift_rms_m": "outage drift RMS (m)", "nees9_mean": "mean NEES"}
     for ax, m in zip(axes, METRICS):
-        a = np.array([by[(str(r), arms[0].name)].get(m, np.nan) for r in recs], float)
-        b = np.array([by[(str(r), arms[1].name)].get(m, np.nan) for r in recs], float)
+        a, b = _values(recs, by, arms[0], m), _values(recs, by, arms[1], m)
         ok = np.isfinite(a) & np.isfinite(b)
         ax.plot(a[ok], b[ok], "o", ms=4)
         if ok.any():

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import dataset as dataset_mod, evaluate, measurements
+from . import _core, dataset as dataset_mod, evaluate, measurements
 
 REST_SPEED_MPS = 0.2
 MOVING_SPEED_MPS = 1.0  # course defined well enough from the fixes' positions
@@ -69,13 +69,6 @@ class Diagnosis:
         return [vars(f) for f in self.findings]
 
 
-def normal_gravity_mps2(lat_rad: float, height_m: float) -> float:
-    """WGS-84 normal gravity (Somigliana) with the free-air gradient."""
-    s2 = math.sin(lat_rad) ** 2
-    g0 = 9.7803253359 * (1.0 + 0.00193185265241 * s2) / math.sqrt(1.0 - 0.00669437999013 * s2)
-    return g0 - 3.086e-6 * height_m
-
-
 def _bins(t: np.ndarray, x: np.ndarray, width: float) -> tuple[np.ndarray, np.ndarray]:
     """Means of x over consecutive windows of `width` seconds (empty ones dropped): times, values."""
     k = np.floor((t - t[0]) / width).astype(np.int64)
@@ -109,7 +102,7 @@ def diagnose(ds, modes=("loose",)) -> Diagnosis:
     # A time-scale mistake would put the rest where the vehicle moves: rest on the time base found.
     shift = lag if lag is not None and abs(lag) >= OFFSET_ERROR_S else 0.0
     rest = _speed_at(fixes.t_abs, ned, tb - shift) < REST_SPEED_MPS
-    _check_rest(fb, wb, rest, normal_gravity_mps2(lat, height), d)
+    _check_rest(fb, wb, rest, float(_core.normal_gravity(lat, height)), d)
     d.findings.sort(key=lambda f: ORDER.index(f.check))
     return d
 

@@ -108,9 +108,8 @@ class Fixes:
         """Velocity in ECEF (NaN where the source has none)."""
         if self.v_ned_mps is None:
             return np.full((len(self), 3), np.nan)
-        from ..evaluate import c_en
         llh = self.llh()
-        return np.einsum("nij,nj->ni", c_en(llh[:, 0], llh[:, 1]), self.v_ned_mps)
+        return ned_vectors_to_ecef(self.v_ned_mps, llh[:, 0], llh[:, 1])
 
 
 @dataclass
@@ -208,8 +207,8 @@ def finite_rows(a: np.ndarray) -> np.ndarray:
 NON_FINITE_ROWS = "rows with a value written as nan or inf (dropped)"
 
 
-def ned_to_ecef_vectors(v_ned: np.ndarray, lat_rad: np.ndarray, lon_rad: np.ndarray) -> np.ndarray:
+def ned_vectors_to_ecef(v_ned: np.ndarray, lat_rad: np.ndarray, lon_rad: np.ndarray) -> np.ndarray:
     """(n, 3) vectors from local north, east, down to ECEF at each row's latitude and longitude."""
-    sl, cl, so, co = np.sin(lat_rad), np.cos(lat_rad), np.sin(lon_rad), np.cos(lon_rad)
-    n, e, d = v_ned[:, 0], v_ned[:, 1], v_ned[:, 2]
-    return np.column_stack([-sl * co * n - so * e - cl * co * d, -sl * so * n + co * e - cl * so * d, cl * n - sl * d])
+    from ..evaluate import c_en
+
+    return np.einsum("nij,nj->ni", c_en(lat_rad, lon_rad), v_ned)

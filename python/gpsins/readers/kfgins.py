@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import _core
-from .common import (NON_FINITE_ROWS, SECONDS_PER_WEEK, Fixes, ReaderError, finite_rows, ned_to_ecef_vectors,
+from .common import (NON_FINITE_ROWS, SECONDS_PER_WEEK, Fixes, ReaderError, finite_rows, ned_vectors_to_ecef,
                      read_text_lines)
 from .imu_csv import ImuData, to_gps_seconds
 
@@ -113,7 +113,7 @@ def read_nav(path: str | Path) -> dict:
         t[m] = _times(path, a[m, 1], line_no[m], int(week))
     llh = np.column_stack([np.radians(a[:, 2]), np.radians(a[:, 3]), a[:, 4]])
     r = np.asarray(_core.geodetic_to_ecef(llh)).reshape(-1, 3)
-    v = ned_to_ecef_vectors(a[:, 5:8], llh[:, 0], llh[:, 1])
+    v = ned_vectors_to_ecef(a[:, 5:8], llh[:, 0], llh[:, 1])
     ypr = np.radians(a[:, [10, 9, 8]])
     q = np.asarray(_core.quat_body_to_ecef(ypr, llh)).reshape(-1, 4)
     order = np.argsort(t, kind="stable")

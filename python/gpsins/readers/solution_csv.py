@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import _core
-from .common import ReaderError, ned_to_ecef_vectors, read_text_lines
+from .common import ReaderError, ned_vectors_to_ecef, read_text_lines
 from .imu_csv import to_gps_seconds
 
 POSITION = (("x", "y", "z"), ("lat_deg", "lon_deg", "h_m"))
@@ -81,7 +81,7 @@ def read(path: str | Path, columns: list[str], time: str = "gps_abs", week: int 
     if vel == VELOCITY[0]:
         ve = np.column_stack([v["vx"], v["vy"], v["vz"]])
     elif vel is not None:
-        ve = ned_to_ecef_vectors(np.column_stack([v["vn"], v["ve"], v["vd"]]), llh[:, 0], llh[:, 1])
+        ve = ned_vectors_to_ecef(np.column_stack([v["vn"], v["ve"], v["vd"]]), llh[:, 0], llh[:, 1])
     q = np.full((n, 4), np.nan)
     if att == ATTITUDE[0]:
         q = np.column_stack([v["qw"], v["qx"], v["qy"], v["qz"]])
