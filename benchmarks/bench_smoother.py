@@ -220,7 +220,7 @@ def segments(seeds: int, matched_imu: bool = False, matched_fixes: bool = False)
     sums, worse_h, worse_v, labels = None, None, None, None
     for seed, s, sol, tr in smoothed_runs(seeds, matched_imu, matched_fixes, covariance=False):
         rows = {}
-        for name, x in (("forward", sol), ("smoothed", sol.extra["smoothed"])):
+        for _name, x in (("forward", sol), ("smoothed", sol.extra["smoothed"])):
             known = x.heading_known & (x.t >= tr.t[0]) & (x.t <= tr.t[-1])
             e = evaluate.nav_errors(x, tr).r_ned
             for label, a, b in s.scenario.segment_times():

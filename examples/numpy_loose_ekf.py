@@ -288,7 +288,7 @@ def estimate(inputs):
     out = {"r": np.empty((n, 3)), "v": np.empty((n, 3)), "C": np.empty((n, 3, 3)), "P": np.empty((n, 9, 9)),
            "b": np.empty((n, 6))}
     updates = {k: [] for k in ("t", "kind", "dof", "nis", "gate", "accepted", "innovation", "innovation_sigma")}
-    I15, O = np.eye(15), skew(W_IE)
+    I15, W_x = np.eye(15), skew(W_IE)
     fi, rejected = j + 1, 0
 
     for k in range(k0, len(t)):
@@ -299,14 +299,14 @@ def estimate(inputs):
             a, u = dth[k] - bg * h, dv[k] - ba * h
             f_e = C @ (u + 0.5 * np.cross(a, u)) / h
             C = rotation(-W_IE * h) @ C @ rotation(a)
-            v_new = v + (f_e + gravity(r) - 2 * O @ v) * h
+            v_new = v + (f_e + gravity(r) - 2 * W_x @ v) * h
             r, v = r + 0.5 * (v + v_new) * h, v_new
             # The errors' dynamics, linearised about the estimate (psi' = -[w_ie x] psi - C dbg,
             # dv' = -[f x] psi - 2 [w_ie x] dv + (dg/dr) dr - C dba, dr' = dv), one Euler step.
             rn = math.sqrt(r @ r)
             F = np.zeros((15, 15))
-            F[0:3, 0:3], F[0:3, 9:12] = -O, -C
-            F[3:6, 0:3], F[3:6, 3:6], F[3:6, 12:15] = -skew(f_e), -2 * O, -C
+            F[0:3, 0:3], F[0:3, 9:12] = -W_x, -C
+            F[3:6, 0:3], F[3:6, 3:6], F[3:6, 12:15] = -skew(f_e), -2 * W_x, -C
             F[3:6, 6:9] = -GM / rn ** 3 * (np.eye(3) - 3 * np.outer(r, r) / rn ** 2)
             F[6:9, 3:6] = np.eye(3)
             Phi = I15 + F * h

@@ -25,7 +25,7 @@ def _write_session(path, seconds=5.0, damage_gps_at=None):
                        "imu": SensorInfo("bp3010", 1, settings={"rate_hz": 64})})
     gps = list(src.gps_messages())
     imu = list(src.imu_samples(64))
-    for k, m in enumerate(gps):
+    for m in gps:
         s.record("gps", m.frame, T0 + m.t)
     for k, smp in enumerate(imu):
         smp.sample.counter = (k + 1) & 0xFF

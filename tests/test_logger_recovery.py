@@ -345,10 +345,10 @@ def test_sigkill_just_after_sighup_leaves_every_record_listed(tmp_path, when):
             with daemons() as ds:
                 d = Daemon(cfg, session, tmp_path / f"daemon{k}.log")
                 ds.append(d)
-                wait_for(lambda: file_size(session / "imu-000.bin") >= 10 * IMU_RECORD, 30, "IMU records")
+                wait_for(lambda session=session: file_size(session / "imu-000.bin") >= 10 * IMU_RECORD, 30, "IMU records")
                 d.proc.send_signal(signal.SIGHUP)
                 if when == "as_the_new_part_appears":
-                    wait_until(lambda: any((session / f"{n}-001.bin").exists() for n in ("gps", "imu")), 10,
+                    wait_until(lambda session=session: any((session / f"{n}-001.bin").exists() for n in ("gps", "imu")), 10,
                                step=0.0002)
                 else:
                     time.sleep(rng.uniform(0.0, 0.03))
@@ -399,7 +399,7 @@ def test_second_daemon_takes_over_the_devices_within_half_a_second(tmp_path):
             ds.append(c)
             for x in (b_dir, c_dir):
                 for n in ("gps", "imu"):
-                    st = wait_for(lambda: (p := port_state(x, n)).get("state") == "unopenable" and p, 20,
+                    st = wait_for(lambda x=x, n=n: (p := port_state(x, n)).get("state") == "unopenable" and p, 20,
                                   f"{x.name}: {n} unopenable")
                     assert "busy" in st["reason"], st
             # C gives up first (so it cannot race B for the devices): it never had one.

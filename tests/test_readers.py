@@ -105,7 +105,7 @@ def test_gps_l1_pseudoranges_are_the_valid_l1_ca_rows(walk_ubx):
     assert len(gal) == ((r["gnss"] == 2) & (r["sig"] == 0) & ((r["trk"] & 1) == 1)).sum() > 0
     # Galileo E1 C in the same table under the core's ids (E01 = 33), after each epoch's GPS rows.
     assert len(both) == len(pr) + len(gal) and set(both.prn[both.prn > 32]) == set(gal.prn + 32)
-    for t, prns, _ in both.epochs():
+    for _t, prns, _ in both.epochs():
         assert prns == sorted(prns, key=lambda i: i > 32)
     tab = pr.table(WEEK * 604800.0)
     assert tab.shape == (3842, 6) and np.all(np.diff(tab[:, 0]) >= 0)
@@ -276,7 +276,7 @@ def test_lnav_parity_detects_every_single_bit_error(walk_ubx):
     data = UBX_FILE.read_bytes()
     frames, _ = ubx.split_frames(data)
     import struct
-    for _, cls, mid, start, length in frames:
+    for _, cls, mid, start, _length in frames:
         if (cls, mid) == (0x02, 0x13) and data[start] == 0 and data[start + 2] == 0:
             words = [w & 0x3FFFFFFF for w in struct.unpack_from("<10I", data, start + 8)]
             break

@@ -135,7 +135,7 @@ def test_the_report_has_every_figure(figs, runs):
 def test_every_panel_shows_each_mode_its_legend_names(figs):
     seen = {}
     for name, fig in figs.items():
-        for (panel, mode), n in check_figure(name, fig).items():
+        for (_panel, mode), _n in check_figure(name, fig).items():
             seen.setdefault(name, set()).add(mode)
     # Both filters appear where both apply; the tight filter's own figures name it alone.
     for name in ("trajectory.png", "position_error.png", "attitude.png", "sigma.png", "biases.png", "bias_sigma.png"):

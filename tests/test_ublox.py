@@ -142,7 +142,7 @@ def _stream_with_everything(rng, n=300):
 def test_streaming_finder_resyncs_and_counts_nmea_in_any_chunking():
     rng = np.random.default_rng(5)
     stream, good, sentences = _stream_with_everything(rng)
-    for trial in range(3):
+    for _trial in range(3):
         finder, nmea = FrameFinder(ubx.FRAMING), ubx.NmeaCounter()
         got, i = [], 0
         while i < len(stream):

@@ -170,7 +170,7 @@ class PluginRun:
             t_hi = np.inf if b == n else s.t[b - 1]
             u = (upd_t > t_lo) & (upd_t <= t_hi)
             e = (ev_t > t_lo) & (ev_t <= t_hi)
-            pick = (lambda x: None if x is None else x[a:b])
+            pick = (lambda x, a=a, b=b: None if x is None else x[a:b])
             cov = pick(s.covariance)
             sigma = s.sigma[a:b]
             if self._ned:  # a plug-in's NED axes turned into the filter's, chunk by chunk (memory)

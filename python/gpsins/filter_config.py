@@ -393,7 +393,7 @@ def core_config(cfg: dict) -> _core.InsConfig:
                     try:
                         b.model = getattr(_core.BiasModel, bv)
                     except AttributeError:
-                        raise ConfigError(f"[{key}] model: unknown '{bv}' (random_walk, gauss_markov, constant)")
+                        raise ConfigError(f"[{key}] model: unknown '{bv}' (random_walk, gauss_markov, constant)") from None
                 else:
                     setattr(b, bk, _vec3(bv, f"[{key}] {bk}"))
             setattr(c, key, b)

@@ -280,7 +280,7 @@ def run_root(root: str | Path, out: str | Path, *, max_s: float | None = None, i
         done.append(current)
         left = None if max_s is None else max(0.0, max_s - (time.monotonic() - t0))
         run(current, out / current.name, interval_s=interval_s, max_s=left,
-            stop_when=lambda: newest_session(root) not in (current, None), **options)
+            stop_when=lambda current=current: newest_session(root) not in (current, None), **options)
     return done
 
 

@@ -193,7 +193,7 @@ def decode_gps(files: logs.SensorFiles, skipped: Counter, rows: tuple[int, int] 
     ecef_t = np.array([(e.week - week) * SECONDS_PER_WEEK + e.tow_s for _, e in nav_ecef]).reshape(-1)
     user_t = _nav_user_times(nav_user, nav_ecef, ecef_t, leap, week, skipped)
     order = np.argsort(user_t, kind="stable")
-    for (st, e), t in zip(nav_ecef, ecef_t):
+    for (_st, e), t in zip(nav_ecef, ecef_t):
         j = np.searchsorted(user_t[order], t)
         near = [order[i] for i in (j - 1, j) if 0 <= i < len(order)]
         k = min(near, key=lambda i: abs(user_t[i] - t)) if near else -1

@@ -25,7 +25,7 @@ import math
 
 import numpy as np
 
-from . import _core, filter as flt
+from . import filter as flt
 
 # Update kinds the fit scores (fix position 3D and 2D, fix velocity, the non-holonomic constraint).
 FIT_KINDS = (1, 2, 3, 7)

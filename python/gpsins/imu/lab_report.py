@@ -44,7 +44,7 @@ def tables(res: dict) -> list[str]:
             md += ["Position length that would minimise the scale factor's uncertainty under the drift run's noise "
                    "(white noise averages down, the bias wanders between the positions): " + "; ".join(best) + ".", ""]
     if rt:
-        for k, (a, v) in enumerate(rt["axes"].items()):
+        for a, v in rt["axes"].items():
             rows = [[f"{r['rate']:+.4f}", f"{r['mean']:+.5f}", _e(r["sigma"], digits=1)] for r in v["runs"]]
             md += _table(f"Table 5.{2 + 'xyz'.index(a)}: rotation rate test sequence, gyro {a}",
                          ["table rate rad/s", "gyro output rad/s", "output sigma rad/s"], rows)

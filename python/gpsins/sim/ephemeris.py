@@ -96,7 +96,7 @@ def read_rinex2_nav(path: str | Path) -> NavFile:
     alpha = beta = None
     leap = None
     k = 0
-    for k, line in enumerate(lines):
+    for k, line in enumerate(lines):  # noqa: B007 (k, the header's last line, is read after)
         label = line[60:].strip()
         if label == "ION ALPHA":
             alpha = tuple(_num(line[2 + 12 * j:14 + 12 * j]) for j in range(4))
