@@ -131,7 +131,7 @@ def main() -> None:
     print(f"two-part model: fix_uere_m ~ {two['white'][0]:.2f} (north's), fix_error_gm_sigma_m ~ "
           f"{np.round(two['slow'], 2).tolist()}, fix_error_gm_tau_s ~ {two['tau_slow']:.1f}, fix_error_fast_sigma_m ~ "
           f"{np.round(two['fast'], 2).tolist()}, fix_error_fast_tau_s ~ {two['tau_fast']:.1f}")
-    # The preset's way (issue 21): the slow part (orbit and clock errors) outlasts the drive, and carried
+    # The preset's way: the slow part (orbit and clock errors) outlasts the drive, and carried
     # as states with the fast part inflated in R the filter is too cautious and less accurate; so the
     # fast part goes to the states and the slow one to a white R.
     fast_h, slow_h = (np.hypot(two[k][0], two[k][1]) / np.sqrt(2) for k in ("fast", "slow"))

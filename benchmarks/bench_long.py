@@ -1,4 +1,4 @@
-"""The 43-minute drive (scenario `long`, issue 14): consistency and accuracy of the loose
+"""The 43-minute drive (scenario `long`): consistency and accuracy of the loose
 and tight filters with the default preset.
 
     python benchmarks/bench_long.py [SEEDS] [--white]

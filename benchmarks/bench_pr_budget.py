@@ -5,7 +5,7 @@ Per seed, the mismatch run of bench_mismatch.py (tight, preset GNSS errors) spli
 velocity and position NEES (3 each), and the simulated pseudorange errors left after the
 corrections the filter makes (broadcast Klobuchar, a standard troposphere) against the variance
 the filter gives them: the white model (code, code bias, half the ionosphere model, troposphere),
-the signal-in-space part (the preset's sigma; before issue 21 the broadcast URA in the white part)
+the signal-in-space part (the preset's sigma; once the broadcast URA in the white part)
 and the correlated part's stationary variance. Reported as the mean of error^2 / variance (1 for a
 matched model) with the preset's model and with the URA instead, and the mean squared error by
 component (m^2); the simulated orbit/clock error is the pseudorange's change when it is switched off.

@@ -8,7 +8,7 @@ For each scenario a session is simulated (``gpsins sim``, its own process), then
 fresh runner process, ``gpsins replay SESSION --mode both`` runs as a child and is timed from the
 outside: wall time of the whole process (interpreter start, imports, decoding,
 alignment, both filters, writing) and its peak RSS. Prints one line per case and, with
---json, the figures. Targets (issue 17): the default drive <= 1.0 s whole process; the
+--json, the figures. Targets: the default drive <= 1.0 s whole process; the
 43-minute drive <= 0.3 GB; a 24-hour drive <= 1 GB.
 """
 

@@ -1,4 +1,4 @@
-"""The report's roller coaster (seed 004 section 6.1) through both filters:
+"""The report's roller coaster (the FOI report, section 6.1) through both filters:
 `python benchmarks/bench_roller_coaster.py [seed] [white]`.
 
 Simulates the `roller-coaster` scenario (5 min at rest, 11 laps), runs the loose

@@ -9,7 +9,7 @@ Each (profile, rate) runs in a fresh process, so its peak RSS is its own. The
 default path simulates and writes the session block by block (truth at the
 internal rate near 1 kHz, IMU errors, receiver epochs and fixes, the reference,
 the encoded frames and the truth file), so the peak grows with the block, not
-the drive. Target (issue 17): the 24-hour drive at 64 Hz within 1.5 GB peak.
+the drive. Target: the 24-hour drive at 64 Hz within 1.5 GB peak.
 "cpu s" is the process's user + system time (wall time suffers on a shared
 machine); "s per h" is wall seconds per hour of drive.
 """

@@ -12,7 +12,8 @@ A configuration is a TOML table whose keys are the core's `InsConfig` names
   reports, or what the simulator drew): white noise N gives the continuous
   density V = N^2; bias instability B and rate random walk K give a random-walk
   bias (see ``bias_models``). A Gauss-Markov process with stationary sigma s has
-  an Allan-deviation peak of 0.617 s (seed 000, ERRATA), so s = 0.664 B / 0.617
+  an Allan-deviation peak of 0.617 s (not the tuning notes' 0.437 s: that is 0.437 q_c sqrt(T) of
+  the driving noise q_c = s sqrt(2/T)), so s = 0.664 B / 0.617
   matches the flat floor 0.664 B; its short-term wander 2 s^2 / T, with T =
   ``bias_tau_s``, plus K^2 drives the random walk. That random walk reaches the
   floor only at averaging times near T, so B also adds a white density to the

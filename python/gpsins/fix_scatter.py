@@ -50,7 +50,7 @@ def measure(fixes: np.ndarray, t0: float, t1: float) -> Scatter:
 
 def filter_overrides(sc: Scatter, mode: str, white_uere_m: float = 2.0, middle_elevation_deg: float = 30.0) -> dict:
     """Loose: the fix-error states with the scatter's sigmas and time (white part white_uere_m,
-    issue 14's split). Tight: the pseudoranges' correlated variance, its zenith sigma the range
+    the preset's split). Tight: the pseudoranges' correlated variance, its zenith sigma the range
     error times sin(middle_elevation_deg) (the model grows as 1 / sin(elevation))."""
     if mode == "tight":
         return {"pseudorange_error_gm_sigma_m": sc.range_error_m * np.sin(np.radians(middle_elevation_deg)),

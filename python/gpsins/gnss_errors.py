@@ -1,5 +1,5 @@
-"""The white and time-correlated parts of a receiver's errors, measured against truth
-(issue 14): what the filter's fix-error model (fix_uere_m, fix_error_gm_*) takes its figures
+"""The white and time-correlated parts of a receiver's errors, measured against truth:
+what the filter's fix-error model (fix_uere_m, fix_error_gm_*) takes its figures
 from. Reads the simulator's receiver output and truth only, never the filter."""
 
 from __future__ import annotations

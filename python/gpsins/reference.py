@@ -1,7 +1,7 @@
 """The reference system's file beside a session: ``reference.csv``.
 
-A dual-antenna carrier-phase reference (the report's Javad HD2, seed 004
-section 4.2) is not logged by the vehicle's logger: it records on its own and
+A dual-antenna carrier-phase reference (the FOI report's Javad HD2,
+section 4.2; docs/references.md) is not logged by the vehicle's logger: it records on its own and
 its RTK solution is post-processed against a base station, in GPS time. So its
 output sits beside the session as a plain text table rather than as a logger
 record file: readable by any tool, no system-time stamps to align, and one row

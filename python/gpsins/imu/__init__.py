@@ -1,2 +1,3 @@
 """IMU characterisation: Allan deviation, PSD, noise-term fit, deterministic
-calibration, and the filter parameters they give (seed 000; seed 004 ch. 5)."""
+calibration, and the filter parameters they give (the tuning notes; the FOI report's
+chapter 5: docs/references.md)."""

@@ -1,4 +1,5 @@
-"""Deterministic calibration (seed 004, 5.1.2, with the ERRATA's corrections).
+"""Deterministic calibration (the FOI report, 5.1.2, with eqs. 5.2 and 5.5
+corrected as docs/references.md gives them).
 
 Accelerometer up-down (eq. 5.2): with the axis up, z1 = b + (1 + s) g; down,
 z2 = b - (1 + s) g; so b = (z1 + z2) / 2 and s = (z1 - z2 - 2 g) / (2 g).

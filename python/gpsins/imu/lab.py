@@ -1,4 +1,4 @@
-"""The IMU laboratory workflow of seed 004, chapter 5, from recorded sessions.
+"""The IMU laboratory workflow of the FOI report, chapter 5, from recorded sessions.
 
 A lab plan (TOML) names the recordings and what each is:
 

@@ -1,7 +1,8 @@
-"""Noise terms from an Allan variance curve (seed 000; IEEE Std 952 terms).
+"""Noise terms from an Allan variance curve (IEEE Std 952 terms; the
+tuning notes in docs/references.md).
 
     AVAR(tau) = 3 Q^2 / tau^2 + N^2 / tau + (2 ln 2 / pi) B^2 + K^2 tau / 3 + R^2 tau^2 / 2
-                [+ first-order Gauss-Markov terms, seed 000 eq. 10.17]
+                [+ first-order Gauss-Markov terms, the tuning notes' eq. 10.17]
 
 Q quantisation (rad or m/s), N white rate noise (rad/sqrt(s), m/s/sqrt(s)), B bias
 instability (rad/s, m/s^2), K rate random walk (rad/s/sqrt(s), m/s^2/sqrt(s)), R
@@ -218,8 +219,8 @@ def fit_term_curve(tau: np.ndarray, f: NoiseFit, term: str) -> np.ndarray | None
     return c * np.sqrt(basis(tau, (term,))[:, 0])
 
 
-GM_PEAK_TAU_PER_T = 1.89  # seed 000: the Gauss-Markov ADEV peaks at tau = 1.89 T
-GM_PEAK_PER_SIGMA = 0.617  # ... at 0.617 of the stationary sigma (ERRATA), = 0.437 q_c sqrt(T)
+GM_PEAK_TAU_PER_T = 1.89  # the Gauss-Markov ADEV peaks at tau = 1.89 T
+GM_PEAK_PER_SIGMA = 0.617  # ... at 0.617 of the stationary sigma q_c sqrt(T/2) (= 0.437 q_c sqrt(T))
 GM_PEAK_PER_QC_SQRT_T = 0.437
 
 

@@ -1,5 +1,5 @@
 """One-sided power spectral density (Welch) with the report's frequency
-averaging (log-spaced bins, seed 004 section 5.2) and the white-noise level.
+averaging (log-spaced bins, the FOI report's section 5.2) and the white-noise level.
 
 Convention: a white rate noise whose Allan coefficient is N (ADEV = N / sqrt(tau))
 has the two-sided density N^2 and the one-sided Welch plateau 2 N^2, so

@@ -1,4 +1,4 @@
-"""The simulator plays the IMU laboratory (seed 004, chapter 5): a BP3010 with
+"""The simulator plays the IMU laboratory (the FOI report, chapter 5): a BP3010 with
 known errors is recorded in the up-down positions of each accelerometer axis,
 on a rate table at several rates about each axis, and standing still for a long
 drift test, each as a logger session directory, plus the lab plan that names

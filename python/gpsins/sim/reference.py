@@ -1,4 +1,4 @@
-"""The reference system of the report's experiments (seed 004 section 4.2): a
+"""The reference system of the report's experiments (the FOI report, section 4.2): a
 dual-antenna carrier-phase receiver (Javad HD2 with a base station) giving RTK
 position and the heading and pitch of its antenna baseline.
 

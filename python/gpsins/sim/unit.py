@@ -96,7 +96,7 @@ def filter_overrides(ds: Datasheet, scale_factor_states: bool = True) -> dict:
 class ReceiverErrors:
     """What the user assumes of the GNSS receiver's errors in open sky: a white part and a part
     correlated over tens of seconds (multipath, ionosphere and troposphere residuals), which the
-    preset's white models leave out. Loose: issue 14's split of the fix error (white UERE 2 m,
+    preset's white models leave out. Loose: the preset's split of the fix error (white UERE 2 m,
     Gauss-Markov 1.5/1.5/2.5 m north/east/down over 60 s). Tight: 1 m white per pseudorange and a
     code multipath of 0.6 m at zenith growing as 1 / sin(elevation), correlated over 20 s (the
     simulated receiver's figures, of the order published for low-cost receivers in open sky)."""
