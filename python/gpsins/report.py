@@ -170,16 +170,38 @@ def _stats(e: np.ndarray) -> dict:
             "v_rms": float(np.sqrt(np.mean(e[:, 2] ** 2))), "v_max": float(np.abs(e[:, 2]).max())}
 
 
+def fix_true_times(r: Result) -> np.ndarray:
+    """The receiver's fixes on the truth's time line (the segments'). A fix's time is the receiver's tag, which
+    runs ahead of GPS time by the receiver clock's bias: a simulated fix tagged 31.0 was measured tens of ns
+    before 31 s, before a segment (and its obstructions) starting at 31 s. Going by the tags, the segment table
+    counted that fix, with the satellites of the segment before, in the one that starts there (A-B "4-8" where
+    the fixes measured in A-B have 4). With the session's truth, each fix's tag less the clock bias at its epoch;
+    the tags themselves otherwise."""
+    f_t = r.a["fixes"][:, 0]
+    s = r.session
+    p = next((q for q in ((s / "truth.npz", s.parent / "truth.npz") if s is not None else ()) if q.exists()), None)
+    if p is None or not len(f_t):
+        return f_t
+    from .truthfile import open_truth  # memory-mapped: only the receiver epochs' rows are read
+
+    z = open_truth(p)
+    if "clock_bias_s" not in z or not len(z["gnss_t"]):
+        return f_t
+    start = float(z["t0_tow_s"]) + (int(z["gps_week"]) - int(r.a["week"])) * SECONDS_PER_WEEK
+    bias = np.asarray(z["clock_bias_s"], float)
+    return f_t - np.interp(f_t - start, np.asarray(z["gnss_t"], float) + bias, bias)
+
+
 def segment_table(r: Result) -> list[dict]:
     """RMS and maximum horizontal and vertical error per truth segment (Table 6.1 style)."""
     if not r.has_truth or "seg_t" not in r.a:
         return []
     t, e, hk = r.a["t"], r.a["err_ned_m"], r.a["heading_known"]
-    f, sats = r.a["fixes"], r.a["fix_sats"]
+    f_t, sats = fix_true_times(r), r.a["fix_sats"]
     rows = []
     for label, (t0, t1) in zip(r.a["seg_labels"], r.a["seg_t"]):
         m = (t >= t0) & (t < t1) & hk & np.isfinite(e[:, 0])
-        fm = (f[:, 0] >= t0) & (f[:, 0] < t1)
+        fm = (f_t >= t0) & (f_t < t1)
         row = {"segment": str(label), "sats_min": int(sats[fm].min()) if fm.any() else 0,
                "sats_max": int(sats[fm].max()) if fm.any() else 0, "t0": float(t0), "t1": float(t1)}
         row.update(_stats(e[m]))
