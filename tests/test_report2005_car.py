@@ -1,6 +1,6 @@
-"""The report's car run reproduced where it has numbers (issue 36): the ``report2005_car`` scenario (Table 6.1's
+"""The report's car run reproduced where it has numbers: the ``report2005_car`` scenario (Table 6.1's
 satellite geometry, a unit whose gyros hold their calibrated bias as the report's filter assumes) replayed with
-the ``report2005`` preset (the report's hand tuning), against seed 004's figures:
+the ``report2005`` preset (the report's hand tuning), against the FOI report's figures (docs/report2005.md):
 
 - Table 6.1: satellites used per segment (the range, its dips included) and HDOP and VDOP per segment within a
   factor of 2 (the segment's lowest and highest value each against the table's), from the receiver's 3-D fixes
