@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gpsins import logs, measurements, mainjob, sim
+from gpsins import live, logs, mainjob, measurements, replay, results, sim
 from gpsins.sim.scenario import parse
 from gpsins_logger import superstar2 as ss2
 
@@ -97,25 +97,44 @@ def main(drive_s: float = 60.0, interval_s: float = 0.02, fix_rate_hz: float = 1
     used = usage.ru_utime + usage.ru_stime
     th.join(5)
     dec = measurements.decode_session(session)
-    leap = dec.gps.leap_s or 0
     tow, first, last = epoch_stamps(session)
     first_of, last_of = dict(zip(tow, first)), dict(zip(tow, last))
-    sent_t = np.array([(int(h[:2]) * 3600 + int(h[2:4]) * 60 + float(h[4:]) + leap) % 86400
-                       + (START["gps_tow_s"] // 86400) * 86400 for h in (x.split(",")[1] for _, x in arrivals)])
-    sent_at = np.array([a for a, _ in arrivals])
-    after_first, after_last = [], []
+    # Sentences and epochs are one to one and in order (every epoch sent): live.f64 gives each sentence's
+    # epoch time exactly (the sentence's own time is to 0.01 s).
+    # The client may have connected after the first sentences: the first it got, by its time.
+    epoch_t = live.read_epochs(root / "live" / "live.f64")["t"]
+    leap = dec.gps.leap_s or 0
+    h = arrivals[0][1].split(",")[1] if arrivals else "000000"
+    tow0 = ((int(h[:2]) * 3600 + int(h[2:4]) * 60 + float(h[4:]) + leap) % 86400
+            + (START["gps_tow_s"] // 86400) * 86400)
+    j = int(np.argmin(np.abs(epoch_t - tow0)))
+    n = min(len(epoch_t) - j, len(arrivals))
+    epoch_t, sent_at = epoch_t[j:j + n], np.array([a for a, _ in arrivals[:n]])
+    after_first, after_last, fix_t = [], [], []
     for t_fix in np.round(dec.gps.fixes[:, 0], 1):
-        # The sentence for the fix epoch: the last IMU epoch at or before it (times to 0.01 s).
-        k = np.flatnonzero((sent_t <= t_fix + 0.006) & (sent_t > t_fix - 0.03))
-        if not len(k) or t_fix not in first_of:
+        k = np.searchsorted(epoch_t, t_fix + 1e-9) - 1  # the last IMU epoch at or before the fix
+        if k < 0 or t_fix - epoch_t[k] > 0.05 or t_fix not in first_of:
             continue
-        at = sent_at[k[np.argmax(sent_t[k])]]
-        after_first.append(at - first_of[t_fix])
-        after_last.append(at - last_of[t_fix])
+        after_first.append(sent_at[k] - first_of[t_fix])
+        after_last.append(sent_at[k] - last_of[t_fix])
+        fix_t.append(t_fix)
+    fix_t, after_first, after_last = np.array(fix_t), np.array(after_first), np.array(after_last)
+    if os.environ.get("BENCH_LIVE_DUMP"):  # per fix epoch: time, delay after ID 23, after the last message
+        np.savetxt(os.environ["BENCH_LIVE_DUMP"], np.column_stack([fix_t, after_first, after_last]))
     print(f"{drive_s:.0f} s drive at real time, fixes at {fix_rate_hz:g} Hz, IMU at {dec.imu.rate_hz} Hz, live "
           f"polling every {interval_s:g} s: CPU {100 * used / wall:.1f} % of a core ({used:.1f} s in {wall:.0f} s)")
+    # The finished session replayed with the same configuration: the live solution against it.
+    z = results.load(replay.replay(session, root / "replay").out)
+    e = live.read_epochs(root / "live" / "live.f64")
+    if len(e["t"]) == len(z["t"]):
+        dr = np.linalg.norm(e["r_ecef"] - z["r_ecef"], axis=1)
+        dq = np.degrees(2 * np.arccos(np.clip(np.abs(np.sum(e["q_eb"] * z["q_eb"], axis=1)), 0, 1)))
+        print(f"live against replay over {len(dr)} epochs: time max {1e3 * np.abs(e['t'] - z['t']).max():.3f} ms, "
+              f"position max {1e3 * dr.max():.2f} mm (median {1e3 * np.median(dr):.2f}), "
+              f"attitude max {dq.max():.5f} deg")
+    else:
+        print(f"live has {len(e['t'])} epochs, the replay {len(z['t'])}")
     for name, lat in (("the epoch's ID 23 stamp", after_first), ("the epoch's last GNSS message's stamp", after_last)):
-        lat = np.array(lat)
         if len(lat):
             print(f"NMEA after {name}: p50 {1e3 * np.median(lat):.0f} ms, p99 {1e3 * np.percentile(lat, 99):.0f} ms, "
                   f"max {1e3 * lat.max():.0f} ms over {len(lat)} fix epochs")

@@ -1,22 +1,26 @@
 """Live navigation beside the logger (``gpsins live SESSION_DIR --out DIR``).
 
-A separate process follows the session the logger is writing, read only: about once a second it
-reads what is on disk (parts as they rotate, damaged records skipped as replay skips them), aligns
-the clocks on everything so far (the robust alignment, re-fitted each time), feeds the IMU samples,
-fixes and pseudoranges that are new since the last round to the streaming filter (the C++ core, as a
-replay's chunks are fed), and writes:
+A separate process follows the session the logger is writing, read only. Every ``--interval`` (0.02 s)
+it looks at the record files' sizes; when GPS records have landed it reads only the bytes added since
+(``live_stream``: parts as they rotate, damaged records skipped as replay skips them), times the new IMU
+samples by the last clock fit extended along the IMU's frame counter (the robust alignment, fitted again
+on everything when the data grew by ``REFIT_S`` or ``REFIT_SHARE``, after a round's outputs, or at once
+for a gap the counter cannot count), feeds the samples, fixes and pseudoranges up to the newest fix to
+the streaming filter (the C++ core, as a replay's chunks are fed), and writes:
 
+- NMEA 0183 GGA, RMC and GST of every output epoch (or every ``nmea_every``-th) to the clients of a TCP
+  port on the loopback interface (``--nmea-port``), for gpsd, QGIS or OpenCPN: first, as soon as a fix is in;
 - ``live.pos``: the solution at the IMU point, RTKLIB-style, growing (flushed each round);
 - ``live.f64``: the same epochs at full precision, rows of EPOCH_COLUMNS float64 (``read_epochs``);
 - ``status.jsonl``: one JSON line per round: the last epoch's time, position, attitude, their sigmas,
-  the GNSS state, the filter's counters, the alignment's warnings;
-- NMEA 0183 GGA, RMC and GST of every output epoch (or every ``nmea_every``-th) to the clients of a TCP
-  port on the loopback interface (``--nmea-port``), for gpsd, QGIS or OpenCPN.
+  the GNSS state, the filter's counters, the alignment's warnings.
 
 ``--http-port`` serves a status page (``live_page``); ``run_root`` follows the newest session under a
-logger's root and moves on when the logger starts another (a restart). Against a replay of the finished session: samples fed early were timed by the clock map
-of their round, which the later rounds refine (a fraction of a millisecond), so the two solutions agree
-to about a millimetre, not bit for bit; ``tests/test_live.py`` measures it.
+logger's root and moves on when the logger starts another (a restart). A u-blox session is decoded and
+aligned whole each round (the incremental reader is the Superstar II's). Against a replay of the
+finished session: samples fed during the drive were timed by the fit of their time, which the rest of the
+session refines (the fit is one line over the session), so the two solutions agree to about a
+millimetre at real time, not bit for bit; ``tests/test_live.py`` and ``benchmarks/bench_live.py`` measure it.
 """
 
 from __future__ import annotations
@@ -30,14 +34,18 @@ from pathlib import Path
 
 import numpy as np
 
-from . import evaluate, filter as flt, live_stream, logs, measurements, measurements_ubx, nmea, results, solution, timing
+from . import (evaluate, filter as flt, live_stream, logs, measurements, measurements_ubx, nmea, results, solution,
+               timing)
 
 DEFAULT_LEAP_S = 18  # GPS - UTC since 2017, for NMEA times when the receiver has not said
 FIX_WAIT_S = 2.5  # measurements this long past the last fix: no fix is coming for them (an outage)
 POLL_S = 0.02  # the default period of the rounds: the record files' sizes polled (a stat each)
 STOP_CHECK_S = 1.0  # how often ``stop_when`` (a newer session under the root?) is asked
 REFIT_S = 0.25  # the whole clock fit again after this much new IMU data (s) ...
-REFIT_SHARE = 0.02  # ... or this share of the session, whichever is more: fits cost time in proportion to the session, so the fits of a long one cost a constant share of a core
+# ... or this share of the session, whichever is more: a fit costs time in proportion to the session, so
+# the fits of a long one cost a constant share of a core
+REFIT_SHARE = 0.02
+INLINE_FIT_S = 0.005  # a due fit that took less than this last time is made before feeding, not after
 EPOCH_COLUMNS = ("t", "x", "y", "z", "vx", "vy", "vz", "qw", "qx", "qy", "qz", "sigma_n", "sigma_e", "sigma_d")
 
 
@@ -125,10 +133,13 @@ class Follower:
         self._refit_now = False
         self._eph_done = 0
         self.refits = 0
+        self.fed = False  # the last poll fed samples
+        self._fit_cost_s = 0.0  # what the last clock fit took (s)
         self._sidecar = _Sidecar(self.session)
 
     def poll(self, final: bool = False) -> flt.Solution | None:
         """Feed what is new; ``final``: the session is complete, feed everything held back."""
+        self.fed = False
         if self.stream is None:
             return self._poll_whole(final)
         try:
@@ -151,6 +162,8 @@ class Follower:
         elif gps.week != self.week:
             return None  # another stretch (a receiver restart): replay it on its own
         self.leap_s = gps.leap_s if gps.leap_s is not None else self.leap_s
+        if self._due() and self._fit_cost_s < INLINE_FIT_S:
+            self._refit()  # cheap (a short session): the samples about to be fed get the freshest fit
         idx = np.flatnonzero(imu.valid.a[self.raw_fed + 1:]) + self.raw_fed + 1  # valid records not yet fed
         t = self._times(idx)
         if self._refit_now:  # a gap the counter cannot count: the whole fit, now
@@ -195,13 +208,23 @@ class Follower:
         """The whole clock fit again when it is due (after a round's outputs, off the NMEA's path): when
         the valid IMU samples grew by REFIT_S of data or REFIT_SHARE of the session since the last fit;
         between fits, new samples are timed by extending the last fit's IMU clock along the counter."""
-        if self.stream is None or self._fit is None or self.stream.imu is None:
-            return
-        n = int(self.stream.imu.valid.a.sum())
-        if n - self._fit["count"] >= max(REFIT_S * self.stream.imu.rate_hz, REFIT_SHARE * n):
+        if self.stream is not None and self._due():
             self._refit()
 
+    def _due(self) -> bool:
+        if self._fit is None or self.stream.imu is None:
+            return False
+        n = int(self.stream.imu.valid.a.sum())
+        return n - self._fit["count"] >= max(REFIT_S * self.stream.imu.rate_hz, REFIT_SHARE * n)
+
     def _refit(self) -> bool:
+        t0 = time.perf_counter()
+        try:
+            return self._fit_all()
+        finally:
+            self._fit_cost_s = time.perf_counter() - t0
+
+    def _fit_all(self) -> bool:
         gps, imu = self.stream.gps, self.stream.imu
         g = gps.good_blocks()
         kept = np.flatnonzero(imu.valid.a)
@@ -259,7 +282,7 @@ class Follower:
         out = self.filter.run(rows, np.ascontiguousarray(fx), prs, 1, True, False, 256.0, False, self.n_imu,
                               self.n_fix, self.n_pr, None, 0)
         self.n_imu, self.n_fix = self.n_imu + len(rows), self.n_fix + len(fx)
-        self.t_fed = t_end
+        self.t_fed, self.fed = t_end, True
         if len(fx):
             self.fix_fed = float(fx[-1, 0])
         if prs is not None and len(prs):
@@ -339,6 +362,8 @@ def run(session: str | Path, out: str | Path, *, mode: str = "loose", config=Non
     """Follow the session until the logger stops it (or ``max_s``, or ``stop_when()`` is true: a newer
     session under a root); returns the last status. ``on_start`` gets {"nmea_port", "http_port"} once
     they listen; ``on_round`` each round's status."""
+    from scipy.stats import chi2  # noqa: F401 (the status's NIS bands: imported now, not in the first round)
+
     session, out = Path(session), Path(out)
     if out.resolve() == session.resolve() or session.resolve() in out.resolve().parents:
         raise ValueError(f"{out}: live never writes into the session directory; give another --out")
@@ -381,7 +406,8 @@ def run(session: str | Path, out: str | Path, *, mode: str = "loose", config=Non
                         on_round(status)
                 elif finished:
                     break
-                fol.maintain()
+                if fol.fed:
+                    fol.maintain()  # right after feeding a fix: the next one is the furthest away
                 if max_s is not None and time.monotonic() - t0 > max_s:
                     break
                 if stop_when is not None and time.monotonic() >= next_stop_check:

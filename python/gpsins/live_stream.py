@@ -23,7 +23,8 @@ from collections import Counter
 from pathlib import Path
 
 import numpy as np
-from gpsins_logger import bp3010, superstar2 as ss2
+from gpsins_logger import bp3010
+from gpsins_logger import superstar2 as ss2
 
 from . import logs, measurements
 
@@ -176,7 +177,7 @@ class GpsStream:
         sorted_t = user_t[order]
         newest_user = np.nanmax(user_t) if len(user_t) and np.isfinite(user_t).any() else -math.inf
         while self._paired < len(self._nav_ecef):
-            st, e = self._nav_ecef[self._paired]
+            _, e = self._nav_ecef[self._paired]
             t = (e.week - week) * SECONDS_PER_WEEK + e.tow_s
             j = np.searchsorted(sorted_t, t)
             near = [order[i] for i in (j - 1, j) if 0 <= i < len(order)]
