@@ -135,6 +135,8 @@ class Follower:
         self.refits = 0
         self.fed = False  # the last poll fed samples
         self._fit_cost_s = 0.0  # what the last clock fit took (s)
+        self._worker: threading.Thread | None = None  # a clock fit running beside the rounds
+        self._worker_result: dict | None = None
         self._sidecar = _Sidecar(self.session)
 
     def poll(self, final: bool = False) -> flt.Solution | None:
@@ -152,6 +154,7 @@ class Follower:
         gps, imu = self.stream.gps, self.stream.imu
         if imu is None or gps.week is None or gps.newest() is None:
             return None
+        self._collect()
         if not (got["gps"] or final or self._fit is None or self._refit_now):
             return None  # IMU samples alone: they wait for their fix (or the blocks of an outage)
         if self._fit is None or self._refit_now:
@@ -162,8 +165,7 @@ class Follower:
         elif gps.week != self.week:
             return None  # another stretch (a receiver restart): replay it on its own
         self.leap_s = gps.leap_s if gps.leap_s is not None else self.leap_s
-        if self._due() and self._fit_cost_s < INLINE_FIT_S:
-            self._refit()  # cheap (a short session): the samples about to be fed get the freshest fit
+        self.maintain()  # a cheap fit (a short session) now: the samples about to be fed get the freshest
         idx = np.flatnonzero(imu.valid.a[self.raw_fed + 1:]) + self.raw_fed + 1  # valid records not yet fed
         t = self._times(idx)
         if self._refit_now:  # a gap the counter cannot count: the whole fit, now
@@ -207,9 +209,32 @@ class Follower:
     def maintain(self) -> None:
         """The whole clock fit again when it is due (after a round's outputs, off the NMEA's path): when
         the valid IMU samples grew by REFIT_S of data or REFIT_SHARE of the session since the last fit;
-        between fits, new samples are timed by extending the last fit's IMU clock along the counter."""
-        if self.stream is not None and self._due():
+        between fits, new samples are timed by extending the last fit's IMU clock along the counter. A fit
+        that took over INLINE_FIT_S last time (a long session: 0.14 s at an hour) runs in a thread on a
+        snapshot of the columns, and the rounds go on with the last fit until it is in."""
+        if self.stream is None or not self._due() or self._worker is not None:
+            return
+        if self._fit_cost_s < INLINE_FIT_S:
             self._refit()
+            return
+        inputs = self._fit_inputs()
+
+        def work():
+            t0 = time.perf_counter()
+            self._worker_result = self._compute_fit(*inputs)
+            self._fit_cost_s = time.perf_counter() - t0
+
+        self._worker = threading.Thread(target=work, name="gpsins-live-fit", daemon=True)
+        self._worker.start()
+
+    def _collect(self) -> None:
+        """A fit the thread finished: in use from now on (unless a newer one came meanwhile)."""
+        if self._worker is None or self._worker.is_alive():
+            return
+        self._worker.join()
+        fit, self._worker, self._worker_result = self._worker_result, None, None
+        if fit is not None and (self._fit is None or fit["count"] > self._fit["count"]):
+            self._install(fit)
 
     def _due(self) -> bool:
         if self._fit is None or self.stream.imu is None:
@@ -219,29 +244,37 @@ class Follower:
 
     def _refit(self) -> bool:
         t0 = time.perf_counter()
-        try:
-            return self._fit_all()
-        finally:
-            self._fit_cost_s = time.perf_counter() - t0
+        fit = self._compute_fit(*self._fit_inputs())
+        self._fit_cost_s = time.perf_counter() - t0
+        if fit is None:
+            return False
+        self._install(fit)
+        return True
 
-    def _fit_all(self) -> bool:
+    def _fit_inputs(self) -> tuple:
+        """What a fit takes, copied (a fit in a thread reads no column the rounds extend)."""
         gps, imu = self.stream.gps, self.stream.imu
         g = gps.good_blocks()
         kept = np.flatnonzero(imu.valid.a)
+        return (gps.tow.a[g], gps.stamps.a[g], int(gps.week), kept, imu.stamps.a[kept], imu.counter.a[kept],
+                imu.rate_hz)
+
+    def _compute_fit(self, tow, gps_stamps, week, kept, imu_stamps, counter, rate_hz) -> dict | None:
         try:
-            al = timing.align(gps.tow.a[g], gps.stamps.a[g], int(gps.week), imu.stamps.a[kept], imu.counter.a[kept],
-                              imu.rate_hz, gps_latency_s=self.gps_latency_s, imu_latency_s=self.imu_latency_s)
+            al = timing.align(tow, gps_stamps, week, imu_stamps, counter, rate_hz, gps_latency_s=self.gps_latency_s,
+                              imu_latency_s=self.imu_latency_s)
         except timing.AlignmentError:
-            return False
-        s = imu.stamps.a[kept]
-        span = float(s[-1] - s[0])
-        self._fit = {"idx": kept, "t": al.imu_t, "n": al.imu_index.astype(np.int64), "p": float(al.imu_period_s),
-                     "count": len(kept), "gps_per_system_s": (float(al.imu_t[-1] - al.imu_t[0]) / span) if span > 0
-                     else 1.0}
+            return None
+        span = float(imu_stamps[-1] - imu_stamps[0])
+        return {"idx": kept, "t": al.imu_t, "n": al.imu_index.astype(np.int64), "p": float(al.imu_period_s),
+                "count": len(kept), "gps_per_system_s": (float(al.imu_t[-1] - al.imu_t[0]) / span) if span > 0
+                else 1.0, "warnings": list(al.warnings)}
+
+    def _install(self, fit: dict) -> None:
+        self._fit = fit
         self.refits += 1
         self._refit_now = False
-        self.warnings = list(al.warnings)
-        return True
+        self.warnings = fit["warnings"]
 
     def _times(self, idx: np.ndarray) -> np.ndarray:
         """GPS times of valid IMU records (raw indices): the last fit's, and past it the fit's IMU clock
