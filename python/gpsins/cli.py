@@ -198,6 +198,11 @@ def _cmd_live(args: argparse.Namespace) -> int:
                    nmea_every=args.nmea_every, http_port=args.http_port, interval_s=args.interval,
                    gps_latency_s=args.gps_latency, imu_latency_s=args.imu_latency, on_start=started,
                    on_round=round_done)
+    import gc
+
+    from scipy.stats import chi2  # noqa: F401 (imported before the first round, as live.run does)
+
+    gc.freeze()  # the process's own: what the imports made is never scanned again by the collector (pauses)
     if args.follow_root:
         live.run_root(args.session, args.out, **options)
     else:
