@@ -135,6 +135,7 @@ class Follower:
         self.refits = 0
         self.fed = False  # the last poll fed samples
         self._fit_cost_s = 0.0  # what the last clock fit took (s)
+        self._failed_at = -math.inf  # valid IMU samples when a fit last failed
         self._worker: threading.Thread | None = None  # a clock fit running beside the rounds
         self._worker_result: dict | None = None
         self._sidecar = _Sidecar(self.session)
@@ -158,7 +159,11 @@ class Follower:
         if not (got["gps"] or final or self._fit is None or self._refit_now):
             return None  # IMU samples alone: they wait for their fix (or the blocks of an outage)
         if self._fit is None or self._refit_now:
+            n = int(imu.valid.a.sum())
+            if not final and n - self._failed_at < REFIT_S * imu.rate_hz:
+                return None  # the last try failed: the next when more has come
             if not self._refit():
+                self._failed_at = n
                 return None  # not enough on disk yet to know GPS time
         if self.week is None:
             self.week = int(gps.week)
@@ -170,6 +175,7 @@ class Follower:
         t = self._times(idx)
         if self._refit_now:  # a gap the counter cannot count: the whole fit, now
             if not self._refit():
+                self._failed_at = int(imu.valid.a.sum())
                 return None
             t = self._times(idx)
         newest = gps.newest()
