@@ -198,6 +198,11 @@ def _cmd_live(args: argparse.Namespace) -> int:
                    nmea_every=args.nmea_every, http_port=args.http_port, interval_s=args.interval,
                    gps_latency_s=args.gps_latency, imu_latency_s=args.imu_latency, on_start=started,
                    on_round=round_done)
+    import gc
+
+    from scipy.stats import chi2  # noqa: F401 (imported before the first round, as live.run does)
+
+    gc.freeze()  # the process's own: what the imports made is never scanned again by the collector (pauses)
     if args.follow_root:
         live.run_root(args.session, args.out, **options)
     else:
@@ -470,7 +475,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--nmea-port", type=int, metavar="PORT",
                    help="serve NMEA GGA, RMC, GST on this TCP port of the loopback interface (0: any free)")
     p.add_argument("--nmea-every", type=int, default=1, metavar="N", help="one sentence set every N epochs")
-    p.add_argument("--interval", type=float, default=1.0, metavar="S", help="seconds between rounds (default 1)")
+    p.add_argument("--interval", type=float, default=0.02, metavar="S",
+                   help="seconds between looks at the record files (default 0.02): a round decodes and feeds what "
+                        "came since the last")
     p.add_argument("--gps-latency", type=float, default=0.0, help="as replay's")
     p.add_argument("--imu-latency", type=float, default=0.0, help="as replay's")
     p.set_defaults(func=_cmd_live)

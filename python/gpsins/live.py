@@ -1,22 +1,26 @@
 """Live navigation beside the logger (``gpsins live SESSION_DIR --out DIR``).
 
-A separate process follows the session the logger is writing, read only: about once a second it
-reads what is on disk (parts as they rotate, damaged records skipped as replay skips them), aligns
-the clocks on everything so far (the robust alignment, re-fitted each time), feeds the IMU samples,
-fixes and pseudoranges that are new since the last round to the streaming filter (the C++ core, as a
-replay's chunks are fed), and writes:
+A separate process follows the session the logger is writing, read only. Every ``--interval`` (0.02 s)
+it looks at the record files' sizes; when GPS records have landed it reads only the bytes added since
+(``live_stream``: parts as they rotate, damaged records skipped as replay skips them), times the new IMU
+samples by the last clock fit extended along the IMU's frame counter (the robust alignment, fitted again
+on everything when the data grew by ``REFIT_S`` or ``REFIT_SHARE``, after a round's outputs, or at once
+for a gap the counter cannot count), feeds the samples, fixes and pseudoranges up to the newest fix to
+the streaming filter (the C++ core, as a replay's chunks are fed), and writes:
 
+- NMEA 0183 GGA, RMC and GST of every output epoch (or every ``nmea_every``-th) to the clients of a TCP
+  port on the loopback interface (``--nmea-port``), for gpsd, QGIS or OpenCPN: first, as soon as a fix is in;
 - ``live.pos``: the solution at the IMU point, RTKLIB-style, growing (flushed each round);
 - ``live.f64``: the same epochs at full precision, rows of EPOCH_COLUMNS float64 (``read_epochs``);
 - ``status.jsonl``: one JSON line per round: the last epoch's time, position, attitude, their sigmas,
-  the GNSS state, the filter's counters, the alignment's warnings;
-- NMEA 0183 GGA, RMC and GST of every output epoch (or every ``nmea_every``-th) to the clients of a TCP
-  port on the loopback interface (``--nmea-port``), for gpsd, QGIS or OpenCPN.
+  the GNSS state, the filter's counters, the alignment's warnings.
 
 ``--http-port`` serves a status page (``live_page``); ``run_root`` follows the newest session under a
-logger's root and moves on when the logger starts another (a restart). Against a replay of the finished session: samples fed early were timed by the clock map
-of their round, which the later rounds refine (a fraction of a millisecond), so the two solutions agree
-to about a millimetre, not bit for bit; ``tests/test_live.py`` measures it.
+logger's root and moves on when the logger starts another (a restart). A u-blox session is decoded and
+aligned whole each round (the incremental reader is the Superstar II's). Against a replay of the
+finished session: samples fed during the drive were timed by the fit of their time, which the rest of the
+session refines (the fit is one line over the session), so the two solutions agree to about a
+millimetre at real time, not bit for bit; ``tests/test_live.py`` and ``benchmarks/bench_live.py`` measure it.
 """
 
 from __future__ import annotations
@@ -30,10 +34,18 @@ from pathlib import Path
 
 import numpy as np
 
-from . import evaluate, filter as flt, logs, measurements, measurements_ubx, nmea, results, solution, timing
+from . import (evaluate, filter as flt, live_stream, logs, measurements, measurements_ubx, nmea, results, solution,
+               timing)
 
 DEFAULT_LEAP_S = 18  # GPS - UTC since 2017, for NMEA times when the receiver has not said
 FIX_WAIT_S = 2.5  # measurements this long past the last fix: no fix is coming for them (an outage)
+POLL_S = 0.02  # the default period of the rounds: the record files' sizes polled (a stat each)
+STOP_CHECK_S = 1.0  # how often ``stop_when`` (a newer session under the root?) is asked
+REFIT_S = 0.25  # the whole clock fit again after this much new IMU data (s) ...
+# ... or this share of the session, whichever is more: a fit costs time in proportion to the session, so
+# the fits of a long one cost a constant share of a core
+REFIT_SHARE = 0.02
+INLINE_FIT_S = 0.005  # a due fit that took less than this last time is made before feeding, not after
 EPOCH_COLUMNS = ("t", "x", "y", "z", "vx", "vy", "vz", "qw", "qx", "qy", "qz", "sigma_n", "sigma_e", "sigma_d")
 
 
@@ -114,14 +126,216 @@ class Follower:
         # IMU samples held back this long behind the newest GPS time: their clock map then has GPS
         # blocks on both sides and changes little in later rounds (the price: that much later).
         self.hold_s = hold_s
+        # A Superstar II session is read incrementally (live_stream); a u-blox one whole each round.
+        self.stream: live_stream.SessionStream | None = live_stream.SessionStream(self.session)
+        self.raw_fed = -1  # the last IMU record (index among all read) fed or passed over
+        self._fit: dict | None = None
+        self._refit_now = False
+        self._eph_done = 0
+        self.refits = 0
+        self.fed = False  # the last poll fed samples
+        self._fit_cost_s = 0.0  # what the last clock fit took (s)
+        self._failed_at = -math.inf  # valid IMU samples when a fit last failed
+        self._worker: threading.Thread | None = None  # a clock fit running beside the rounds
+        self._worker_result: dict | None = None
+        self._sidecar = _Sidecar(self.session)
 
     def poll(self, final: bool = False) -> flt.Solution | None:
         """Feed what is new; ``final``: the session is complete, feed everything held back."""
+        self.fed = False
+        if self.stream is None:
+            return self._poll_whole(final)
         try:
-            if measurements_ubx.is_ublox(self.session):  # its NAV-PVT fixes carry their own accuracy
-                dec = measurements_ubx.decode_session(self.session, flt.value(self.cfg, "fix_uere_m"))
-            else:
-                dec = measurements.decode_session(self.session)
+            got = self.stream.read(imu=final)
+        except live_stream.NotSuperstar:
+            self.stream = None
+            return self._poll_whole(final)
+        except (logs.LogError, FileNotFoundError):
+            return None
+        gps, imu = self.stream.gps, self.stream.imu
+        if imu is None or gps.week is None or gps.newest() is None:
+            return None
+        self._collect()
+        if not (got["gps"] or final or self._fit is None or self._refit_now):
+            return None  # IMU samples alone: they wait for their fix (or the blocks of an outage)
+        if self._fit is None or self._refit_now:
+            n = int(imu.valid.a.sum())
+            if not final and n - self._failed_at < REFIT_S * imu.rate_hz:
+                return None  # the last try failed: the next when more has come
+            if not self._refit():
+                self._failed_at = n
+                return None  # not enough on disk yet to know GPS time
+        if self.week is None:
+            self.week = int(gps.week)
+        elif gps.week != self.week:
+            return None  # another stretch (a receiver restart): replay it on its own
+        self.leap_s = gps.leap_s if gps.leap_s is not None else self.leap_s
+        self.maintain()  # a cheap fit (a short session) now: the samples about to be fed get the freshest
+        idx = np.flatnonzero(imu.valid.a[self.raw_fed + 1:]) + self.raw_fed + 1  # valid records not yet fed
+        t = self._times(idx)
+        if self._refit_now:  # a gap the counter cannot count: the whole fit, now
+            if not self._refit():
+                self._failed_at = int(imu.valid.a.sum())
+                return None
+            t = self._times(idx)
+        newest = gps.newest()
+        fixes = gps.fixes.a
+        last_fix = float(fixes[-1, 0]) if len(fixes) else -math.inf
+        limit = last_fix if newest - last_fix < FIX_WAIT_S else newest
+        upto = np.inf if final else min(newest - self.hold_s, limit)
+        take = np.isfinite(t) & (t <= upto)
+        if not take.any():
+            return None
+        last = int(np.flatnonzero(take)[-1])
+        idx, t = idx[:last + 1], t[:last + 1]
+        self.raw_fed = int(idx[-1])
+        keep = np.isfinite(t) & (t > self.t_fed + 0.5 / imu.rate_hz)  # in time order after what was fed
+        idx, t = idx[keep], t[keep]
+        if not len(idx):
+            return None
+        rows = np.column_stack([t, imu.dtheta.a[idx] * imu.lsb[0], imu.dv.a[idx] * imu.lsb[1]])
+        prs = gps.pseudoranges(self.pr_fed, float(t[-1])) if self.mode == "tight" else None
+        iono = (gps.iono.alpha, gps.iono.beta) if gps.iono else None
+        ephemerides = []
+        if self.mode == "tight":
+            from . import _core
+
+            for _, w in gps.ephemerides[self._eph_done:]:
+                try:
+                    ephemerides.append(_core.gnss.decode_subframes(w.subframes, w.prn, self.week))
+                except ValueError:
+                    pass
+            self._eph_done = len(gps.ephemerides)
+        return self._feed(rows, fixes, prs, iono, ephemerides)
+
+    def finished(self) -> bool:
+        """The logger has marked the session stopped (its sidecar says so)."""
+        return self._sidecar()
+
+    def maintain(self) -> None:
+        """The whole clock fit again when it is due (after a round's outputs, off the NMEA's path): when
+        the valid IMU samples grew by REFIT_S of data or REFIT_SHARE of the session since the last fit;
+        between fits, new samples are timed by extending the last fit's IMU clock along the counter. A fit
+        that took over INLINE_FIT_S last time (a long session: 0.14 s at an hour) runs in a thread on a
+        snapshot of the columns, and the rounds go on with the last fit until it is in."""
+        if self.stream is None or not self._due() or self._worker is not None:
+            return
+        if self._fit_cost_s < INLINE_FIT_S:
+            self._refit()
+            return
+        inputs = self._fit_inputs()
+
+        def work():
+            t0 = time.perf_counter()
+            self._worker_result = self._compute_fit(*inputs)
+            self._fit_cost_s = time.perf_counter() - t0
+
+        self._worker = threading.Thread(target=work, name="gpsins-live-fit", daemon=True)
+        self._worker.start()
+
+    def _collect(self) -> None:
+        """A fit the thread finished: in use from now on (unless a newer one came meanwhile)."""
+        if self._worker is None or self._worker.is_alive():
+            return
+        self._worker.join()
+        fit, self._worker, self._worker_result = self._worker_result, None, None
+        if fit is not None and (self._fit is None or fit["count"] > self._fit["count"]):
+            self._install(fit)
+
+    def _due(self) -> bool:
+        if self._fit is None or self.stream.imu is None:
+            return False
+        n = int(self.stream.imu.valid.a.sum())
+        return n - self._fit["count"] >= max(REFIT_S * self.stream.imu.rate_hz, REFIT_SHARE * n)
+
+    def _refit(self) -> bool:
+        t0 = time.perf_counter()
+        fit = self._compute_fit(*self._fit_inputs())
+        self._fit_cost_s = time.perf_counter() - t0
+        if fit is None:
+            return False
+        self._install(fit)
+        return True
+
+    def _fit_inputs(self) -> tuple:
+        """What a fit takes, copied (a fit in a thread reads no column the rounds extend)."""
+        gps, imu = self.stream.gps, self.stream.imu
+        g = gps.good_blocks()
+        kept = np.flatnonzero(imu.valid.a)
+        return (gps.tow.a[g], gps.stamps.a[g], int(gps.week), kept, imu.stamps.a[kept], imu.counter.a[kept],
+                imu.rate_hz)
+
+    def _compute_fit(self, tow, gps_stamps, week, kept, imu_stamps, counter, rate_hz) -> dict | None:
+        try:
+            al = timing.align(tow, gps_stamps, week, imu_stamps, counter, rate_hz, gps_latency_s=self.gps_latency_s,
+                              imu_latency_s=self.imu_latency_s)
+        except timing.AlignmentError:
+            return None
+        span = float(imu_stamps[-1] - imu_stamps[0])
+        return {"idx": kept, "t": al.imu_t, "n": al.imu_index.astype(np.int64), "p": float(al.imu_period_s),
+                "count": len(kept), "gps_per_system_s": (float(al.imu_t[-1] - al.imu_t[0]) / span) if span > 0
+                else 1.0, "warnings": list(al.warnings)}
+
+    def _install(self, fit: dict) -> None:
+        self._fit = fit
+        self.refits += 1
+        self._refit_now = False
+        self.warnings = fit["warnings"]
+
+    def _times(self, idx: np.ndarray) -> np.ndarray:
+        """GPS times of valid IMU records (raw indices): the last fit's, and past it the fit's IMU clock
+        extended along the frame counter (t = t_last + P (n - n_last)). A step the counter may have
+        wrapped over (the stamps disagree by over half a counter period) or a gap that starts a new
+        piece of the IMU clock (``timing.PIECE_GAP_S``) asks for the whole fit (``_refit_now``)."""
+        fit, imu = self._fit, self.stream.imu
+        fi = fit["idx"]
+        t = np.full(len(idx), np.nan)
+        inside = idx <= fi[-1]
+        if inside.any():
+            pos = np.minimum(np.searchsorted(fi, idx[inside]), len(fi) - 1)
+            t[inside] = np.where(fi[pos] == idx[inside], fit["t"][pos], np.nan)
+        ext = idx[~inside]
+        if len(ext):
+            chain = np.concatenate([[fi[-1]], ext])
+            step = np.diff(imu.counter.a[chain].astype(np.int64)) % 256
+            step[step == 0] = 256
+            n = np.cumsum(step)
+            t[~inside] = fit["t"][-1] + fit["p"] * n
+            seen = np.diff(imu.stamps.a[chain]) * fit["gps_per_system_s"] / fit["p"]
+            if np.any(step * fit["p"] >= timing.PIECE_GAP_S) or np.any(np.abs(seen - step) > 128):
+                self._refit_now = True
+        return t
+
+    def _feed(self, rows: np.ndarray, fixes: np.ndarray, prs, iono, ephemerides) -> flt.Solution | None:
+        t_end = float(rows[-1, 0])
+        fx = fixes[(fixes[:, 0] > self.fix_fed) & (fixes[:, 0] <= t_end)]
+        if self.filter is None:
+            setup = flt._setup(rows[:0], fixes[:0], self.cfg, self.mode, [], iono,
+                               self.week * measurements.SECONDS_PER_WEEK)
+            self.filter, self.scale_factors = setup.core_filter, setup.scale_factors
+        for e in ephemerides:
+            key = (e.prn, e.week, e.iode, e.toe_s)
+            if key not in self.ephemerides_seen:
+                self.ephemerides_seen.add(key)
+                self.filter.add_ephemeris(e)
+        out = self.filter.run(rows, np.ascontiguousarray(fx), prs, 1, True, False, 256.0, False, self.n_imu,
+                              self.n_fix, self.n_pr, None, 0)
+        self.n_imu, self.n_fix = self.n_imu + len(rows), self.n_fix + len(fx)
+        self.t_fed, self.fed = t_end, True
+        if len(fx):
+            self.fix_fed = float(fx[-1, 0])
+        if prs is not None and len(prs):
+            self.n_pr += len(prs)
+            self.pr_fed = float(prs[-1, 0])
+        self.counters = out["counters"]
+        sol = flt.Solution.from_batch(out, self.mode, self.scale_factors)
+        return sol if len(sol.t) else None
+
+    def _poll_whole(self, final: bool) -> flt.Solution | None:
+        """A u-blox session: everything on disk decoded and aligned again each round (the incremental
+        reader is the Superstar II's)."""
+        try:
+            dec = measurements_ubx.decode_session(self.session, flt.value(self.cfg, "fix_uere_m"))
             al = timing.align(dec.gps.tow, dec.gps.stamps, dec.gps.week, dec.imu.stamps, dec.imu.counter,
                               dec.imu.rate_hz, gps_latency_s=self.gps_latency_s, imu_latency_s=self.imu_latency_s)
         except (logs.LogError, timing.AlignmentError, FileNotFoundError):
@@ -129,7 +343,7 @@ class Follower:
         if self.week is None:
             self.week = int(dec.gps.week)
         elif dec.gps.week != self.week:
-            return None  # another stretch (a receiver restart): replay it on its own
+            return None
         self.leap_s = dec.gps.leap_s if dec.gps.leap_s is not None else self.leap_s
         self.warnings = list(al.warnings)
         imu = flt.ImuColumns(al.imu_t, dec.imu.dtheta, dec.imu.dv, dec.imu.lsb)
@@ -144,38 +358,32 @@ class Follower:
         if not len(new):
             return None
         rows = np.asarray(imu[int(new[0]):int(new[-1]) + 1], dtype=float)
-        t_end = float(rows[-1, 0])
-        fixes = dec.gps.fixes
-        fx = fixes[(fixes[:, 0] > self.fix_fed) & (fixes[:, 0] <= t_end)]
         prs = None
         if self.mode == "tight":
             p = dec.gps.pseudoranges
             pt = np.asarray(p.t)
-            take = np.flatnonzero((pt > self.pr_fed) & (pt <= t_end))
+            take = np.flatnonzero((pt > self.pr_fed) & (pt <= float(rows[-1, 0])))
             prs = p[int(take[0]):int(take[-1]) + 1] if len(take) else np.zeros((0, 5))
-        if self.filter is None:
-            setup = flt._setup(rows[:0], fixes[:0], self.cfg, self.mode, [],
-                               (dec.gps.iono.alpha, dec.gps.iono.beta) if dec.gps.iono else None,
-                               self.week * measurements.SECONDS_PER_WEEK)
-            self.filter, self.scale_factors = setup.core_filter, setup.scale_factors
-        if self.mode == "tight":
-            for e in dec.gps.decoded_ephemerides():
-                key = (e.prn, e.week, e.iode, e.toe_s)
-                if key not in self.ephemerides_seen:
-                    self.ephemerides_seen.add(key)
-                    self.filter.add_ephemeris(e)
-        out = self.filter.run(rows, np.ascontiguousarray(fx), prs, 1, True, False, 256.0, False, self.n_imu,
-                              self.n_fix, self.n_pr, None, 0)
-        self.n_imu, self.n_fix = self.n_imu + len(rows), self.n_fix + len(fx)
-        self.t_fed = t_end
-        if len(fx):
-            self.fix_fed = float(fx[-1, 0])
-        if prs is not None and len(prs):
-            self.n_pr += len(prs)
-            self.pr_fed = float(prs[-1, 0])
-        self.counters = out["counters"]
-        sol = flt.Solution.from_batch(out, self.mode, self.scale_factors)
-        return sol if len(sol.t) else None
+        iono = (dec.gps.iono.alpha, dec.gps.iono.beta) if dec.gps.iono else None
+        return self._feed(rows, dec.gps.fixes, prs, iono, dec.gps.decoded_ephemerides() if self.mode == "tight"
+                          else [])
+
+
+class _Sidecar:
+    """Whether the logger marked the session stopped, the sidecar read again only when it changed."""
+
+    def __init__(self, session: Path):
+        self.path, self._key, self.stopped = session / "session.json", None, False
+
+    def __call__(self) -> bool:
+        try:
+            st = self.path.stat()
+        except OSError:
+            return False
+        key = (st.st_mtime_ns, st.st_size, st.st_ino)
+        if key != self._key:
+            self._key, self.stopped = key, session_finished(self.path.parent)
+        return self.stopped
 
 
 def session_finished(session: Path) -> bool:
@@ -187,12 +395,14 @@ def session_finished(session: Path) -> bool:
 
 
 def run(session: str | Path, out: str | Path, *, mode: str = "loose", config=None, overrides=None,
-        nmea_port: int | None = None, nmea_every: int = 1, http_port: int | None = None, interval_s: float = 1.0,
+        nmea_port: int | None = None, nmea_every: int = 1, http_port: int | None = None, interval_s: float = POLL_S,
         gps_latency_s: float = 0.0, imu_latency_s: float = 0.0, hold_s: float = 0.0, until_finished: bool = True,
         max_s: float | None = None, on_round=None, on_start=None, stop_when=None) -> dict:
     """Follow the session until the logger stops it (or ``max_s``, or ``stop_when()`` is true: a newer
     session under a root); returns the last status. ``on_start`` gets {"nmea_port", "http_port"} once
     they listen; ``on_round`` each round's status."""
+    from scipy.stats import chi2  # noqa: F401 (the status's NIS bands: imported now, not in the first round)
+
     session, out = Path(session), Path(out)
     if out.resolve() == session.resolve() or session.resolve() in out.resolve().parents:
         raise ValueError(f"{out}: live never writes into the session directory; give another --out")
@@ -209,16 +419,18 @@ def run(session: str | Path, out: str | Path, *, mode: str = "loose", config=Non
         on_start({"nmea_port": server.port if server else None, "http_port": page.port if page else None})
     pos = None
     status: dict = {}
-    t0 = time.monotonic()
+    t0 = next_stop_check = time.monotonic()
     try:
         with open(out / "status.jsonl", "w", encoding="utf-8") as status_file, open(out / "live.f64", "wb") as table:
             while True:
-                finished = until_finished and session_finished(session)
+                finished = until_finished and fol.finished()
                 sol = fol.poll(final=finished)
                 if sol is not None:
+                    a = solution.epoch_arrays(sol)
+                    if server is not None:  # first: what a client waits for
+                        _send_nmea(server, fol, sol, a, nmea_every)
                     if pos is None:
                         pos = solution.PosWriter(out / "live.pos", fol.week, f"gpsins live, mode {mode}, IMU point")
-                    a = solution.epoch_arrays(sol)
                     pos.add(sol.t, a["llh"], a["sigma_ned_m"], np.zeros(len(sol.t), int))
                     pos.flush()
                     table.write(np.column_stack([sol.t, sol.r_ecef, sol.v_ecef, sol.q_eb, a["sigma_ned_m"]])
@@ -227,18 +439,20 @@ def run(session: str | Path, out: str | Path, *, mode: str = "loose", config=Non
                     status = json.loads(results.json_text(_status(fol, sol, a), indent=None))
                     status_file.write(json.dumps(status) + "\n")
                     status_file.flush()
-                    if server is not None:
-                        _send_nmea(server, fol, sol, a, nmea_every)
                     if page is not None:
                         page.update(status, sol.r_ecef, evaluate.c_en(a["llh"][:1, 0], a["llh"][:1, 1])[0].T)
                     if on_round is not None:
                         on_round(status)
                 elif finished:
                     break
+                if fol.fed:
+                    fol.maintain()  # right after feeding a fix: the next one is the furthest away
                 if max_s is not None and time.monotonic() - t0 > max_s:
                     break
-                if stop_when is not None and stop_when():
-                    break
+                if stop_when is not None and time.monotonic() >= next_stop_check:
+                    next_stop_check = time.monotonic() + STOP_CHECK_S
+                    if stop_when():
+                        break
                 if not finished:
                     time.sleep(interval_s)
     finally:
@@ -265,7 +479,7 @@ def newest_session(root: Path) -> Path | None:
     return best
 
 
-def run_root(root: str | Path, out: str | Path, *, max_s: float | None = None, interval_s: float = 1.0,
+def run_root(root: str | Path, out: str | Path, *, max_s: float | None = None, interval_s: float = POLL_S,
              **options) -> list[Path]:
     """Follow the newest session under ``root``, and the next when the logger starts one (a restart):
     each into ``out/SESSION_NAME``. Until ``max_s`` (None: until stopped). Returns the sessions followed."""
@@ -275,7 +489,7 @@ def run_root(root: str | Path, out: str | Path, *, max_s: float | None = None, i
     while max_s is None or time.monotonic() - t0 < max_s:
         current = newest_session(root)
         if current is None or current in done:
-            time.sleep(interval_s)
+            time.sleep(max(interval_s, STOP_CHECK_S / 4))  # the root's sidecars read at most 4 times a second
             continue
         done.append(current)
         left = None if max_s is None else max(0.0, max_s - (time.monotonic() - t0))

@@ -22,6 +22,7 @@ that cannot be read at all raises :class:`LogError`.
 from __future__ import annotations
 
 import json
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterator
@@ -544,6 +545,70 @@ def _stream(f, layout: Layout, limits: StampLimits, columns, block_bytes: int) -
         buf = buf[:len(carry) + got]
         u = chain.block(buf, base, final=False)
         carry, base = buf[u:].copy(), base + u
+
+
+class RecordTail:
+    """The records a growing record file gains, as the block reader (:func:`read_record_file`) finds
+    them: ``read()`` reads the bytes added since the last call and returns the records they complete
+    (decided exactly as :func:`scan_stream` decides them, a record across a read's end waiting for its
+    last bytes). The whole-file neighbour test of the stamps (:func:`reject_bad_stamps`) is made on
+    the new records against the last few before them: a record at the end is judged on the side it
+    has (as the whole-file test judges a file's last record). ``gpsins live`` follows a session with it."""
+
+    CONTEXT = 16  # stamps before the new records that the neighbour test sees
+
+    def __init__(self, path: str | Path, device: str, limits: StampLimits | None = None):
+        self.path, self.layout = Path(path), LAYOUTS[device]
+        self.limits = limits or StampLimits()
+        self._chain = _Chain(self.layout, self.limits, self)
+        self._carry, self._base = np.zeros(0, np.uint8), 0
+        self._new: list[tuple] = []
+        self._context = np.zeros(0)
+        self.records = self.bad_stamps = 0
+
+    def add(self, buf: np.ndarray, p: np.ndarray, length: np.ndarray, base: int) -> None:  # the chain's columns
+        self._new.append((p + base, np.asarray(length, np.int64), _stamps_at(buf, p, self.layout),
+                          _frame_bytes(buf, p, length, self.layout)))
+
+    @property
+    def size(self) -> int:
+        """File bytes read so far."""
+        return self._base + len(self._carry)
+
+    def read(self, limits: StampLimits | None = None) -> Scan:
+        """The records completed since the last call (an empty Scan when none); ``limits``: the
+        session's span as it stands now (it grows with the clock pairs)."""
+        if limits is not None:
+            self.limits = limits
+            self._chain.lo, self._chain.hi = limits.lo, limits.hi
+        data = b""
+        try:
+            if os.stat(self.path).st_size > self.size:  # a stat when nothing came: cheap to poll often
+                with open(self.path, "rb", buffering=0) as f:
+                    f.seek(self.size)
+                    data = f.read()
+        except OSError:
+            pass  # not there yet (the sidecar lists a part before its files exist)
+        if data:
+            buf = np.concatenate([self._carry, np.frombuffer(data, np.uint8)])
+            u = self._chain.block(buf, self._base, final=False)
+            self._carry, self._base = buf[u:].copy(), self._base + u
+        new, self._new = self._new, []
+        lay = self.layout
+        if not new:
+            return Scan(str(self.path), lay, np.zeros(0, np.int64), np.zeros(0, np.int32), np.zeros(0),
+                        np.zeros(0, np.uint8))
+        starts, lengths, stamps, frames = (np.concatenate([x[j] for x in new]) for j in range(4))
+        out = Scan(str(self.path), lay, starts, lengths.astype(np.int32), stamps, frames)
+        if lay.stamped and out.count:
+            ctx = self._context
+            bad = stamp_outliers(np.concatenate([ctx, out.stamps]), self.limits)[len(ctx):]
+            if bad.any():
+                self.bad_stamps += int(bad.sum())
+                out.keep(~bad)
+            self._context = np.concatenate([ctx, out.stamps])[-self.CONTEXT:]
+        self.records += out.count
+        return out
 
 
 def _file_size(f) -> int:
