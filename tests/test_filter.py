@@ -309,3 +309,18 @@ def test_gyro_noise_model_covers_the_simulated_bias_instability():
     ratio = (model / np.sqrt(avar))[sel]
     print("model / simulated gyro ADEV at", r.tau[sel], np.round(ratio, 2))
     assert ratio.min() >= 0.9, ratio
+
+
+def test_counters_and_kinds_are_named_from_the_cores_one_list(default_run):
+    """The core lists its update kinds, events and counters once (filter_names.hpp); a run's counters are
+    exactly those, and every update and event it records is a named kind, named as Python shows it."""
+    from gpsins import _core
+
+    _, sol = default_run
+    assert list(sol.counters) == [*_core.COUNTER_NAMES, "diverged"]
+    assert len(set(_core.COUNTER_NAMES)) == len(_core.COUNTER_NAMES)
+    kinds = set(np.unique(sol.updates["kind"]).tolist())
+    assert kinds and kinds <= set(_core.UPDATE_KINDS) and flt.UPDATE_KINDS == _core.UPDATE_KINDS
+    # The names run.json and the report show for the kinds this drive uses.
+    assert {flt.UPDATE_KINDS[k] for k in kinds} >= {"fix_3d", "zero_velocity", "zero_rate"}
+    assert flt.EVENT_KINDS[2] == "gnss_reset" and set(flt.EVENT_KINDS) == {1, 2, 3, 4, 5}

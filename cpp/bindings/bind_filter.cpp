@@ -105,40 +105,9 @@ Array table(py::handle obj, int cols, const char* name, int alt_cols = -1) {
 
 py::dict counters_dict(const Counters& c) {
   py::dict d;
-  d["imu_samples"] = c.imu_samples;
-  d["imu_gaps_bridged"] = c.imu_gaps_bridged;
-  d["imu_gap_restarts"] = c.imu_gap_restarts;
-  d["imu_samples_rejected"] = c.imu_samples_rejected;
-  d["gnss_resets"] = c.gnss_resets;
-  d["updates_attitude_refused"] = c.updates_attitude_refused;
-  d["fixes"] = c.fixes;
-  d["fixes_accepted"] = c.fixes_accepted;
-  d["fixes_rejected"] = c.fixes_rejected;
-  d["fixes_implausible"] = c.fixes_implausible;
-  d["fixes_dop_masked"] = c.fixes_dop_masked;
-  d["fixes_without_solution"] = c.fixes_without_solution;
-  d["fixes_before_alignment"] = c.fixes_before_alignment;
-  d["fixes_late"] = c.fixes_late;
-  d["fixes_in_imu_gap"] = c.fixes_in_imu_gap;
-  d["zero_velocity_updates"] = c.zero_velocity_updates;
-  d["zero_rate_updates"] = c.zero_rate_updates;
-  d["nonholonomic_updates"] = c.nonholonomic_updates;
-  d["baseline_attitude_updates"] = c.baseline_attitude_updates;
-  d["updates_rejected"] = c.updates_rejected;
-  d["updates_guarded"] = c.updates_guarded;
-  d["updates_downweighted"] = c.updates_downweighted;
-  d["standstill_samples"] = c.standstill_samples;
-  d["pseudorange_epochs"] = c.pseudorange_epochs;
-  d["pseudoranges_used"] = c.pseudoranges_used;
-  d["pseudoranges_rejected"] = c.pseudoranges_rejected;
-  d["pseudoranges_no_ephemeris"] = c.pseudoranges_no_ephemeris;
-  d["pseudoranges_masked"] = c.pseudoranges_masked;
-  d["range_rates_used"] = c.range_rates_used;
-  d["range_rates_rejected"] = c.range_rates_rejected;
-  d["clock_reseeds"] = c.clock_reseeds;
-  d["sis_slots_taken"] = c.sis_slots_taken;
-  d["sis_slots_restarted"] = c.sis_slots_restarted;
-  d["pseudoranges_without_sis_slot"] = c.pseudoranges_without_sis_slot;
+#define GPSINS_COUNTER_ITEM(name) d[#name] = c.name;
+  GPSINS_COUNTERS(GPSINS_COUNTER_ITEM)
+#undef GPSINS_COUNTER_ITEM
   d["diverged"] = c.diverged;
   return d;
 }
@@ -593,6 +562,23 @@ class PyFilter {
 void bind_filter(py::module_& m) {
   // The tight filter's signal-in-space slots: its output rows carry them before the clock.
   m.attr("SIS_SLOTS") = kSisSlots;
+  // The shared names (filter_names.hpp): update and event kinds by value, the counters in order.
+  py::dict update_kinds, event_kinds;
+#define GPSINS_KIND_ITEM(dict_, enumerator, value, name) dict_[py::int_(value)] = name;
+#define GPSINS_UPDATE_ITEM(enumerator, value, name) GPSINS_KIND_ITEM(update_kinds, enumerator, value, name)
+#define GPSINS_EVENT_ITEM(enumerator, value, name) GPSINS_KIND_ITEM(event_kinds, enumerator, value, name)
+  GPSINS_UPDATE_KINDS(GPSINS_UPDATE_ITEM)
+  GPSINS_EVENT_KINDS(GPSINS_EVENT_ITEM)
+#undef GPSINS_EVENT_ITEM
+#undef GPSINS_UPDATE_ITEM
+#undef GPSINS_KIND_ITEM
+  m.attr("UPDATE_KINDS") = update_kinds;
+  m.attr("EVENT_KINDS") = event_kinds;
+  py::list counter_names;
+#define GPSINS_COUNTER_NAME(name) counter_names.append(#name);
+  GPSINS_COUNTERS(GPSINS_COUNTER_NAME)
+#undef GPSINS_COUNTER_NAME
+  m.attr("COUNTER_NAMES") = py::tuple(counter_names);
   py::enum_<BiasModel>(m, "BiasModel")
       .value("random_walk", BiasModel::RandomWalk)
       .value("gauss_markov", BiasModel::GaussMarkov)

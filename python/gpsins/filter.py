@@ -17,10 +17,9 @@ from .filter_config import (PRESETS, UPDATE_CHECKS, ConfigError, _merge, _vec3, 
                             core_config, describe_keys, flicker_white_var, load_config, parse_overrides, to_toml,
                             value)
 
-EVENT_KINDS = {1: "imu_gap_restart", 2: "gnss_reset", 3: "imu_sample_rejected", 4: "heading_set",
-               5: "clock_reseed"}
-UPDATE_KINDS = {1: "fix_3d", 2: "fix_2d", 3: "fix_velocity", 4: "zero_velocity", 5: "zero_rate", 6: "pseudorange",
-                7: "nonholonomic", 8: "baseline_attitude", 9: "range_rate"}
+# The core's names of its event and update kinds (one list, cpp/include/gpsins/filter_names.hpp).
+EVENT_KINDS = dict(_core.EVENT_KINDS)
+UPDATE_KINDS = dict(_core.UPDATE_KINDS)
 
 
 @dataclass

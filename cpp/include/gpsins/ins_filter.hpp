@@ -15,6 +15,7 @@
 
 #include "gpsins/aiding/measurement.hpp"
 #include "gpsins/eskf.hpp"
+#include "gpsins/filter_names.hpp"
 #include "gpsins/gnss/ephemeris.hpp"
 #include "gpsins/gnss/models.hpp"
 #include "gpsins/ins_config.hpp"
@@ -82,17 +83,9 @@ struct AttitudeInput {
   double sigma_pitch_rad = 0.0;
 };
 
-enum UpdateKind : int {
-  kFix3D = 1,
-  kFix2D = 2,
-  kFixVelocity = 3,
-  kZeroVelocity = 4,
-  kZeroRate = 5,
-  kPseudorange = 6,
-  kNonholonomic = 7,
-  kBaselineAttitude = 8,
-  kRangeRate = 9,
-};
+// Enumerators from the shared lists (filter_names.hpp).
+#define GPSINS_ENUMERATOR(enumerator, value, name) enumerator = value,
+enum UpdateKind : int { GPSINS_UPDATE_KINDS(GPSINS_ENUMERATOR) };
 
 struct UpdateRecord {
   double t_s = 0.0;
@@ -110,13 +103,8 @@ struct UpdateRecord {
 };
 
 // What the filter did besides its regular updates (batch runs log them).
-enum EventKind : int {
-  kImuGapRestart = 1,     // value: the gap (s)
-  kGnssReset = 2,         // value: how long GNSS had been rejected (s)
-  kImuSampleRejected = 3, // value: the sample's largest rate or specific force over its range
-  kHeadingSet = 4,        // value: the heading (rad)
-  kClockReseed = 5,       // value: the receiver clock's jump from its prediction (m)
-};
+enum EventKind : int { GPSINS_EVENT_KINDS(GPSINS_ENUMERATOR) };
+#undef GPSINS_ENUMERATOR
 
 struct FilterEvent {
   double t_s = 0.0;
@@ -125,43 +113,9 @@ struct FilterEvent {
 };
 
 struct Counters {
-  std::int64_t imu_samples = 0;
-  std::int64_t imu_gaps_bridged = 0;
-  std::int64_t imu_gap_restarts = 0;      // gaps over max_gap_s: navigation restarted
-  std::int64_t imu_samples_rejected = 0;  // beyond the sensor's range, replaced like a lost frame
-  std::int64_t gnss_resets = 0;           // position and velocity reset to GNSS after sustained rejections
-  std::int64_t updates_attitude_refused = 0;  // the attitude-correction check refused the update
-  std::int64_t fixes = 0;
-  std::int64_t fixes_accepted = 0;
-  std::int64_t fixes_rejected = 0;
-  std::int64_t fixes_implausible = 0;  // not used: a height outside [fix_min_height_m, fix_max_height_m]
-  std::int64_t fixes_dop_masked = 0;  // not used: a DOP beyond fix_max_dop (a receiver's 99.9 says only "at least")
-  std::int64_t fixes_without_solution = 0;
-  std::int64_t fixes_before_alignment = 0;
-  std::int64_t fixes_late = 0;
-  std::int64_t fixes_in_imu_gap = 0;  // not used: queued beyond max_gap_s ahead of the IMU (a gap restarts anyway)
-  std::int64_t zero_velocity_updates = 0;
-  std::int64_t zero_rate_updates = 0;
-  std::int64_t nonholonomic_updates = 0;
-  std::int64_t baseline_attitude_updates = 0;  // dual-antenna heading/pitch used (accepted or not)
-  std::int64_t updates_rejected = 0;
-  std::int64_t updates_guarded = 0;
-  std::int64_t updates_downweighted = 0;  // beyond the gate, used with a scaled R (robust_after_rejections)
-  std::int64_t standstill_samples = 0;
-  std::int64_t pseudorange_epochs = 0;
-  std::int64_t pseudoranges_used = 0;
-  std::int64_t pseudoranges_rejected = 0;
-  std::int64_t pseudoranges_no_ephemeris = 0;
-  std::int64_t pseudoranges_masked = 0;  // elevation, C/N0 or settling after (re)acquisition
-  std::int64_t range_rates_used = 0;
-  std::int64_t range_rates_rejected = 0;
-  std::int64_t clock_reseeds = 0;  // receiver clock bias (and drift) re-seeded from an epoch's residuals
-  // Signal-in-space slots (pseudorange_sis_states): taken by a satellite without one,
-  // restarted by a new ephemeris issue, and pseudoranges that found none free (with
-  // tau <= 0 those are not used: see InsConfig::pseudorange_sis_states).
-  std::int64_t sis_slots_taken = 0;
-  std::int64_t sis_slots_restarted = 0;
-  std::int64_t pseudoranges_without_sis_slot = 0;
+#define GPSINS_COUNTER_FIELD(name) std::int64_t name = 0;
+  GPSINS_COUNTERS(GPSINS_COUNTER_FIELD)
+#undef GPSINS_COUNTER_FIELD
   // Set when the filter stopped explaining its measurements (sustained GNSS
   // rejection) or its covariance or state became invalid; stays set.
   bool diverged = false;
