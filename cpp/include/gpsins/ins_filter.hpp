@@ -16,9 +16,11 @@
 #include "gpsins/aiding/measurement.hpp"
 #include "gpsins/eskf.hpp"
 #include "gpsins/filter_names.hpp"
+#include "gpsins/fixed_queue.hpp"
 #include "gpsins/gnss/ephemeris.hpp"
 #include "gpsins/gnss/models.hpp"
 #include "gpsins/ins_config.hpp"
+#include "gpsins/sis_slots.hpp"
 #include "gpsins/standstill.hpp"
 
 namespace gpsins {
@@ -32,15 +34,20 @@ enum class InputStatus : int {
 };
 const char* input_status_text(InputStatus s);
 
-// One receiver fix. mode: 2 = 3D, 3 = 2D (horizontal used), anything else = no
-// solution (counted). Velocity may be NaN when the receiver gave none.
+// FixInput::mode: a 3D fix, or a 2D fix (its height the receiver's assumption: the
+// horizontal is used); anything else is no solution (counted).
+inline constexpr int kFixMode3D = 2;
+inline constexpr int kFixMode2D = 3;
+
+// One receiver fix (mode: kFixMode3D, kFixMode2D or no solution). Velocity may be
+// NaN when the receiver gave none.
 struct FixInput {
   double t_s = 0.0;
   Vec3 r_ecef_m = Vec3::Zero();
   Vec3 v_ecef_mps = Vec3::Constant(std::numeric_limits<double>::quiet_NaN());
   double hdop = 1.0;
   double vdop = 1.0;
-  int mode = 2;
+  int mode = kFixMode3D;
   // The receiver's stated sigmas, north, east, down; an axis NaN or <= 0 falls
   // back to fix_uere_m x DOP (position) or fix_velocity_sigma_mps (velocity).
   Vec3 sigma_ned_m = Vec3::Constant(std::numeric_limits<double>::quiet_NaN());
@@ -181,10 +188,7 @@ class InsFilter {
   // Slots for an epoch's ranges, the highest satellites first, and each range's variance.
   void assign_sis(PrUse* use, int n, const PseudorangeEpoch& ep);
   void restart_sis_slot(int slot, double var_m2);
-  std::array<int, kSisSlots> sis_prn_, sis_iode_;
-  std::array<double, kSisSlots> sis_used_t_;
-  double sis_epoch_t_ = -std::numeric_limits<double>::infinity();       // the ranged epoch slots are for
-  double sis_prev_epoch_t_ = -std::numeric_limits<double>::infinity();  // and the one before it
+  SisSlots<kSisSlots> sis_slots_;
   void check_clock(const PrUse* use, int n, double t);
   bool update_galileo(const PrUse* use, int n, const Vec3& v_a, double t);
   bool update_range_rates(const PrUse* use, int n);
@@ -282,11 +286,10 @@ class InsFilter {
   bool rejecting_ = false;
   bool epoch_accepted_ = false;
 
-  std::array<FixInput, kPending> pending_{};
-  int pending_count_ = 0;
+  // Inputs held until the IMU reaches their time (the oldest is used at once when one is full).
+  FixedQueue<FixInput, kPending> pending_;
   static constexpr int kPendingPr = 4;
-  std::array<PseudorangeEpoch, kPendingPr> pending_pr_{};
-  int pending_pr_count_ = 0;
+  FixedQueue<PseudorangeEpoch, kPendingPr> pending_pr_;
   double last_pr_t_ = -1e300;
   gnss::EphemerisStore store_;
   gnss::Klobuchar iono_;
@@ -303,8 +306,7 @@ class InsFilter {
   bool have_prev_fix_ = false;
   FixInput prev_fix_;
   Mat3 c_vb_ = Mat3::Identity();
-  std::array<AttitudeInput, kPending> pending_att_{};
-  int pending_att_count_ = 0;
+  FixedQueue<AttitudeInput, kPending> pending_att_;
   double last_att_t_ = -1e300;
   double last_nhc_t_ = -1e300;
   double zupt_refused_t_ = -1e300;  // the last zero-velocity update the gate refused

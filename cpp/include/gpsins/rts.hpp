@@ -289,44 +289,7 @@ class EskfRecorder final : public EskfObserver<3 * NB + NC + NT> {
 
   // Backward pass: emit(index, row of the smoothed nominal in the layout above
   // (flags last), smoothed covariance), newest first.
-  void smooth(const std::function<void(long, const double*, const MatN&)>& emit) {
-    flush_phi();
-    std::array<double, kNominal> row{};
-    Pass::run(tape_, outputs_, [&](long k, const double* nom, int, const typename Pass::VecN& dx, const MatN& ps) {
-      std::copy(nom, nom + kNominal, row.begin());
-      Quat q(nom[7], nom[8], nom[9], nom[10]);
-      Vec3 dth = dx.template segment<3>(es::att);
-      MatN p = ps;
-      // Before the first heading the error about the vertical is no estimate: the forward pass keeps it
-      // unknown (sigma pi) and uncorrelated. Its smoothed value is left out of the injection, and its
-      // variance out of the reset below, which would otherwise turn some of pi^2 into the tilt (the
-      // smoothed tilt sigma came out up to 1.4x the forward's); it is put back about the vertical after.
-      const bool heading_unknown = (static_cast<int>(nom[kNominal - 1]) & 2) == 0;
-      Vec3 up_b = Vec3::Zero();
-      double yaw_var = 0.0;
-      if (heading_unknown) {
-        up_b = q.conjugate() * Vec3(nom[1], nom[2], nom[3]).normalized();
-        yaw_var = up_b.dot(ps.template block<3, 3>(es::att, es::att) * up_b);
-        const Mat3 keep = Mat3::Identity() - up_b * up_b.transpose();
-        dth = keep * dth;
-        p.template topRows<3>() = (keep * p.template topRows<3>()).eval();
-        p.template leftCols<3>() = (p.template leftCols<3>() * keep).eval();
-      }
-      q = (q * quat_from_rotvec(dth)).normalized();
-      for (int i = 0; i < 3; ++i) {
-        row[static_cast<std::size_t>(1 + i)] += dx(es::pos + i);
-        row[static_cast<std::size_t>(4 + i)] += dx(es::vel + i);
-      }
-      row[7] = q.w(); row[8] = q.x(); row[9] = q.y(); row[10] = q.z();
-      for (int i = 0; i < 3 * (NB - 3) + NC + NT; ++i) row[static_cast<std::size_t>(11 + i)] += dx(es::bg + i);
-      // The smoothed covariance in the error definition of the smoothed nominal.
-      const Mat3 g = Mat3::Identity() - skew(0.5 * dth);
-      p.template topRows<3>() = (g * p.template topRows<3>()).eval();
-      p.template leftCols<3>() = (p.template leftCols<3>() * g.transpose()).eval();
-      if (heading_unknown) p.template block<3, 3>(es::att, es::att) += yaw_var * up_b * up_b.transpose();
-      emit(k, row.data(), p);
-    });
-  }
+  void smooth(const std::function<void(long, const double*, const MatN&)>& emit);
 
   long outputs() const { return outputs_; }
   const SmootherTape& tape() const { return tape_; }
@@ -342,5 +305,61 @@ class EskfRecorder final : public EskfObserver<3 * NB + NC + NT> {
   bool have_phi_ = false;
   long outputs_ = 0;
 };
+
+// Defined out of the class so that the extern declarations below keep it (the backward
+// pass, the heaviest code here) out of the files that use a recorder: compiled once, in
+// rts_recorders*.cpp, for the filters the core builds.
+template <int NB, int NC, int NT>
+void EskfRecorder<NB, NC, NT>::smooth(const std::function<void(long, const double*, const MatN&)>& emit) {
+  flush_phi();
+  std::array<double, kNominal> row{};
+  Pass::run(tape_, outputs_, [&](long k, const double* nom, int, const typename Pass::VecN& dx, const MatN& ps) {
+    std::copy(nom, nom + kNominal, row.begin());
+    Quat q(nom[7], nom[8], nom[9], nom[10]);
+    Vec3 dth = dx.template segment<3>(es::att);
+    MatN p = ps;
+    // Before the first heading the error about the vertical is no estimate: the forward pass keeps it
+    // unknown (sigma pi) and uncorrelated. Its smoothed value is left out of the injection, and its
+    // variance out of the reset below, which would otherwise turn some of pi^2 into the tilt (the
+    // smoothed tilt sigma came out up to 1.4x the forward's); it is put back about the vertical after.
+    const bool heading_unknown = (static_cast<int>(nom[kNominal - 1]) & 2) == 0;
+    Vec3 up_b = Vec3::Zero();
+    double yaw_var = 0.0;
+    if (heading_unknown) {
+      up_b = q.conjugate() * Vec3(nom[1], nom[2], nom[3]).normalized();
+      yaw_var = up_b.dot(ps.template block<3, 3>(es::att, es::att) * up_b);
+      const Mat3 keep = Mat3::Identity() - up_b * up_b.transpose();
+      dth = keep * dth;
+      p.template topRows<3>() = (keep * p.template topRows<3>()).eval();
+      p.template leftCols<3>() = (p.template leftCols<3>() * keep).eval();
+    }
+    q = (q * quat_from_rotvec(dth)).normalized();
+    for (int i = 0; i < 3; ++i) {
+      row[static_cast<std::size_t>(1 + i)] += dx(es::pos + i);
+      row[static_cast<std::size_t>(4 + i)] += dx(es::vel + i);
+    }
+    row[7] = q.w(); row[8] = q.x(); row[9] = q.y(); row[10] = q.z();
+    for (int i = 0; i < 3 * (NB - 3) + NC + NT; ++i) row[static_cast<std::size_t>(11 + i)] += dx(es::bg + i);
+    // The smoothed covariance in the error definition of the smoothed nominal.
+    const Mat3 g = Mat3::Identity() - skew(0.5 * dth);
+    p.template topRows<3>() = (g * p.template topRows<3>()).eval();
+    p.template leftCols<3>() = (p.template leftCols<3>() * g.transpose()).eval();
+    if (heading_unknown) p.template block<3, 3>(es::att, es::att) += yaw_var * up_b * up_b.transpose();
+    emit(k, row.data(), p);
+  });
+}
+
+extern template class EskfRecorder<5, 0>;
+extern template class EskfRecorder<7, 0>;
+extern template class EskfRecorder<5, kTightAugmented>;
+extern template class EskfRecorder<7, kTightAugmented>;
+extern template class EskfRecorder<5, 3>;
+extern template class EskfRecorder<7, 3>;
+extern template class EskfRecorder<5, 0, 1>;
+extern template class EskfRecorder<7, 0, 1>;
+extern template class EskfRecorder<5, kTightAugmented, 1>;
+extern template class EskfRecorder<7, kTightAugmented, 1>;
+extern template class EskfRecorder<5, 3, 1>;
+extern template class EskfRecorder<7, 3, 1>;
 
 }  // namespace gpsins

@@ -1,0 +1,11 @@
+// Eskf's measurement updates (1, 2 and 3 rows) for the loose filters without augmented states,
+// with and without the scale-factor states: one of six files, so that the twelve
+// state layouts' updates build in parallel (eskf.hpp).
+#include "gpsins/eskf.hpp"
+
+namespace gpsins {
+
+GPSINS_ESKF_UPDATES(5, 0, 0)
+GPSINS_ESKF_UPDATES(7, 0, 0)
+
+}  // namespace gpsins

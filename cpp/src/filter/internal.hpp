@@ -1,0 +1,87 @@
+// What the files of InsFilter's member definitions share (cpp/src/filter/, one
+// file per concern): small helpers, the list of the filter variants the core
+// builds, and the member templates every update goes through (apply, record),
+// which each file instantiates for the measurements it makes.
+//
+// Each file defines its members and explicitly instantiates them for every
+// variant (GPSINS_FOR_EACH_FILTER), so the twelve variants' code is compiled
+// once, spread over translation units that build in parallel; ins_filter.hpp's
+// extern declarations keep every other file from instantiating them again.
+#pragma once
+
+#include <cstddef>
+#include <limits>
+
+#include "gpsins/ins_filter.hpp"
+
+// X(NB, NC, NT) for each filter the core builds: 5 or 7 IMU error blocks
+// (scale factors), no augmented states, the tight filter's (signal-in-space
+// slots and clock) or the loose filter's fix error, without and with the IMU
+// time offset. The bindings' AnyFilter holds the same twelve.
+#define GPSINS_FOR_EACH_FILTER(X)                                                                 \
+  X(5, 0, 0) X(7, 0, 0) X(5, kTightAugmented, 0) X(7, kTightAugmented, 0) X(5, 3, 0) X(7, 3, 0) \
+  X(5, 0, 1) X(7, 0, 1) X(5, kTightAugmented, 1) X(7, kTightAugmented, 1) X(5, 3, 1) X(7, 3, 1)
+
+namespace gpsins {
+namespace filter_detail {
+
+inline Vec3 square(const Vec3& v) { return v.cwiseProduct(v); }
+
+}  // namespace filter_detail
+
+// Every update's bookkeeping: its record (the update log, last_update), the counters, and
+// while the heading is unknown the yaw kept out of what the update taught the other states.
+template <int NB, int NC, int NT>
+template <int M>
+void InsFilter<NB, NC, NT>::record(int kind, const UpdateResult<M>& r, int dof, int id) {
+  UpdateRecord u;
+  u.t_s = core_.nav.t_s;
+  u.kind = kind;
+  u.id = id;
+  u.dof = dof;
+  u.nis = r.nis;
+  u.gate = gate(dof);
+  u.log_det_s = r.log_det_s;
+  u.r_scale = r.r_scale;
+  u.accepted = r.accepted;
+  u.guarded = r.guarded;
+  u.innovation.fill(std::numeric_limits<double>::quiet_NaN());
+  u.innovation_sigma.fill(std::numeric_limits<double>::quiet_NaN());
+  for (int i = 0; i < M && i < 3; ++i) {
+    u.innovation[static_cast<std::size_t>(i)] = r.innovation(i);
+    u.innovation_sigma[static_cast<std::size_t>(i)] = r.innovation_sigma(i);
+  }
+  if (!heading_known_ && initialised_) decouple_yaw();
+  if (!r.accepted) ++counters_.updates_rejected;
+  if (r.guarded) ++counters_.updates_guarded;
+  if (r.attitude_refused) ++counters_.updates_attitude_refused;
+  last_update_ = u;
+  if (log_) log_->push_back(u);
+}
+
+// The core's gated update; with robust_after_rejections, a run of rejections of one kind
+// lets the next be used down-weighted.
+template <int NB, int NC, int NT>
+template <int M, int K>
+UpdateResult<M> InsFilter<NB, NC, NT>::apply(const Measurement<M, K>& m, int dof, int robust_kind) {
+  const auto r = core_.update(m.y, m.H, m.R, gate(dof), attitude_limit());
+  if (robust_kind <= 0 || cfg_.robust_after_rejections <= 0) return r;
+  int& in_row = rejections_in_row_[static_cast<std::size_t>(robust_kind)];
+  const bool beyond_gate = !r.accepted && !r.guarded && !r.attitude_refused;
+  if (!beyond_gate) {
+    if (r.accepted) in_row = 0;
+    return r;
+  }
+  if (++in_row <= cfg_.robust_after_rejections) return r;
+  // A run of rejections says the filter, not this measurement, is off: use it with R
+  // scaled so that its NIS would sit at the gate were the prediction exact.
+  const double scale = r.nis / gate(dof);
+  auto used = core_.update(m.y, m.H, (m.R * scale).eval(), 0.0, attitude_limit());
+  used.nis = r.nis;  // the measurement's consistency, as the unscaled model saw it
+  used.log_det_s = r.log_det_s;
+  used.r_scale = scale;
+  if (used.accepted) ++counters_.updates_downweighted;
+  return used;
+}
+
+}  // namespace gpsins
