@@ -21,7 +21,6 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import chi2
 
 from .. import _core
 
@@ -48,18 +47,44 @@ def cluster_sizes(n_phase: int, spec: str | int = 10) -> np.ndarray:
     return m[(m >= 1) & (m <= m_max)]
 
 
-def phase_from_rate(y: np.ndarray, tau0: float) -> np.ndarray:
+def phase_from_rate(y: np.ndarray, tau0: float, out: np.ndarray | None = None) -> np.ndarray:
+    """x = tau0 * cumsum(y - mean) after a leading 0, N + 1 points. ``out`` (N + 1 float64, contiguous)
+    receives it; ``out[1:]`` may be y itself, which is then overwritten (no copy of the record is made)."""
     y = np.asarray(y, dtype=float)
-    return np.concatenate([[0.0], np.cumsum((y - y.mean()) * tau0)])
+    x = np.empty(len(y) + 1) if out is None else out
+    mean = y.mean()
+    # The same operations as tau0 * cumsum(y - mean), element by element, without full-size temporaries.
+    for a in range(0, len(y), _CHUNK):
+        b = min(len(y), a + _CHUNK)
+        np.subtract(y[a:b], mean, out=x[a + 1:b + 1])
+        np.multiply(x[a + 1:b + 1], tau0, out=x[a + 1:b + 1])
+    x[0] = 0.0
+    # In place: accumulate reads y[i] before it writes x[i] (checked: identical to np.cumsum's copy).
+    np.add.accumulate(x[1:], out=x[1:])
+    return x
 
 
-def oavar_phase(x: np.ndarray, tau0: float, m: np.ndarray) -> np.ndarray:
-    """Overlapping Allan variance of a phase series at cluster sizes m."""
+_CHUNK = 1 << 20  # elements per piece of the element-wise passes: temporaries that stay in cache
+
+
+def oavar_phase(x: np.ndarray, tau0: float, m: np.ndarray, workers: int = 1, while_running=None):
+    """Overlapping Allan variance of a phase series at cluster sizes m; ``workers`` threads share the
+    cluster sizes (each sum is computed whole by one of them, so the result does not depend on it).
+    ``while_running()``: called on this thread while they run (the kernel lets go of the GIL); with it
+    the return is (variance, what it returned)."""
     x = np.ascontiguousarray(x, dtype=float)
     m = np.asarray(m, dtype=np.int64)
-    sums = _core.allan_second_difference_sums(x, m)
+    workers = max(1, min(workers, len(m)))
+    parts = [m[k::workers] for k in range(workers)]  # interleaved: about the same work each
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        running = [pool.submit(_core.allan_second_difference_sums, x, mm) for mm in parts]
+        other = while_running() if while_running is not None else None
+        sums = np.empty(len(m))
+        for k, r in enumerate(running):
+            sums[k::workers] = r.result()
     tau = m * tau0
-    return sums / (2.0 * tau ** 2 * (len(x) - 2 * m))
+    av = sums / (2.0 * tau ** 2 * (len(x) - 2 * m))
+    return av if while_running is None else (av, other)
 
 
 def edf_simple(n_phase: int, m: np.ndarray, alpha: int | np.ndarray) -> np.ndarray:
@@ -88,22 +113,60 @@ def noise_type_lag1(x: np.ndarray, m: np.ndarray) -> np.ndarray:
     m-averaged rate (Riley and Greenhall), alpha in {2, 1, 0, -1, -2}."""
     out = []
     for mm in np.asarray(m):
-        y = (x[mm::mm] - x[:-mm:mm])  # m-averaged rate (times tau), non-overlapping
+        mm = int(mm)
+        points = (len(x) - 1) // mm + 1  # x[0], x[m], x[2m], ...
         d = 0
         while True:
-            z = y - y.mean()
-            if len(z) < 30:
+            if points - 1 - d < 30:  # the d-th differences of the m-averaged rate: too few
                 out.append(out[-1] if out else 0)
                 break
-            r1 = np.dot(z[:-1], z[1:]) / np.dot(z, z)
+            r1 = _lag1(x, mm, d, points)
             delta = r1 / (1 + r1)
             if delta < 0.25 or d >= 2:
                 # On rate (frequency) data the exponent is alpha itself.
                 out.append(int(np.clip(-np.round(2 * delta) - 2 * d, -2, 2)))
                 break
-            y = np.diff(y)
             d += 1
     return np.array(out)
+
+
+def _lag1(x: np.ndarray, mm: int, d: int, points: int) -> float:
+    """Lag-1 autocorrelation of the d-th differences of y = x[m::m] - x[:-m:m] (the m-averaged rate
+    times tau, non-overlapping). A short series in one piece; a long one (small m) in pieces of
+    _CHUNK values, so that no temporary the size of the record is made; its mean is then the difference
+    of its ends divided by its length (differences telescope). r1 can differ from np.dot's in its last
+    digits, which would move alpha only at an exact threshold."""
+    n = points - 1 - d  # values of the d-th differences
+
+    def piece(a: int, b: int) -> np.ndarray:  # values a..b-1: from the points a..b+d
+        y = np.diff(x[a * mm:(b + d) * mm + 1:mm])
+        for _ in range(d):
+            y = np.diff(y)
+        return y
+
+    if n <= _CHUNK:
+        y = piece(0, n)
+        z = y - y.mean()
+        return _dot(z[:-1], z[1:]) / _dot(z, z)
+    # The sum of the values (the d-th differences of the points' first differences) telescopes: the
+    # difference of the points' d-th differences at the two ends.
+    first, last = np.diff(x[0:d * mm + 1:mm], d)[0], np.diff(x[n * mm:(n + d) * mm + 1:mm], d)[0]
+    mean = float(last - first) / n
+    s11 = s12 = 0.0
+    for a in range(0, n, _CHUNK):
+        b = min(n, a + _CHUNK)
+        z = piece(a, min(n, b + 1))  # one value more: the pair across the pieces' border
+        z -= mean
+        s11 += _dot(z[:b - a], z[:b - a])
+        s12 += _dot(z[:-1], z[1:])
+    return s12 / s11
+
+
+def _dot(a: np.ndarray, b: np.ndarray) -> float:
+    """The dot product by NumPy's own loop: np.dot's BLAS wakes its threads for every call over
+    10^4 values (a tenth of a second of CPU for a 10^7-sample record's 60-odd calls on a busy machine),
+    and its sum's order depends on their number."""
+    return float(np.einsum("i,i->", a, b))
 
 
 @dataclass
@@ -139,19 +202,24 @@ class AllanResult:
 
 def oadev(data: np.ndarray, rate_hz: float, *, taus: str | int = 10, data_type: str = "rate",
           confidence: float = 0.683, alpha: int | None = None) -> AllanResult:
-    """Overlapping ADEV of rate data (n,) or (n, axes), or of phase data with data_type='phase'."""
+    """Overlapping ADEV of rate data (n,) or (n, axes), or of phase data with data_type='phase'.
+    One axis at a time (one phase series in memory beside the data); the kernel releases the GIL and
+    the machine's cores share each axis's cluster sizes."""
     a = np.asarray(data, dtype=float)
     single = a.ndim == 1
     a = a[:, None] if single else a
     tau0 = 1.0 / rate_hz
-    xs = [a[:, k] if data_type == "phase" else phase_from_rate(a[:, k], tau0) for k in range(a.shape[1])]
-    n = len(xs[0])
+    n = len(a) if data_type == "phase" else len(a) + 1
     m = cluster_sizes(n, taus)
-    # The kernel releases the GIL: axes run in parallel on the machine's cores.
-    with ThreadPoolExecutor(max_workers=min(len(xs), os.cpu_count() or 1)) as pool:
-        av = np.stack(list(pool.map(lambda x: oavar_phase(x, tau0, m), xs)), -1)
-    al = np.stack([noise_type_lag1(x, m) if alpha is None else np.full(len(m), alpha) for x in xs], -1)
-    edf = np.stack([edf_simple(n, m, al[:, k]) for k in range(len(xs))], -1)
+    workers = os.cpu_count() or 1
+    av, al = np.empty((len(m), a.shape[1])), np.empty((len(m), a.shape[1]), dtype=int)
+    x = None
+    for k in range(a.shape[1]):
+        x = a[:, k] if data_type == "phase" else phase_from_rate(a[:, k], tau0, x)
+        # The noise identification reads the same phase while the kernel's threads run.
+        av[:, k], al[:, k] = oavar_phase(x, tau0, m, workers, lambda: noise_type_lag1(x, m) if alpha is None
+                                         else np.full(len(m), alpha))
+    edf = np.stack([edf_simple(n, m, al[:, k]) for k in range(a.shape[1])], -1)
     adev, lo, hi = _chi2_bounds(av, edf, confidence)
     rel = 1.0 / np.sqrt(2.0 * (n / m - 1.0))
     squeeze = (lambda v: v[:, 0]) if single else (lambda v: v)
@@ -163,7 +231,15 @@ def _chi2_bounds(avar: np.ndarray, edf: np.ndarray, confidence: float) -> tuple[
     """ADEV and its two-sided chi-square confidence bounds for the given degrees of freedom."""
     p_lo, p_hi = (1 - confidence) / 2, (1 + confidence) / 2
     adev = np.sqrt(avar)
-    return adev, adev * np.sqrt(edf / chi2.ppf(p_hi, edf)), adev * np.sqrt(edf / chi2.ppf(p_lo, edf))
+    return adev, adev * np.sqrt(edf / chi2_ppf(p_hi, edf)), adev * np.sqrt(edf / chi2_ppf(p_lo, edf))
+
+
+def chi2_ppf(p: float, dof: np.ndarray) -> np.ndarray:
+    """scipy.stats.chi2.ppf(p, dof) for 0 < p < 1 and dof > 0: the same function it calls
+    (2 gammaincinv(dof / 2, p)), without importing scipy.stats (a second or more of the command's start)."""
+    from scipy.special import gammaincinv
+
+    return 2 * gammaincinv(np.asarray(dof) / 2, p)
 
 
 def adev_nonoverlapping(data: np.ndarray, rate_hz: float, *, taus: str | int = 10,
