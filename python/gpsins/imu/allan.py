@@ -67,24 +67,27 @@ def phase_from_rate(y: np.ndarray, tau0: float, out: np.ndarray | None = None) -
 _CHUNK = 1 << 20  # elements per piece of the element-wise passes: temporaries that stay in cache
 
 
-def oavar_phase(x: np.ndarray, tau0: float, m: np.ndarray, workers: int = 1, while_running=None):
+def oavar_phase(x: np.ndarray, tau0: float, m: np.ndarray, workers: int = 1) -> np.ndarray:
     """Overlapping Allan variance of a phase series at cluster sizes m; ``workers`` threads share the
-    cluster sizes (each sum is computed whole by one of them, so the result does not depend on it).
-    ``while_running()``: called on this thread while they run (the kernel lets go of the GIL); with it
-    the return is (variance, what it returned)."""
-    x = np.ascontiguousarray(x, dtype=float)
+    cluster sizes (each sum is computed whole by one of them, so the result does not depend on it)."""
     m = np.asarray(m, dtype=np.int64)
+    with ThreadPoolExecutor(max_workers=max(1, workers)) as pool:
+        return _avar(_sums_started(pool, x, m, workers), x, tau0, m)
+
+
+def _sums_started(pool: ThreadPoolExecutor, x: np.ndarray, m: np.ndarray, workers: int) -> list:
+    """The kernel's sums, started on ``pool``: ``workers`` interleaved shares of the cluster sizes."""
+    x = np.ascontiguousarray(x, dtype=float)
     workers = max(1, min(workers, len(m)))
-    parts = [m[k::workers] for k in range(workers)]  # interleaved: about the same work each
-    with ThreadPoolExecutor(max_workers=workers) as pool:
-        running = [pool.submit(_core.allan_second_difference_sums, x, mm) for mm in parts]
-        other = while_running() if while_running is not None else None
-        sums = np.empty(len(m))
-        for k, r in enumerate(running):
-            sums[k::workers] = r.result()
+    return [pool.submit(_core.allan_second_difference_sums, x, m[k::workers]) for k in range(workers)]
+
+
+def _avar(running: list, x: np.ndarray, tau0: float, m: np.ndarray) -> np.ndarray:
+    sums = np.empty(len(m))
+    for k, r in enumerate(running):
+        sums[k::len(running)] = r.result()
     tau = m * tau0
-    av = sums / (2.0 * tau ** 2 * (len(x) - 2 * m))
-    return av if while_running is None else (av, other)
+    return sums / (2.0 * tau ** 2 * (len(x) - 2 * m))
 
 
 def edf_simple(n_phase: int, m: np.ndarray, alpha: int | np.ndarray) -> np.ndarray:
@@ -201,10 +204,12 @@ class AllanResult:
 
 
 def oadev(data: np.ndarray, rate_hz: float, *, taus: str | int = 10, data_type: str = "rate",
-          confidence: float = 0.683, alpha: int | None = None) -> AllanResult:
+          confidence: float = 0.683, alpha: int | None = None, meanwhile=None) -> AllanResult:
     """Overlapping ADEV of rate data (n,) or (n, axes), or of phase data with data_type='phase'.
     One axis at a time (one phase series in memory beside the data); the kernel releases the GIL and
-    the machine's cores share each axis's cluster sizes."""
+    the machine's cores share each axis's cluster sizes while another thread identifies the noise.
+    ``meanwhile()``: run once on the calling thread while they work (the command imports the noise
+    fit's SciPy there: imports stay on one thread)."""
     a = np.asarray(data, dtype=float)
     single = a.ndim == 1
     a = a[:, None] if single else a
@@ -214,11 +219,17 @@ def oadev(data: np.ndarray, rate_hz: float, *, taus: str | int = 10, data_type: 
     workers = os.cpu_count() or 1
     av, al = np.empty((len(m), a.shape[1])), np.empty((len(m), a.shape[1]), dtype=int)
     x = None
-    for k in range(a.shape[1]):
-        x = a[:, k] if data_type == "phase" else phase_from_rate(a[:, k], tau0, x)
-        # The noise identification reads the same phase while the kernel's threads run.
-        av[:, k], al[:, k] = oavar_phase(x, tau0, m, workers, lambda: noise_type_lag1(x, m) if alpha is None
-                                         else np.full(len(m), alpha))
+    with ThreadPoolExecutor(max_workers=workers + 1) as pool:
+        for k in range(a.shape[1]):
+            x = a[:, k] if data_type == "phase" else phase_from_rate(a[:, k], tau0, x)
+            running = _sums_started(pool, x, m, workers)
+            # The noise identification reads the same phase beside the kernel.
+            ident = pool.submit(noise_type_lag1, x, m) if alpha is None else None
+            if meanwhile is not None:
+                meanwhile()
+                meanwhile = None
+            av[:, k] = _avar(running, x, tau0, m)
+            al[:, k] = ident.result() if ident is not None else np.full(len(m), alpha)
     edf = np.stack([edf_simple(n, m, al[:, k]) for k in range(a.shape[1])], -1)
     adev, lo, hi = _chi2_bounds(av, edf, confidence)
     rel = 1.0 / np.sqrt(2.0 * (n / m - 1.0))

@@ -83,25 +83,13 @@ def units(name: str) -> dict:
     return {"rate": r, "psd": f"({r})^2/Hz", "N": n, "B": r, "K": f"{r}/sqrt(s)", "Q": i, "F": i}
 
 
-def _import_meanwhile(name: str) -> None:
-    """Import a module on a second thread while this one reads and computes (the kernel and NumPy's loops
-    let go of the GIL): the noise fit's SciPy takes about as long to import as 10^7 samples to analyse.
-    An import here waits for it; one that failed there fails again here, with its error."""
-    import importlib
-    import threading
-
-    threading.Thread(target=lambda: _quietly(importlib.import_module, name), daemon=True).start()
-
-
-def _quietly(f, *a) -> None:
-    try:
-        f(*a)
-    except Exception:  # noqa: BLE001 - said by the import on the main thread
-        pass
+def _import_noise_fit() -> None:
+    """Import the noise fit (SciPy's optimize: about as long as analysing 10^7 samples) while the
+    kernel and the noise identification run on other threads (they let go of the GIL)."""
+    from . import noise_fit  # noqa: F401
 
 
 def run_allan(args) -> int:
-    _import_meanwhile(f"{__package__}.noise_fit")
     taus = args.taus if args.taus in ("octave", "all", "decade") else int(args.taus)
     estimator = getattr(args, "estimator", "overlapping")
     out = Path(args.out) if args.out else None
@@ -125,14 +113,14 @@ def run_allan(args) -> int:
             if estimator == "overlapping" and front is not None:
                 x = allan.phase_from_rate(data[:, 0], 1.0 / rate, out=front)
                 data = None  # overwritten by its phase
-                r = allan.oadev(x, rate, taus=taus, data_type="phase")
+                r = allan.oadev(x, rate, taus=taus, data_type="phase", meanwhile=_import_noise_fit)
             elif estimator == "overlapping":
-                r = allan.oadev(data[:, k], rate, taus=taus)
+                r = allan.oadev(data[:, k], rate, taus=taus, meanwhile=_import_noise_fit)
             else:
                 r = allan.adev_nonoverlapping(data[:, k], rate, taus=taus)
             results[name] = r
             advance()
-    from . import noise_fit  # imported meanwhile
+    from . import noise_fit  # imported meanwhile (oadev), else now
 
     min_edf = float(getattr(args, "min_edf", noise_fit.MIN_EDF))
     for name, r in results.items():
