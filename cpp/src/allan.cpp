@@ -72,4 +72,58 @@ void allan_second_difference_sums(const double* x, std::size_t n, const std::int
   }
 }
 
+void allan_lag1_sums(const double* x, std::size_t n, const std::int64_t* m_list, const std::int64_t* d_list,
+                     const double* mean_list, std::size_t count, double* out) {
+  // Per m: the next point j, how many points were seen, the last point, first and second
+  // differences (what the next value needs), the last z and the sums. The points of all m are taken
+  // block by block of x, so that the record is read once, not once per small m.
+  struct State {
+    std::size_t m = 1, d = 0, j = 0, seen = 0;
+    double p = 0.0, y0 = 0.0, y1 = 0.0, z = 0.0, s11 = 0.0, s12 = 0.0;
+  };
+  std::vector<State> st(count);
+  for (std::size_t k = 0; k < count; ++k) {
+    st[k].m = static_cast<std::size_t>(std::max<std::int64_t>(m_list[k], 1));
+    st[k].d = static_cast<std::size_t>(std::min<std::int64_t>(std::max<std::int64_t>(d_list[k], 0), 2));
+  }
+  for (std::size_t i0 = 0; i0 < n; i0 += kBlock) {
+    const std::size_t i1 = std::min(n, i0 + kBlock);
+    for (std::size_t k = 0; k < count; ++k) {
+      State& s = st[k];
+      // Locals: the compiler cannot keep fields of a struct that x might alias in registers.
+      const std::size_t m = s.m, d = s.d, first_value = d + 2;  // the first value comes with point d + 2
+      const double mean = mean_list[k];
+      std::size_t j = s.j, seen = s.seen;
+      double p_last = s.p, y0_last = s.y0, y1_last = s.y1, z_last = s.z, s11 = s.s11, s12 = s.s12;
+      for (; j * m < i1; ++j) {
+        const double p = x[j * m];
+        ++seen;
+        const double y0 = p - p_last;
+        const double y1 = y0 - y0_last;
+        const double y = d == 0 ? y0 : d == 1 ? y1 : y1 - y1_last;
+        p_last = p;
+        y0_last = y0;
+        y1_last = y1;
+        if (seen < first_value) continue;  // not yet a value (the differences above are of nothing)
+        const double z = y - mean;
+        s11 += z * z;
+        if (seen > first_value) s12 += z_last * z;
+        z_last = z;
+      }
+      s.j = j;
+      s.seen = seen;
+      s.p = p_last;
+      s.y0 = y0_last;
+      s.y1 = y1_last;
+      s.z = z_last;
+      s.s11 = s11;
+      s.s12 = s12;
+    }
+  }
+  for (std::size_t k = 0; k < count; ++k) {
+    out[2 * k] = st[k].s11;
+    out[2 * k + 1] = st[k].s12;
+  }
+}
+
 }  // namespace gpsins

@@ -113,18 +113,42 @@ def edf_simple(n_phase: int, m: np.ndarray, alpha: int | np.ndarray) -> np.ndarr
 
 def noise_type_lag1(x: np.ndarray, m: np.ndarray) -> np.ndarray:
     """Dominant power-law noise per cluster size from the lag-1 autocorrelation of the
-    m-averaged rate (Riley and Greenhall), alpha in {2, 1, 0, -1, -2}."""
+    m-averaged rate (Riley and Greenhall), alpha in {2, 1, 0, -1, -2}.
+
+    For each m the m-averaged rate (times tau, non-overlapping) y = x[m::m] - x[:-m:m] is tested
+    as it is (d = 0) and, while it looks like a random walk (delta >= 0.25), differenced again,
+    at most twice. The sums of every m at one d come from one pass of the C++ core over the phase
+    (``_core.allan_lag1_sums``), the mean of each series from its ends (differences telescope):
+    r1 can differ from NumPy's in its last digits, which would move alpha only at an exact threshold."""
+    x = np.ascontiguousarray(x, dtype=float)
+    ms = [int(v) for v in np.asarray(m)]
+    points = [(len(x) - 1) // mm + 1 for mm in ms]  # x[0], x[m], x[2m], ...
+    r1: dict[tuple[int, int], float] = {}
+    wanted = [i for i in range(len(ms)) if points[i] - 1 >= 30]
+    for d in range(3):
+        if not wanted:
+            break
+        means = np.empty(len(wanted))
+        for j, i in enumerate(wanted):
+            mm, n = ms[i], points[i] - 1 - d
+            # The sum of the d-th differences of the points' first differences telescopes.
+            first = np.diff(x[0:d * mm + 1:mm], d)[0]
+            last = np.diff(x[n * mm:(n + d) * mm + 1:mm], d)[0]
+            means[j] = float(last - first) / n
+        sums = _core.allan_lag1_sums(x, np.array([ms[i] for i in wanted], dtype=np.int64),
+                                     np.full(len(wanted), d, dtype=np.int64), means)
+        for j, i in enumerate(wanted):
+            r1[i, d] = float(sums[j, 1] / sums[j, 0])
+        # Differenced again: those that look like a random walk and still have 30 values.
+        wanted = [i for i in wanted if _delta(r1[i, d]) >= 0.25 and points[i] - 2 - d >= 30]
     out = []
-    for mm in np.asarray(m):
-        mm = int(mm)
-        points = (len(x) - 1) // mm + 1  # x[0], x[m], x[2m], ...
+    for i in range(len(ms)):  # as the series were tested one after the other
         d = 0
         while True:
-            if points - 1 - d < 30:  # the d-th differences of the m-averaged rate: too few
+            if points[i] - 1 - d < 30:  # too few values: as the cluster size before
                 out.append(out[-1] if out else 0)
                 break
-            r1 = _lag1(x, mm, d, points)
-            delta = r1 / (1 + r1)
+            delta = _delta(r1[i, d])
             if delta < 0.25 or d >= 2:
                 # On rate (frequency) data the exponent is alpha itself.
                 out.append(int(np.clip(-np.round(2 * delta) - 2 * d, -2, 2)))
@@ -133,43 +157,8 @@ def noise_type_lag1(x: np.ndarray, m: np.ndarray) -> np.ndarray:
     return np.array(out)
 
 
-def _lag1(x: np.ndarray, mm: int, d: int, points: int) -> float:
-    """Lag-1 autocorrelation of the d-th differences of y = x[m::m] - x[:-m:m] (the m-averaged rate
-    times tau, non-overlapping). A short series in one piece; a long one (small m) in pieces of
-    _CHUNK values, so that no temporary the size of the record is made; its mean is then the difference
-    of its ends divided by its length (differences telescope). r1 can differ from np.dot's in its last
-    digits, which would move alpha only at an exact threshold."""
-    n = points - 1 - d  # values of the d-th differences
-
-    def piece(a: int, b: int) -> np.ndarray:  # values a..b-1: from the points a..b+d
-        y = np.diff(x[a * mm:(b + d) * mm + 1:mm])
-        for _ in range(d):
-            y = np.diff(y)
-        return y
-
-    if n <= _CHUNK:
-        y = piece(0, n)
-        z = y - y.mean()
-        return _dot(z[:-1], z[1:]) / _dot(z, z)
-    # The sum of the values (the d-th differences of the points' first differences) telescopes: the
-    # difference of the points' d-th differences at the two ends.
-    first, last = np.diff(x[0:d * mm + 1:mm], d)[0], np.diff(x[n * mm:(n + d) * mm + 1:mm], d)[0]
-    mean = float(last - first) / n
-    s11 = s12 = 0.0
-    for a in range(0, n, _CHUNK):
-        b = min(n, a + _CHUNK)
-        z = piece(a, min(n, b + 1))  # one value more: the pair across the pieces' border
-        z -= mean
-        s11 += _dot(z[:b - a], z[:b - a])
-        s12 += _dot(z[:-1], z[1:])
-    return s12 / s11
-
-
-def _dot(a: np.ndarray, b: np.ndarray) -> float:
-    """The dot product by NumPy's own loop: np.dot's BLAS wakes its threads for every call over
-    10^4 values (a tenth of a second of CPU for a 10^7-sample record's 60-odd calls on a busy machine),
-    and its sum's order depends on their number."""
-    return float(np.einsum("i,i->", a, b))
+def _delta(r1: float) -> float:
+    return r1 / (1 + r1)
 
 
 @dataclass
