@@ -178,3 +178,49 @@ def test_calibrate_cli_table(tmp_path, capsys):
     np.savetxt(tmp_path / "gx.csv", TABLE_5_2, delimiter=",")
     assert cli.main(["calibrate", "gyro-rate-table", str(tmp_path / "gx.csv")]) == 0
     assert "scale factor -0.002" in capsys.readouterr().out
+
+
+def _plain_lag1_alpha(x, m):
+    """The noise identification as first written (NumPy, one series at a time): the reference."""
+    out = []
+    for mm in m:
+        y, d = x[mm::mm] - x[:-mm:mm], 0
+        while True:
+            z = y - y.mean()
+            if len(z) < 30:
+                out.append(out[-1] if out else 0)
+                break
+            r1 = np.dot(z[:-1], z[1:]) / np.dot(z, z)
+            delta = r1 / (1 + r1)
+            if delta < 0.25 or d >= 2:
+                out.append(int(np.clip(-np.round(2 * delta) - 2 * d, -2, 2)))
+                break
+            y, d = np.diff(y), d + 1
+    return np.array(out)
+
+
+def test_blocked_kernels_match_plain_numpy(tmp_path):
+    """The core's blocked sums (second differences; the noise identification's lag-1 sums) against
+    the plain formulas: record lengths with every tail, all cluster sizes, several noise types."""
+    rng = np.random.default_rng(11)
+    for n in (10, 11, 12, 13, 1001, 200_003):
+        x = np.cumsum(rng.normal(size=n))
+        m = allan.cluster_sizes(n, "all" if n < 2000 else 20)
+        plain = np.array([np.sum((x[2 * k:] - 2 * x[k:n - k] + x[:n - 2 * k]) ** 2) for k in m])
+        assert np.allclose(allan._core.allan_second_difference_sums(x, m), plain, rtol=1e-12, atol=0)
+    for y in (rng.normal(size=150_000), np.cumsum(rng.normal(size=150_000)),
+              np.diff(rng.normal(size=150_001)), rng.normal(size=150_000) + np.cumsum(rng.normal(size=150_000)) / 20):
+        x = allan.phase_from_rate(y, 0.01)
+        assert np.array_equal(x, np.concatenate([[0.0], np.cumsum((y - y.mean()) * 0.01)]))
+        m = allan.cluster_sizes(len(x), 20)
+        assert np.array_equal(allan.noise_type_lag1(x, m), _plain_lag1_alpha(x, m))
+    # A one-column NPY read into a buffer with a free element in front: the same samples, and the
+    # phase made in place of them is the phase.
+    from gpsins.imu import records
+
+    y = rng.normal(size=5000)
+    np.save(tmp_path / "y.npy", y)
+    rec = records.load(tmp_path / "y.npy", 100.0, "gyro_x:deg/s", spare_front=True)
+    assert rec.front is not None and np.array_equal(rec.rates[:, 0], y * (np.pi / 180))
+    expected = allan.phase_from_rate(rec.rates[:, 0].copy(), 0.01)
+    assert np.array_equal(allan.phase_from_rate(rec.rates[:, 0], 0.01, out=rec.front), expected)

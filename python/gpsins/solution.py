@@ -78,9 +78,12 @@ class TruthScore:
     def errors(self, sol: flt.Solution) -> dict:
         tr = self.truth
         m = (sol.t >= tr.t[0]) & (sol.t <= tr.t[-1])
-        sub = _subset(sol, m)
+        whole = bool(m.all())  # as a rule: then no copies of the chunk
+        sub = sol if whole else _subset(sol, m)
         err = evaluate.nav_errors(sub, tr)
-        nees = evaluate.nees(err.e9, sol.covariance[m][:, :9, :9])
+        # The navigation block only: masking the whole covariance first copied it (tight: ~50 states).
+        p9 = sol.covariance[:, :9, :9]
+        nees = evaluate.nees(err.e9, p9 if whole else p9[m])
         tr.release()  # a memory-mapped truth: only this chunk's rows were read; keep none of them
         hk = sub.heading_known
         if hk.any():

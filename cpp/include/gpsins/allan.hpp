@@ -12,4 +12,11 @@ namespace gpsins {
 void allan_second_difference_sums(const double* x, std::size_t n, const std::int64_t* m_list, std::size_t count,
                                   double* out);
 
+// The lag-1 statistics of the noise identification (Riley and Greenhall): for each m = m_list[k],
+// with p_j = x[j m] (j = 0 .. (n - 1) / m) and y the d-th differences (by repeated differencing,
+// d = d_list[k] in 0..2) of p's first differences, z = y - mean_list[k]:
+// out[2k] = sum z_i^2, out[2k + 1] = sum z_i z_{i+1}. One pass over x for all m (in blocks).
+void allan_lag1_sums(const double* x, std::size_t n, const std::int64_t* m_list, const std::int64_t* d_list,
+                     const double* mean_list, std::size_t count, double* out);
+
 }  // namespace gpsins

@@ -21,7 +21,6 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import chi2
 
 from .. import _core
 
@@ -48,16 +47,45 @@ def cluster_sizes(n_phase: int, spec: str | int = 10) -> np.ndarray:
     return m[(m >= 1) & (m <= m_max)]
 
 
-def phase_from_rate(y: np.ndarray, tau0: float) -> np.ndarray:
+def phase_from_rate(y: np.ndarray, tau0: float, out: np.ndarray | None = None) -> np.ndarray:
+    """x = tau0 * cumsum(y - mean) after a leading 0, N + 1 points. ``out`` (N + 1 float64, contiguous)
+    receives it; ``out[1:]`` may be y itself, which is then overwritten (no copy of the record is made)."""
     y = np.asarray(y, dtype=float)
-    return np.concatenate([[0.0], np.cumsum((y - y.mean()) * tau0)])
+    x = np.empty(len(y) + 1) if out is None else out
+    mean = y.mean()
+    # The same operations as tau0 * cumsum(y - mean), element by element, without full-size temporaries.
+    for a in range(0, len(y), _CHUNK):
+        b = min(len(y), a + _CHUNK)
+        np.subtract(y[a:b], mean, out=x[a + 1:b + 1])
+        np.multiply(x[a + 1:b + 1], tau0, out=x[a + 1:b + 1])
+    x[0] = 0.0
+    # In place: accumulate reads y[i] before it writes x[i] (checked: identical to np.cumsum's copy).
+    np.add.accumulate(x[1:], out=x[1:])
+    return x
 
 
-def oavar_phase(x: np.ndarray, tau0: float, m: np.ndarray) -> np.ndarray:
-    """Overlapping Allan variance of a phase series at cluster sizes m."""
-    x = np.ascontiguousarray(x, dtype=float)
+_CHUNK = 1 << 20  # elements per piece of the element-wise passes: temporaries that stay in cache
+
+
+def oavar_phase(x: np.ndarray, tau0: float, m: np.ndarray, workers: int = 1) -> np.ndarray:
+    """Overlapping Allan variance of a phase series at cluster sizes m; ``workers`` threads share the
+    cluster sizes (each sum is computed whole by one of them, so the result does not depend on it)."""
     m = np.asarray(m, dtype=np.int64)
-    sums = _core.allan_second_difference_sums(x, m)
+    with ThreadPoolExecutor(max_workers=max(1, workers)) as pool:
+        return _avar(_sums_started(pool, x, m, workers), x, tau0, m)
+
+
+def _sums_started(pool: ThreadPoolExecutor, x: np.ndarray, m: np.ndarray, workers: int) -> list:
+    """The kernel's sums, started on ``pool``: ``workers`` interleaved shares of the cluster sizes."""
+    x = np.ascontiguousarray(x, dtype=float)
+    workers = max(1, min(workers, len(m)))
+    return [pool.submit(_core.allan_second_difference_sums, x, m[k::workers]) for k in range(workers)]
+
+
+def _avar(running: list, x: np.ndarray, tau0: float, m: np.ndarray) -> np.ndarray:
+    sums = np.empty(len(m))
+    for k, r in enumerate(running):
+        sums[k::len(running)] = r.result()
     tau = m * tau0
     return sums / (2.0 * tau ** 2 * (len(x) - 2 * m))
 
@@ -85,25 +113,52 @@ def edf_simple(n_phase: int, m: np.ndarray, alpha: int | np.ndarray) -> np.ndarr
 
 def noise_type_lag1(x: np.ndarray, m: np.ndarray) -> np.ndarray:
     """Dominant power-law noise per cluster size from the lag-1 autocorrelation of the
-    m-averaged rate (Riley and Greenhall), alpha in {2, 1, 0, -1, -2}."""
+    m-averaged rate (Riley and Greenhall), alpha in {2, 1, 0, -1, -2}.
+
+    For each m the m-averaged rate (times tau, non-overlapping) y = x[m::m] - x[:-m:m] is tested
+    as it is (d = 0) and, while it looks like a random walk (delta >= 0.25), differenced again,
+    at most twice. The sums of every m at one d come from one pass of the C++ core over the phase
+    (``_core.allan_lag1_sums``), the mean of each series from its ends (differences telescope):
+    r1 can differ from NumPy's in its last digits, which would move alpha only at an exact threshold."""
+    x = np.ascontiguousarray(x, dtype=float)
+    ms = [int(v) for v in np.asarray(m)]
+    points = [(len(x) - 1) // mm + 1 for mm in ms]  # x[0], x[m], x[2m], ...
+    r1: dict[tuple[int, int], float] = {}
+    wanted = [i for i in range(len(ms)) if points[i] - 1 >= 30]
+    for d in range(3):
+        if not wanted:
+            break
+        means = np.empty(len(wanted))
+        for j, i in enumerate(wanted):
+            mm, n = ms[i], points[i] - 1 - d
+            # The sum of the d-th differences of the points' first differences telescopes.
+            first = np.diff(x[0:d * mm + 1:mm], d)[0]
+            last = np.diff(x[n * mm:(n + d) * mm + 1:mm], d)[0]
+            means[j] = float(last - first) / n
+        sums = _core.allan_lag1_sums(x, np.array([ms[i] for i in wanted], dtype=np.int64),
+                                     np.full(len(wanted), d, dtype=np.int64), means)
+        for j, i in enumerate(wanted):
+            r1[i, d] = float(sums[j, 1] / sums[j, 0])
+        # Differenced again: those that look like a random walk and still have 30 values.
+        wanted = [i for i in wanted if _delta(r1[i, d]) >= 0.25 and points[i] - 2 - d >= 30]
     out = []
-    for mm in np.asarray(m):
-        y = (x[mm::mm] - x[:-mm:mm])  # m-averaged rate (times tau), non-overlapping
+    for i in range(len(ms)):  # as the series were tested one after the other
         d = 0
         while True:
-            z = y - y.mean()
-            if len(z) < 30:
+            if points[i] - 1 - d < 30:  # too few values: as the cluster size before
                 out.append(out[-1] if out else 0)
                 break
-            r1 = np.dot(z[:-1], z[1:]) / np.dot(z, z)
-            delta = r1 / (1 + r1)
+            delta = _delta(r1[i, d])
             if delta < 0.25 or d >= 2:
                 # On rate (frequency) data the exponent is alpha itself.
                 out.append(int(np.clip(-np.round(2 * delta) - 2 * d, -2, 2)))
                 break
-            y = np.diff(y)
             d += 1
     return np.array(out)
+
+
+def _delta(r1: float) -> float:
+    return r1 / (1 + r1)
 
 
 @dataclass
@@ -138,20 +193,33 @@ class AllanResult:
 
 
 def oadev(data: np.ndarray, rate_hz: float, *, taus: str | int = 10, data_type: str = "rate",
-          confidence: float = 0.683, alpha: int | None = None) -> AllanResult:
-    """Overlapping ADEV of rate data (n,) or (n, axes), or of phase data with data_type='phase'."""
+          confidence: float = 0.683, alpha: int | None = None, meanwhile=None) -> AllanResult:
+    """Overlapping ADEV of rate data (n,) or (n, axes), or of phase data with data_type='phase'.
+    One axis at a time (one phase series in memory beside the data); the kernel releases the GIL and
+    the machine's cores share each axis's cluster sizes while another thread identifies the noise.
+    ``meanwhile()``: run once on the calling thread while they work (the command imports the noise
+    fit's SciPy there: imports stay on one thread)."""
     a = np.asarray(data, dtype=float)
     single = a.ndim == 1
     a = a[:, None] if single else a
     tau0 = 1.0 / rate_hz
-    xs = [a[:, k] if data_type == "phase" else phase_from_rate(a[:, k], tau0) for k in range(a.shape[1])]
-    n = len(xs[0])
+    n = len(a) if data_type == "phase" else len(a) + 1
     m = cluster_sizes(n, taus)
-    # The kernel releases the GIL: axes run in parallel on the machine's cores.
-    with ThreadPoolExecutor(max_workers=min(len(xs), os.cpu_count() or 1)) as pool:
-        av = np.stack(list(pool.map(lambda x: oavar_phase(x, tau0, m), xs)), -1)
-    al = np.stack([noise_type_lag1(x, m) if alpha is None else np.full(len(m), alpha) for x in xs], -1)
-    edf = np.stack([edf_simple(n, m, al[:, k]) for k in range(len(xs))], -1)
+    workers = os.cpu_count() or 1
+    av, al = np.empty((len(m), a.shape[1])), np.empty((len(m), a.shape[1]), dtype=int)
+    x = None
+    with ThreadPoolExecutor(max_workers=workers + 1) as pool:
+        for k in range(a.shape[1]):
+            x = a[:, k] if data_type == "phase" else phase_from_rate(a[:, k], tau0, x)
+            running = _sums_started(pool, x, m, workers)
+            # The noise identification reads the same phase beside the kernel.
+            ident = pool.submit(noise_type_lag1, x, m) if alpha is None else None
+            if meanwhile is not None:
+                meanwhile()
+                meanwhile = None
+            av[:, k] = _avar(running, x, tau0, m)
+            al[:, k] = ident.result() if ident is not None else np.full(len(m), alpha)
+    edf = np.stack([edf_simple(n, m, al[:, k]) for k in range(a.shape[1])], -1)
     adev, lo, hi = _chi2_bounds(av, edf, confidence)
     rel = 1.0 / np.sqrt(2.0 * (n / m - 1.0))
     squeeze = (lambda v: v[:, 0]) if single else (lambda v: v)
@@ -163,7 +231,15 @@ def _chi2_bounds(avar: np.ndarray, edf: np.ndarray, confidence: float) -> tuple[
     """ADEV and its two-sided chi-square confidence bounds for the given degrees of freedom."""
     p_lo, p_hi = (1 - confidence) / 2, (1 + confidence) / 2
     adev = np.sqrt(avar)
-    return adev, adev * np.sqrt(edf / chi2.ppf(p_hi, edf)), adev * np.sqrt(edf / chi2.ppf(p_lo, edf))
+    return adev, adev * np.sqrt(edf / chi2_ppf(p_hi, edf)), adev * np.sqrt(edf / chi2_ppf(p_lo, edf))
+
+
+def chi2_ppf(p: float, dof: np.ndarray) -> np.ndarray:
+    """scipy.stats.chi2.ppf(p, dof) for 0 < p < 1 and dof > 0: the same function it calls
+    (2 gammaincinv(dof / 2, p)), without importing scipy.stats (a second or more of the command's start)."""
+    from scipy.special import gammaincinv
+
+    return 2 * gammaincinv(np.asarray(dof) / 2, p)
 
 
 def adev_nonoverlapping(data: np.ndarray, rate_hz: float, *, taus: str | int = 10,

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import allan, calibration, noise_fit, psd, records
+from . import allan, calibration, records
 from .records import AXES
 
 
@@ -43,17 +43,26 @@ def _one_column(source: str) -> bool:
 
 
 def load_rates(source: str, rate_hz: float | None, columns: str | None = None, start_s: float | None = None,
-               end_s: float | None = None) -> tuple[np.ndarray, float, tuple[str, ...]]:
+               end_s: float | None = None, keep: bool = True):
     """(n, k) rate samples: a session's IMU (gyro rad/s then accel m/s^2) or a CSV/NPY file whose
     columns are declared (six columns default to gyro x y z, accel x y z). One undeclared column
     is analysed as it is, named GENERIC: whether it is rad/s or m/s^2 the file cannot say, and the
-    numbers and axes are then in the column's own unit."""
+    numbers and axes are then in the column's own unit. ``keep=False``: the caller may turn a single
+    column into its phase in place; the samples then come with the N + 1 buffer (``records.Record.front``)
+    as a fourth item."""
     generic = columns is None and _one_column(source)
     try:
         # records knows only sensor kinds: a gyro column without a unit (factor 1) reads it unchanged.
-        rec = records.load(source, rate_hz, "gyro_x" if generic else columns, start_s, end_s)
+        rec = records.load(source, rate_hz, "gyro_x" if generic else columns, start_s, end_s, spare_front=not keep)
     except records.RecordError as e:
         raise _error(str(e)) from None
+    if not keep:
+        rates, rate, names = load_rates_named(source, rec, generic)
+        return rates, rate, names, rec.front
+    return load_rates_named(source, rec, generic)
+
+
+def load_rates_named(source: str, rec, generic: bool) -> tuple[np.ndarray, float, tuple[str, ...]]:
     for note in rec.notes:
         print(f"gpsins allan: warning: {source}: {note}", file=sys.stderr)
     if generic:
@@ -66,41 +75,61 @@ def load_rates(source: str, rate_hz: float | None, columns: str | None = None, s
 
 def units(name: str) -> dict:
     """Units of a column's rate and of its fitted terms (u for an undeclared column)."""
+    from . import noise_fit
+
     r = noise_fit.rate_unit(name)
     i = {"rad/s": "rad", "m/s^2": "m/s"}.get(r, "u s")  # the integrated rate
     n = f"{i}/sqrt(s)" if r != "u" else "u sqrt(s)"
     return {"rate": r, "psd": f"({r})^2/Hz", "N": n, "B": r, "K": f"{r}/sqrt(s)", "Q": i, "F": i}
 
 
-def run_allan(args) -> int:
-    from rich.progress import Progress
+def _import_noise_fit() -> None:
+    """Import the noise fit (SciPy's optimize: about as long as analysing 10^7 samples) while the
+    kernel and the noise identification run on other threads (they let go of the GIL)."""
+    from . import noise_fit  # noqa: F401
 
-    data, rate, names = load_rates(args.source, args.rate, getattr(args, "columns", None),
-                                   getattr(args, "start_s", None), getattr(args, "end_s", None))
+
+def run_allan(args) -> int:
     taus = args.taus if args.taus in ("octave", "all", "decade") else int(args.taus)
     estimator = getattr(args, "estimator", "overlapping")
-    min_edf = float(getattr(args, "min_edf", noise_fit.MIN_EDF))
     out = Path(args.out) if args.out else None
+    # Without figures the samples are not needed after the deviation: one column's phase is then made in
+    # place of it (the record's memory, not twice that).
+    front = None
+    if out is None and estimator == "overlapping":
+        data, rate, names, front = load_rates(args.source, args.rate, getattr(args, "columns", None),
+                                              getattr(args, "start_s", None), getattr(args, "end_s", None), keep=False)
+    else:
+        data, rate, names = load_rates(args.source, args.rate, getattr(args, "columns", None),
+                                       getattr(args, "start_s", None), getattr(args, "end_s", None))
+    n_samples = len(data)
     st = records.steady_windows(data, rate)
     moved = records.motion_warning(st, len(data) / rate)
     if moved:
         print(f"gpsins allan: warning: {args.source}: {moved}", file=sys.stderr)
     results, fits = {}, {}
-    with Progress(transient=True) as bar:
-        task = bar.add_task("Allan deviation", total=data.shape[1])
+    with _progress(data.shape[1]) as advance:
         for k, name in enumerate(names):
-            if estimator == "overlapping":
-                r = allan.oadev(data[:, k], rate, taus=taus)
+            if estimator == "overlapping" and front is not None:
+                x = allan.phase_from_rate(data[:, 0], 1.0 / rate, out=front)
+                data = None  # overwritten by its phase
+                r = allan.oadev(x, rate, taus=taus, data_type="phase", meanwhile=_import_noise_fit)
+            elif estimator == "overlapping":
+                r = allan.oadev(data[:, k], rate, taus=taus, meanwhile=_import_noise_fit)
             else:
                 r = allan.adev_nonoverlapping(data[:, k], rate, taus=taus)
-            f = noise_fit.fit(r.tau, r.adev, r.edf, min_edf=min_edf)
-            results[name], fits[name] = r, f
-            bar.advance(task)
+            results[name] = r
+            advance()
+    from . import noise_fit  # imported meanwhile (oadev), else now
+
+    min_edf = float(getattr(args, "min_edf", noise_fit.MIN_EDF))
+    for name, r in results.items():
+        fits[name] = noise_fit.fit(r.tau, r.adev, r.edf, min_edf=min_edf)
     for name, f in fits.items():
         if f.fitted_from_tau_s > results[name].tau[0]:
             print(f"gpsins allan: note: {name}: fitted from tau = {f.fitted_from_tau_s:g} s; the shorter taus follow "
                   f"the sensor's output filter, which no term describes", file=sys.stderr)
-    print(f"{len(data)} samples at {rate:g} Hz ({len(data) / rate / 3600:.2f} h), {estimator} Allan deviation")
+    print(f"{n_samples} samples at {rate:g} Hz ({n_samples / rate / 3600:.2f} h), {estimator} Allan deviation")
     short = int((next(iter(results.values())).edf < min_edf).sum())
     if short:
         print(f"gpsins allan: note: {short} of {len(next(iter(results.values())).tau)} taus have fewer than "
@@ -120,7 +149,7 @@ def run_allan(args) -> int:
             print(f"  {kind}: N {u['N']}, B {u['B']}, K {u['K']}, Q {u['Q']}, F {u['F']} (F: the 1/tau^2 term when "
                   f"negative, the sensor's output filter)")
     if args.json:
-        doc = {"rate_hz": rate, "samples": len(data), "estimator": estimator, "min_edf": min_edf,
+        doc = {"rate_hz": rate, "samples": n_samples, "estimator": estimator, "min_edf": min_edf,
                "moved": moved, "axes": {}}
         for name in names:
             r, f = results[name], fits[name]
@@ -146,8 +175,31 @@ def run_allan(args) -> int:
     return 0
 
 
+class _progress:
+    """A transient progress bar over the axes on a terminal (rich), nothing otherwise: ``with
+    _progress(total) as advance: ... advance()``."""
+
+    def __init__(self, total: int):
+        self.total, self.bar = total, None
+
+    def __enter__(self):
+        if not sys.stdout.isatty():
+            return lambda: None
+        from rich.progress import Progress
+
+        self.bar = Progress(transient=True)
+        self.bar.__enter__()
+        task = self.bar.add_task("Allan deviation", total=self.total)
+        return lambda: self.bar.advance(task)
+
+    def __exit__(self, *exc):
+        return self.bar.__exit__(*exc) if self.bar is not None else False
+
+
 def _plots(out: Path, names, results, fits, data, rate) -> None:
     import matplotlib
+
+    from . import noise_fit, psd
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

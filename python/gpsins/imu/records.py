@@ -39,6 +39,8 @@ class Record:
     columns: tuple[str, ...]
     start_unix_s: float | None = None  # from a session's sidecar: places records on one time line
     notes: tuple[str, ...] = ()
+    # load(spare_front=True): the N + 1 float64 whose last N are rates[:, 0] (the first is free), else None
+    front: np.ndarray | None = None
 
     def column(self, name: str) -> np.ndarray:
         return self.rates[:, self.columns.index(name)]
@@ -71,8 +73,11 @@ def parse_columns(spec: str | list | None, width: int, where: str) -> tuple[tupl
 
 
 def load(source: str | Path, rate_hz: float | None = None, columns=None, start_s: float | None = None,
-         end_s: float | None = None, name: str | None = None) -> Record:
-    """A session directory or a CSV/NPY file, trimmed to [start_s, end_s) seconds from its start."""
+         end_s: float | None = None, name: str | None = None, spare_front: bool = False) -> Record:
+    """A session directory or a CSV/NPY file, trimmed to [start_s, end_s) seconds from its start.
+    ``spare_front``: the rates of a one-column NPY of float64 come as a view of a buffer with one
+    element free before the first (``Record.front``), so that the phase (N + 1 points) can be
+    made in place of the record (``allan.phase_from_rate``) without a second copy."""
     p = Path(source)
     notes = []
     start_unix = None
@@ -100,7 +105,7 @@ def load(source: str | Path, rate_hz: float | None = None, columns=None, start_s
             raise RecordError(f"{p}: give the sample rate (rate_hz / --rate) of a CSV/NPY file")
         try:
             if p.suffix == ".npy":
-                data = np.load(p)
+                data = _read_npy(p, 1 if spare_front else 0)
             else:
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")  # an empty file: said below
@@ -112,10 +117,15 @@ def load(source: str | Path, rate_hz: float | None = None, columns=None, start_s
         data = np.asarray(data, dtype=float).reshape(len(data), -1)
         cols, factors = parse_columns(columns, data.shape[1], str(p))
         keep = [i for i, c in enumerate(cols) if c not in ("time", "skip")]
-        data, cols, rate = data[:, keep] * factors[keep], tuple(cols[i] for i in keep), float(rate_hz)
-        bad = ~np.isfinite(data).all(1)
-        if bad.any():
-            raise RecordError(f"{p}: row {int(np.flatnonzero(bad)[0]) + 1} is not finite")
+        if len(keep) < data.shape[1]:
+            data = data[:, keep]
+        cols, factors, rate = tuple(cols[i] for i in keep), factors[keep], float(rate_hz)
+        # The file's own array (or a copy of its columns): scaled in place, x * 1.0 left out (the same numbers).
+        for k in np.flatnonzero(factors != 1.0):
+            data[:, k] *= factors[k]
+        bad = _first_not_finite(data)
+        if bad is not None:
+            raise RecordError(f"{p}: row {bad + 1} is not finite")
     i0 = 0 if start_s is None else int(round(start_s * rate))
     i1 = len(data) if end_s is None else min(len(data), int(round(end_s * rate)))
     data = data[i0:i1]
@@ -124,7 +134,46 @@ def load(source: str | Path, rate_hz: float | None = None, columns=None, start_s
                           f"at least {MIN_SAMPLES} are needed")
     if start_unix is not None:
         start_unix += i0 / rate
-    return Record(name or p.name, data, rate, cols, start_unix, tuple(notes))
+    front = None
+    base = data.base
+    if spare_front and data.shape[1] == 1 and base is not None and base.ndim == 1 and base.dtype == np.float64 \
+            and base.flags.c_contiguous and data.strides[0] == 8:
+        at = (data.__array_interface__["data"][0] - base.__array_interface__["data"][0]) // 8
+        front = base[at - 1:at + len(data)] if at >= 1 else None
+    return Record(name or p.name, data, rate, cols, start_unix, tuple(notes), front)
+
+
+ROWS_PER_PIECE = 1 << 18  # rows per piece of a pass over a record: its temporaries stay small
+
+
+def _read_npy(p: Path, front: int) -> np.ndarray:
+    """np.load of an NPY file; a 1-D or one-column float64 one read straight into a buffer with ``front``
+    free elements before its data (the array returned is the (n, 1) view after them)."""
+    fmt = np.lib.format
+    if front:
+        with open(p, "rb") as fh:
+            try:
+                version = fmt.read_magic(fh)
+                header = {(1, 0): fmt.read_array_header_1_0, (2, 0): fmt.read_array_header_2_0}.get(version)
+                shape, fortran, dtype = header(fh) if header else ((), False, None)
+            except ValueError:
+                shape, dtype = (), None  # np.load says what is wrong
+            if dtype == np.dtype("<f8") and (len(shape) == 1 or (len(shape) == 2 and shape[1] == 1)):
+                n = int(shape[0])
+                buf = np.empty(front + n)
+                got = fh.readinto(memoryview(buf[front:]).cast("B"))
+                if got == 8 * n:
+                    return buf[front:].reshape(n, 1)
+    return np.load(p)
+
+
+def _first_not_finite(data: np.ndarray) -> int | None:
+    """The first row holding a NaN or an infinity, looked for piece by piece."""
+    for a in range(0, len(data), ROWS_PER_PIECE):
+        bad = ~np.isfinite(data[a:a + ROWS_PER_PIECE]).all(1)
+        if bad.any():
+            return a + int(np.flatnonzero(bad)[0])
+    return None
 
 
 @dataclass
@@ -147,9 +196,12 @@ def steady_windows(rates: np.ndarray, rate_hz: float, block_s: float = 1.0, min_
     if nb < 3:
         return Steadiness([(0, len(rates))] if len(rates) else [], 0, 1.0, block_s)
     blocks = rates[:nb * m].reshape(nb, m, -1)
-    means = blocks.mean(1)
+    # Block by block, in pieces of blocks: the spread's temporaries stay small (the same numbers).
+    step = max(1, ROWS_PER_PIECE // m)
+    means = np.concatenate([blocks[a:a + step].mean(1) for a in range(0, nb, step)])
+    spread = np.concatenate([blocks[a:a + step].std(1) for a in range(0, nb, step)])
     # Noise of a block mean from the spread inside blocks (the median block: robust to the moving ones).
-    sigma = np.median(blocks.std(1), axis=0) / np.sqrt(m) * DRIFT_ALLOWANCE
+    sigma = np.median(spread, axis=0) / np.sqrt(m) * DRIFT_ALLOWANCE
     sigma = np.maximum(sigma, 1e-12)
     jump = (np.abs(np.diff(means, axis=0)) > JUMP_SIGMA * np.sqrt(2) * sigma).any(1)
     edge = int(np.ceil(edge_s / block_s))
