@@ -1,4 +1,4 @@
-"""The speed rows of issue 42 side by side, as whole processes: ``python benchmarks/bench_side_by_side.py``.
+"""The speed targets side by side with their peers, as whole processes: ``python benchmarks/bench_side_by_side.py``.
 
     python benchmarks/bench_side_by_side.py                  # allan 10^7 vs allantools, replay both / --smooth
     python benchmarks/bench_side_by_side.py --big            # also allan 10^8 (1.6 GB of files, minutes)
