@@ -308,7 +308,7 @@ class EskfRecorder final : public EskfObserver<3 * NB + NC + NT> {
 
 // Defined out of the class so that the extern declarations below keep it (the backward
 // pass, the heaviest code here) out of the files that use a recorder: compiled once, in
-// rts_recorders*.cpp, for the filters the core builds.
+// cpp/src/rts_recorders/, for the filters the core builds.
 template <int NB, int NC, int NT>
 void EskfRecorder<NB, NC, NT>::smooth(const std::function<void(long, const double*, const MatN&)>& emit) {
   flush_phi();
