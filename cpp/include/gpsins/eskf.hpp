@@ -2,7 +2,7 @@
 // discretisation, generic measurement update, injection and reset. It knows no
 // sensor: aiding sources (aiding/*.hpp) hand it an innovation, H and R.
 //
-// Error state, in this order (seed 003's local attitude error):
+// Error state, in this order (the ESKF notes' local attitude error; docs/references.md):
 //   dtheta (3)  attitude, body side: q_true = q (x) exp(dtheta)
 //   dv (3), dr (3)  velocity and position, ECEF
 //   dbg (3), dba (3)  gyro and accelerometer bias
@@ -446,7 +446,7 @@ class Eskf {
     if constexpr (kSisCount > 0) sis += dx.template segment<kSisCount>(kSis);
     if constexpr (NC == 3) fix_error += dx.template segment<3>(kFixError);
     if constexpr (NT == 1) time_offset_s += dx(kTimeOffset);
-    // Reset: the attitude error is now relative to the corrected q (seed 003).
+    // Reset: the attitude error is now relative to the corrected q (the ESKF notes).
     const Mat3 g = Mat3::Identity() - skew(0.5 * dth);
     P.template middleRows<3>(att) = (g * P.template middleRows<3>(att)).eval();
     P.template middleCols<3>(att) = (P.template middleCols<3>(att) * g.transpose()).eval();

@@ -19,7 +19,7 @@ class EskfObserver {
   // Covariance propagation P <- Phi P Phi^T + Q over one step.
   virtual void on_propagate(const MatN& phi) = 0;
   // Accepted Kalman update: innovation y, H (M x N), gain K (N x M), S^-1, then
-  // injection of K y and the reset whose attitude block is g (seed 003).
+  // injection of K y and the reset whose attitude block is g (the ESKF notes).
   virtual void on_update(const MatRef& H, const MatRef& K, const MatRef& s_inv, const VecRef& y, const Mat3& g) = 0;
   // The filter's own re-initialisations: the new error is A (old error) plus
   // independent noise, P <- A P A^T + Q (rows A zeroes start afresh).

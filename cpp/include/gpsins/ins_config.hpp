@@ -11,7 +11,7 @@ namespace gpsins {
 enum class BiasModel { RandomWalk = 0, GaussMarkov = 1, Constant = 2 };
 
 // What refuses a measurement update: the chi-square gate on the innovation, the
-// report's divergence test on the correction's attitude part (seed 004, 7.1.1.3),
+// report's divergence test on the correction's attitude part (the FOI report, 7.1.1.3),
 // both, or nothing.
 enum class UpdateCheck { ChiSquare = 0, AttitudeCorrection = 1, Both = 2, None = 3 };
 

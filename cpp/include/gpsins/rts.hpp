@@ -13,7 +13,7 @@
 //
 // Error-state bookkeeping: every injection is followed by the reset
 // dx_new = G (dx_old - dx_injected), G = I - [dtheta/2]x on the attitude
-// block (seed 003). Going backwards the adjoint of the new error definition
+// block (the ESKF notes, docs/references.md). Going backwards the adjoint of the new error definition
 // is carried to the old one by lambda <- G^T lambda, Lambda <- G^T Lambda G,
 // before the update step; the injected dx itself is the update's K y, which the
 // update step accounts for. The smoothed error at an output epoch is relative

@@ -12,8 +12,8 @@
 // - Specific force to ECEF: C_eb(t0) dv, minus half the Earth frame's turn over
 //   the interval, (w_ie dt / 2) x C_eb(t0) dv. Error O((w_ie dt)^2 |dv|), ~1e-13 m/s.
 // - Velocity: v1 = v0 + dv_e + (gamma(r_mid) - 2 w_ie x v_mid) dt, with gamma the
-//   normal gravity (centrifugal part included, so no separate -w x (w x r); see
-//   ERRATA) and r_mid, v_mid predicted half-step values. Gravity and Coriolis vary
+//   normal gravity (centrifugal part included, so no separate -w x (w x r): the FOI
+//   report's eq. 2.12 counts it twice) and r_mid, v_mid predicted half-step values. Gravity and Coriolis vary
 //   slowly; the error is O(dt^3) in the gravity gradient and Coriolis rate,
 //   below 1e-9 m/s per step in a car.
 // - Position: trapezoid, r1 = r0 + (v0 + v1) dt / 2. Error dt^3/12 times the

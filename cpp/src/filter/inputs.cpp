@@ -30,7 +30,7 @@ ProcessNoise noise_of(const InsConfig& c) {
         drive = square(b.random_walk_per_sqrt_s);
         inv_tau.setZero();
         break;
-      case BiasModel::GaussMarkov:  // driving noise 2 sigma^2 / T (seed 003)
+      case BiasModel::GaussMarkov:  // driving noise 2 sigma^2 / T (the ESKF notes)
         inv_tau = b.gm_tau_s.cwiseInverse();
         drive = 2.0 * square(b.gm_sigma).cwiseProduct(inv_tau);
         break;

@@ -1,6 +1,6 @@
 // GNSS position fix at the antenna, offset from the IMU by a body-frame lever
 // arm l: z = r + C l, so with q_true = q (x) exp(dtheta),
-// z - (r + C l) = dr - C [l]x dtheta  (seed 003, lever arm slide).
+// z - (r + C l) = dr - C [l]x dtheta  (the ESKF notes' lever arm).
 // With the fix-error states (NC == 3) the fix is z = r + C l + M b + white, b the
 // time-correlated error state and M its map to metres for this fix (identity, or
 // the fix's DOP per local axis when the error is carried per unit of DOP):

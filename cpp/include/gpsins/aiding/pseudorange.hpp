@@ -1,4 +1,4 @@
-// One satellite's pseudorange at the antenna r_a = r + C l (seed 004 eq. 7.18-7.19):
+// One satellite's pseudorange at the antenna r_a = r + C l (the FOI report, eqs. 7.18-7.19):
 // P = |r_s - r_a| + Sagnac + b - c (dt_s - T_GD) + I + T + noise, b the receiver
 // clock bias state (m). With u the unit vector from antenna to satellite,
 // dP/d(dr) = -u^T, dP/d(dtheta) = u^T C [l]x, dP/db = 1.
