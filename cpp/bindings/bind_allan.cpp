@@ -36,8 +36,7 @@ void bind_allan(py::module_& m) {
          py::array_t<double, py::array::c_style | py::array::forcecast> means) {
         if (x.ndim() != 1) throw py::value_error("allan_lag1_sums: x must be 1-D");
         const py::ssize_t count = m_list.ndim() == 1 ? m_list.shape(0) : -1;
-        if (count < 0 || d_list.ndim() != 1 || means.ndim() != 1 || d_list.shape(0) != count ||
-            means.shape(0) != count)
+        if (count < 0 || d_list.ndim() != 1 || means.ndim() != 1 || d_list.shape(0) != count || means.shape(0) != count)
           throw py::value_error("allan_lag1_sums: m, d and mean must be 1-D of one length");
         for (py::ssize_t k = 0; k < count; ++k) {
           if (m_list.at(k) < 1) throw py::value_error("allan_lag1_sums: cluster sizes must be >= 1");

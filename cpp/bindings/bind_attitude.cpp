@@ -129,9 +129,8 @@ void bind_attitude(py::module_& m) {
   m.def(
       "quat_multiply",
       [](const py::handle& a, const py::handle& b) {
-        return map2(a, {4}, "a", b, {4}, "b", {4}, "quat_multiply", [](const double* p, const double* q, double* o) {
-          put_quat(quat_of(p) * quat_of(q), o);
-        });
+        return map2(a, {4}, "a", b, {4}, "b", {4}, "quat_multiply",
+                    [](const double* p, const double* q, double* o) { put_quat(quat_of(p) * quat_of(q), o); });
       },
       py::arg("a"), py::arg("b"), "Hamilton product a (x) b over (..., 4) arrays");
   m.def(

@@ -51,9 +51,8 @@ void bind_earth(py::module_& m) {
   m.def(
       "geodetic_to_ecef",
       [](const py::handle& llh) {
-        return map3(llh, "geodetic_to_ecef", "llh", [](const Eigen::Map<const Vec3>& p) {
-          return geodetic_to_ecef(llh_of(p.data()));
-        });
+        return map3(llh, "geodetic_to_ecef", "llh",
+                    [](const Eigen::Map<const Vec3>& p) { return geodetic_to_ecef(llh_of(p.data())); });
       },
       py::arg("llh"), "(..., 3) [lat rad, lon rad, height m] -> (..., 3) ECEF m");
   m.def(
@@ -81,11 +80,11 @@ void bind_earth(py::module_& m) {
   local("enu_to_ecef", &enu_to_ecef, "enu", "(..., 3) ENU m relative to ref_llh -> ECEF m");
 
   m.def(
-      "rot_ned_to_ecef", [](double lat, double lon) -> Mat3 { return rot_ned_to_ecef(lat, lon); },
-      py::arg("lat_rad"), py::arg("lon_rad"), "3x3 rotation taking NED vectors to ECEF");
+      "rot_ned_to_ecef", [](double lat, double lon) -> Mat3 { return rot_ned_to_ecef(lat, lon); }, py::arg("lat_rad"),
+      py::arg("lon_rad"), "3x3 rotation taking NED vectors to ECEF");
   m.def(
-      "rot_enu_to_ecef", [](double lat, double lon) -> Mat3 { return rot_enu_to_ecef(lat, lon); },
-      py::arg("lat_rad"), py::arg("lon_rad"), "3x3 rotation taking ENU vectors to ECEF");
+      "rot_enu_to_ecef", [](double lat, double lon) -> Mat3 { return rot_enu_to_ecef(lat, lon); }, py::arg("lat_rad"),
+      py::arg("lon_rad"), "3x3 rotation taking ENU vectors to ECEF");
   m.def("normal_gravity", py::vectorize(&normal_gravity_mps2), py::arg("lat_rad"), py::arg("height_m"),
         "WGS-84 normal gravity magnitude (Somigliana + height terms), m/s^2");
   m.def(
@@ -97,7 +96,8 @@ void bind_earth(py::module_& m) {
       py::arg("xyz"), "(..., 3) ECEF m -> (..., 3) normal gravity vector in ECEF, m/s^2 (includes centrifugal)");
   m.def("meridian_radius", py::vectorize(&meridian_radius_m), py::arg("lat_rad"));
   m.def("prime_vertical_radius", py::vectorize(&prime_vertical_radius_m), py::arg("lat_rad"));
-  m.def("earth_rate_ecef", []() -> Vec3 { return earth_rate_ecef(); }, "Earth rotation vector in ECEF, rad/s");
+  m.def(
+      "earth_rate_ecef", []() -> Vec3 { return earth_rate_ecef(); }, "Earth rotation vector in ECEF, rad/s");
   m.def(
       "skew", [](const Vec3& v) -> Mat3 { return skew(v); }, py::arg("v"), "cross-product matrix");
 }

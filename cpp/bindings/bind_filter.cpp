@@ -40,10 +40,10 @@ namespace {
 
 using Array = py::array_t<double, py::array::c_style | py::array::forcecast>;
 constexpr int kTight = kTightAugmented;
-using AnyFilter = std::variant<InsFilter<5, 0>, InsFilter<7, 0>, InsFilter<5, kTight>, InsFilter<7, kTight>,
-                               InsFilter<5, 3>, InsFilter<7, 3>, InsFilter<5, 0, 1>, InsFilter<7, 0, 1>,
-                               InsFilter<5, kTight, 1>, InsFilter<7, kTight, 1>, InsFilter<5, 3, 1>,
-                               InsFilter<7, 3, 1>>;
+using AnyFilter =
+    std::variant<InsFilter<5, 0>, InsFilter<7, 0>, InsFilter<5, kTight>, InsFilter<7, kTight>, InsFilter<5, 3>,
+                 InsFilter<7, 3>, InsFilter<5, 0, 1>, InsFilter<7, 0, 1>, InsFilter<5, kTight, 1>,
+                 InsFilter<7, kTight, 1>, InsFilter<5, 3, 1>, InsFilter<7, 3, 1>>;
 
 // Tight: signal-in-space slots and clock states (NC = kTightAugmented). Loose: fix-error
 // states (NC = 3) when configured.
@@ -65,12 +65,12 @@ AnyFilter make_filter(const InsConfig& cfg, bool tight) {
   return cfg.estimate_time_offset ? make_filter_nt<1>(cfg, tight) : make_filter_nt<0>(cfg, tight);
 }
 
-constexpr int kImuCols = 7;   // t, dtheta xyz, dv xyz
-constexpr int kFixCols = 10;  // t, r xyz, v xyz, hdop, vdop, mode
+constexpr int kImuCols = 7;        // t, dtheta xyz, dv xyz
+constexpr int kFixCols = 10;       // t, r xyz, v xyz, hdop, vdop, mode
 constexpr int kFixColsSigma = 16;  // then sigma n, e, d (m) and sigma vn, ve, vd (m/s): NaN or <= 0 none
-constexpr int kPrCols = 5;    // t, prn, pseudorange, C/N0, lock count
+constexpr int kPrCols = 5;         // t, prn, pseudorange, C/N0, lock count
 constexpr int kPrColsDoppler = 6;  // then Doppler (Hz, positive approaching; NaN: none)
-constexpr int kAttCols = 5;   // t, yaw, pitch (NaN: none), sigma yaw, sigma pitch (rad)
+constexpr int kAttCols = 5;        // t, yaw, pitch (NaN: none), sigma yaw, sigma pitch (rad)
 
 FixInput fix_of(const double* p, int cols) {
   FixInput f;
@@ -99,7 +99,8 @@ Array table(py::handle obj, int cols, const char* name, int alt_cols = -1) {
   if (a.ndim() != 2 || a.shape(1) != cols)
     throw py::value_error(std::string(name) + ": expected shape (n, " + std::to_string(cols) +
                           (alt_cols > 0 ? ") or (n, " + std::to_string(alt_cols) : std::string()) + "), got ndim " +
-                          std::to_string(a.ndim()) + (a.ndim() == 2 ? ", " + std::to_string(a.shape(1)) + " columns" : ""));
+                          std::to_string(a.ndim()) +
+                          (a.ndim() == 2 ? ", " + std::to_string(a.shape(1)) + " columns" : ""));
   return a;
 }
 
@@ -327,7 +328,10 @@ py::dict run_batch(InsFilter<NB, NC, NT>& f, const Array& imu, const Array& fixe
       while (j < m && pf[j * fc] <= r[0]) {
         const InputStatus s = f.push_fix(fix_of(pf + j * fc, fc));
         if (s != InputStatus::Ok) {
-          bad = s; bad_row = offset.fixes + j; bad_what = "fixes"; bad_t = pf[j * fc];
+          bad = s;
+          bad_row = offset.fixes + j;
+          bad_what = "fixes";
+          bad_t = pf[j * fc];
           break;
         }
         ++j;
@@ -338,7 +342,10 @@ py::dict run_batch(InsFilter<NB, NC, NT>& f, const Array& imu, const Array& fixe
         while (e < np_rows && pp[e * pc] == pp[q * pc]) ++e;
         const InputStatus s = f.push_pseudoranges(pr_epoch(pp, q, e, pc));
         if (s != InputStatus::Ok) {
-          bad = s; bad_row = offset.prs + q; bad_what = "pseudoranges"; bad_t = pp[q * pc];
+          bad = s;
+          bad_row = offset.prs + q;
+          bad_what = "pseudoranges";
+          bad_t = pp[q * pc];
           break;
         }
         q = e;
@@ -348,7 +355,10 @@ py::dict run_batch(InsFilter<NB, NC, NT>& f, const Array& imu, const Array& fixe
         const double* a = pa + g * kAttCols;
         const InputStatus s = f.push_attitude(AttitudeInput{a[0], a[1], a[2], a[3], a[4]});
         if (s != InputStatus::Ok) {
-          bad = s; bad_row = offset.att + g; bad_what = "attitude"; bad_t = a[0];
+          bad = s;
+          bad_row = offset.att + g;
+          bad_what = "attitude";
+          bad_t = a[0];
           break;
         }
         ++g;
@@ -356,7 +366,10 @@ py::dict run_batch(InsFilter<NB, NC, NT>& f, const Array& imu, const Array& fixe
       if (bad != InputStatus::Ok) break;
       const InputStatus s = f.push_imu(r[0], Vec3(r[1], r[2], r[3]), Vec3(r[4], r[5], r[6]));
       if (s != InputStatus::Ok) {
-        bad = s; bad_row = offset.imu + k; bad_what = "imu"; bad_t = r[0];
+        bad = s;
+        bad_row = offset.imu + k;
+        bad_what = "imu";
+        bad_t = r[0];
         break;
       }
       if (f.initialised() && (offset.imu + k) % output_every == 0) {
@@ -387,7 +400,8 @@ py::dict run_batch(InsFilter<NB, NC, NT>& f, const Array& imu, const Array& fixe
     out["covariance"] = cov;
   }
   const auto nu = static_cast<py::ssize_t>(log.size());
-  Array ut({nu}), nis({nu}), gate({nu}), logdet({nu}), rscale({nu}), innov({nu, py::ssize_t(3)}), isig({nu, py::ssize_t(3)});
+  Array ut({nu}), nis({nu}), gate({nu}), logdet({nu}), rscale({nu}), innov({nu, py::ssize_t(3)}),
+      isig({nu, py::ssize_t(3)});
   py::array_t<int> kind({nu}), id({nu}), dof({nu});
   py::array_t<bool> acc({nu}), guarded({nu});
   for (py::ssize_t i = 0; i < nu; ++i) {
@@ -486,9 +500,11 @@ class PyFilter {
     const Array d = table(attitude.is_none() ? py::handle(Array(std::vector<py::ssize_t>{0, kAttCols})) : attitude,
                           kAttCols, "attitude");
     const RowOffsets at{imu_row0, fix_row0, pr_row0, att_row0};
-    py::dict out = std::visit([&](auto& f) {
-      return run_batch(f, a, b, c, d, output_every, with_cov, smooth || record, smooth_chunk_mb, carry_, at);
-    }, f_);
+    py::dict out = std::visit(
+        [&](auto& f) {
+          return run_batch(f, a, b, c, d, output_every, with_cov, smooth || record, smooth_chunk_mb, carry_, at);
+        },
+        f_);
     if (smooth) {
       py::dict sm = smooth_run(with_cov, py::none(), 0);
       for (auto item : sm) out[item.first] = item.second;
@@ -499,9 +515,9 @@ class PyFilter {
   py::dict smooth_run(bool with_cov, py::object sink, long block_rows) {
     if (!carry_.recorder) throw py::value_error("smooth: nothing recorded (run with record=True first)");
     if (!sink.is_none() && block_rows < 1) throw py::value_error("smooth: block_rows must be >= 1");
-    py::dict out = std::visit([&](auto& f) {
-      return smooth_recorded(*recorder_of(f, carry_.recorder.get()), with_cov, sink, block_rows);
-    }, f_);
+    py::dict out = std::visit(
+        [&](auto& f) { return smooth_recorded(*recorder_of(f, carry_.recorder.get()), with_cov, sink, block_rows); },
+        f_);
     py::dict info = out["smooth_info"];
     info["forward_s"] = carry_.forward_s;
     info["forward_cpu_s"] = carry_.forward_cpu_s;
@@ -530,12 +546,17 @@ class PyFilter {
     ++pr_count_;
   }
   void push_attitude(double t, double yaw, double pitch, double sigma_yaw, double sigma_pitch) {
-    const InputStatus s =
-        std::visit([&](auto& f) { return f.push_attitude(AttitudeInput{t, yaw, pitch, sigma_yaw, sigma_pitch}); }, f_);
+    const InputStatus s = std::visit(
+        [&](auto& f) {
+          return f.push_attitude(AttitudeInput{t, yaw, pitch, sigma_yaw, sigma_pitch});
+        },
+        f_);
     if (s != InputStatus::Ok) input_error("attitude", att_count_, t, s);
     ++att_count_;
   }
-  bool add_ephemeris(const gnss::Ephemeris& e) { return std::visit([&](auto& f) { return f.add_ephemeris(e); }, f_); }
+  bool add_ephemeris(const gnss::Ephemeris& e) {
+    return std::visit([&](auto& f) { return f.add_ephemeris(e); }, f_);
+  }
   void set_klobuchar(const std::vector<double>& alpha, const std::vector<double>& beta) {
     if (alpha.size() != 4 || beta.size() != 4) throw py::value_error("set_klobuchar: 4 alpha and 4 beta values");
     gnss::Klobuchar k;
@@ -548,7 +569,9 @@ class PyFilter {
   }
 
   template <class G>
-  auto with(G&& g) const { return std::visit([&](const auto& f) { return g(f); }, f_); }
+  auto with(G&& g) const {
+    return std::visit([&](const auto& f) { return g(f); }, f_);
+  }
 
  private:
   AnyFilter f_;
@@ -710,7 +733,8 @@ void bind_filter(py::module_& m) {
            py::arg("smooth_chunk_mb") = 256.0, py::arg("record") = false, py::arg("imu_row0") = 0,
            py::arg("fix_row0") = 0, py::arg("pr_row0") = 0, py::arg("attitude") = py::none(), py::arg("att_row0") = 0,
            "Batch: imu (n, 7) [t, dtheta xyz, dv xyz], fixes (m, 10) [t, r xyz, v xyz, hdop, vdop, mode], "
-           "pseudoranges (k, 5) [t, prn, pr, cn0, lock] or (k, 6) [..., Doppler Hz (NaN: none)] (tight), rows of one epoch sharing t. smooth: also a "
+           "pseudoranges (k, 5) [t, prn, pr, cn0, lock] or (k, 6) [..., Doppler Hz (NaN: none)] (tight), rows of one "
+           "epoch sharing t. smooth: also a "
            "fixed-interval smoother over the run (smooth_state, smooth_covariance, smooth_info); its record of the "
            "forward pass goes to a temporary file in chunks of smooth_chunk_mb. A run split into consecutive "
            "calls (each with the fixes and pseudoranges up to its last IMU time) gives the same rows: *_row0 are "
@@ -731,23 +755,50 @@ void bind_filter(py::module_& m) {
            "Dual-antenna heading (and pitch; NaN: none) in rad relative to local NED, with their sigmas.")
       .def("add_ephemeris", &PyFilter::add_ephemeris, py::arg("eph"))
       .def("set_klobuchar", &PyFilter::set_klobuchar, py::arg("alpha"), py::arg("beta"))
-      .def_property_readonly("initialised", [](const PyFilter& p) { return p.with([](const auto& f) { return f.initialised(); }); })
-      .def_property_readonly("nominal_step_s", [](const PyFilter& p) { return p.with([](const auto& f) { return f.nominal_step_s(); }); })
-      .def_property_readonly("standstill", [](const PyFilter& p) { return p.with([](const auto& f) { return f.standstill(); }); })
-      .def_property_readonly("n_states", [](const PyFilter& p) { return p.with([](const auto& f) { return static_cast<int>(f.N); }); })
-      .def_property_readonly("t", [](const PyFilter& p) { return p.with([](const auto& f) { return f.core().nav.t_s; }); })
-      .def_property_readonly("r_ecef", [](const PyFilter& p) { return p.with([](const auto& f) { return Vec3(f.core().nav.r_ecef_m); }); })
-      .def_property_readonly("v_ecef", [](const PyFilter& p) { return p.with([](const auto& f) { return Vec3(f.core().nav.v_ecef_mps); }); })
-      .def_property_readonly("q_eb", [](const PyFilter& p) {
-        return p.with([](const auto& f) { const Quat& q = f.core().nav.q_eb; return Eigen::Vector4d(q.w(), q.x(), q.y(), q.z()); }); })
-      .def_property_readonly("gyro_bias", [](const PyFilter& p) { return p.with([](const auto& f) { return Vec3(f.core().imu.gyro_bias_rad_per_s); }); })
-      .def_property_readonly("accel_bias", [](const PyFilter& p) { return p.with([](const auto& f) { return Vec3(f.core().imu.accel_bias_mps2); }); })
-      .def_property_readonly("clock", [](const PyFilter& p) { return p.with([](const auto& f) { return Eigen::Vector2d(f.core().clock); }); })
-      .def_property_readonly("fix_error", [](const PyFilter& p) { return p.with([](const auto& f) { return Vec3(f.core().fix_error); }); })
-      .def_property_readonly("time_offset", [](const PyFilter& p) { return p.with([](const auto& f) { return f.core().time_offset_s; }); },
-                             "The IMU time offset estimate (s; 0 without estimate_time_offset): add it to the declared one.")
-      .def_property_readonly("covariance", [](const PyFilter& p) {
-        return p.with([](const auto& f) { return Eigen::MatrixXd(f.core().P); }); })
-      .def_property_readonly("counters", [](const PyFilter& p) { return p.with([](const auto& f) { return counters_dict(f.counters()); }); })
-      .def_property_readonly("last_update", [](const PyFilter& p) { return p.with([](const auto& f) { return update_dict(f.last_update()); }); });
+      .def_property_readonly("initialised",
+                             [](const PyFilter& p) { return p.with([](const auto& f) { return f.initialised(); }); })
+      .def_property_readonly("nominal_step_s",
+                             [](const PyFilter& p) { return p.with([](const auto& f) { return f.nominal_step_s(); }); })
+      .def_property_readonly("standstill",
+                             [](const PyFilter& p) { return p.with([](const auto& f) { return f.standstill(); }); })
+      .def_property_readonly(
+          "n_states", [](const PyFilter& p) { return p.with([](const auto& f) { return static_cast<int>(f.N); }); })
+      .def_property_readonly("t",
+                             [](const PyFilter& p) { return p.with([](const auto& f) { return f.core().nav.t_s; }); })
+      .def_property_readonly(
+          "r_ecef", [](const PyFilter& p) { return p.with([](const auto& f) { return Vec3(f.core().nav.r_ecef_m); }); })
+      .def_property_readonly(
+          "v_ecef",
+          [](const PyFilter& p) { return p.with([](const auto& f) { return Vec3(f.core().nav.v_ecef_mps); }); })
+      .def_property_readonly("q_eb",
+                             [](const PyFilter& p) {
+                               return p.with([](const auto& f) {
+                                 const Quat& q = f.core().nav.q_eb;
+                                 return Eigen::Vector4d(q.w(), q.x(), q.y(), q.z());
+                               });
+                             })
+      .def_property_readonly("gyro_bias",
+                             [](const PyFilter& p) {
+                               return p.with([](const auto& f) { return Vec3(f.core().imu.gyro_bias_rad_per_s); });
+                             })
+      .def_property_readonly(
+          "accel_bias",
+          [](const PyFilter& p) { return p.with([](const auto& f) { return Vec3(f.core().imu.accel_bias_mps2); }); })
+      .def_property_readonly(
+          "clock",
+          [](const PyFilter& p) { return p.with([](const auto& f) { return Eigen::Vector2d(f.core().clock); }); })
+      .def_property_readonly(
+          "fix_error", [](const PyFilter& p) { return p.with([](const auto& f) { return Vec3(f.core().fix_error); }); })
+      .def_property_readonly(
+          "time_offset", [](const PyFilter& p) { return p.with([](const auto& f) { return f.core().time_offset_s; }); },
+          "The IMU time offset estimate (s; 0 without estimate_time_offset): add it to the declared one.")
+      .def_property_readonly(
+          "covariance",
+          [](const PyFilter& p) { return p.with([](const auto& f) { return Eigen::MatrixXd(f.core().P); }); })
+      .def_property_readonly(
+          "counters",
+          [](const PyFilter& p) { return p.with([](const auto& f) { return counters_dict(f.counters()); }); })
+      .def_property_readonly("last_update", [](const PyFilter& p) {
+        return p.with([](const auto& f) { return update_dict(f.last_update()); });
+      });
 }

@@ -71,17 +71,19 @@ class LinearRts final : public EskfObserver<kN> {
   void on_propagate(const MatN& phi) override {
     Eigen::Map<MatN>(tape_.append(SmootherTape::kPropagate, kN * kN)) = phi;
   }
-  void on_transition(const MatN& a) override {
-    Eigen::Map<MatN>(tape_.append(SmootherTape::kTransition, kN * kN)) = a;
-  }
+  void on_transition(const MatN& a) override { Eigen::Map<MatN>(tape_.append(SmootherTape::kTransition, kN * kN)) = a; }
   void on_update(const MatRef& H, const MatRef& K, const MatRef& s_inv, const VecRef& y, const Mat3& g) override {
     const int m = static_cast<int>(H.rows());
     double* d = tape_.append(SmootherTape::kUpdate, 1 + 2 * m * kN + m * m + m + 9);
     *d++ = m;
-    Eigen::Map<Eigen::MatrixXd>(d, m, kN) = H; d += m * kN;
-    Eigen::Map<Eigen::MatrixXd>(d, kN, m) = K; d += kN * m;
-    Eigen::Map<Eigen::MatrixXd>(d, m, m) = s_inv; d += m * m;
-    Eigen::Map<Eigen::VectorXd>(d, m) = y; d += m;
+    Eigen::Map<Eigen::MatrixXd>(d, m, kN) = H;
+    d += m * kN;
+    Eigen::Map<Eigen::MatrixXd>(d, kN, m) = K;
+    d += kN * m;
+    Eigen::Map<Eigen::MatrixXd>(d, m, m) = s_inv;
+    d += m * m;
+    Eigen::Map<Eigen::VectorXd>(d, m) = y;
+    d += m;
     Eigen::Map<Mat3>{d} = g;
   }
 

@@ -29,8 +29,7 @@ inline std::string shape_text(const py::array& a) {
   return s + (a.ndim() == 1 ? ",)" : ")");
 }
 
-inline Rows rows_of(const py::handle& obj, std::initializer_list<py::ssize_t> tail, const char* fn,
-                    const char* arg) {
+inline Rows rows_of(const py::handle& obj, std::initializer_list<py::ssize_t> tail, const char* fn, const char* arg) {
   Rows r;
   r.array = Array::ensure(obj);
   if (!r.array) throw py::type_error(std::string(fn) + ": argument '" + arg + "' is not convertible to a float array");

@@ -14,8 +14,7 @@ constexpr std::size_t kBlock = std::size_t{1} << 16;
 
 // Terms i0 <= i < i1 (i1 - i0 a multiple of 4) added to the four partial sums s[0..3]: term i goes
 // to s[i % 4], in increasing i, exactly as one pass over the whole range adds them.
-inline void add_terms(const double* a, const double* b, const double* c, std::size_t i0, std::size_t i1,
-                      double* s) {
+inline void add_terms(const double* a, const double* b, const double* c, std::size_t i0, std::size_t i1, double* s) {
   double s0 = s[0], s1 = s[1], s2 = s[2], s3 = s[3];
   for (std::size_t i = i0; i < i1; i += 4) {
     const double d0 = c[i] - 2.0 * b[i] + a[i];

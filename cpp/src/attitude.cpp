@@ -73,9 +73,8 @@ Mat3 dcm_from_euler(const Euler& e) {
   const double cp = std::cos(e.pitch_rad), sp = std::sin(e.pitch_rad);
   const double cr = std::cos(e.roll_rad), sr = std::sin(e.roll_rad);
   Mat3 c;  // Rz(yaw) Ry(pitch) Rx(roll)
-  c << cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr,
-       sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr,
-       -sp,     cp * sr,                cp * cr;
+  c << cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr, sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr,
+      -sp, cp * sr, cp * cr;
   return c;
 }
 

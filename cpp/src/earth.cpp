@@ -7,8 +7,7 @@ namespace gpsins {
 Vec3 geodetic_to_ecef(const Geodetic& llh) {
   const double sl = std::sin(llh.lat_rad), cl = std::cos(llh.lat_rad);
   const double n = prime_vertical_radius_m(llh.lat_rad);
-  return Vec3((n + llh.height_m) * cl * std::cos(llh.lon_rad),
-              (n + llh.height_m) * cl * std::sin(llh.lon_rad),
+  return Vec3((n + llh.height_m) * cl * std::cos(llh.lon_rad), (n + llh.height_m) * cl * std::sin(llh.lon_rad),
               (n * (1.0 - wgs84::e2) + llh.height_m) * sl);
 }
 
@@ -50,9 +49,7 @@ Mat3 rot_ned_to_ecef(double lat_rad, double lon_rad) {
   const double sl = std::sin(lat_rad), cl = std::cos(lat_rad);
   const double so = std::sin(lon_rad), co = std::cos(lon_rad);
   Mat3 c;  // columns: north, east, down in ECEF
-  c << -sl * co, -so, -cl * co,
-       -sl * so,  co, -cl * so,
-        cl,      0.0, -sl;
+  c << -sl * co, -so, -cl * co, -sl * so, co, -cl * so, cl, 0.0, -sl;
   return c;
 }
 

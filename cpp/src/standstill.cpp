@@ -84,8 +84,8 @@ bool StandstillDetector::decide(const Vec3& rate_less_bias_earth, bool may_begin
                      rate_less_bias_earth.norm() < th_.gyro_mean_rad_per_s;
   const double sigma = th_.accel_vrw_mps_per_sqrt_s.maxCoeff() / std::sqrt(window_dt_);
   const double shift = std::max(th_.accel_shift_mps2, 5.0 * sigma);
-  const bool near_ref = have_ref_ && (mean_f_ - ref_f_).norm() < shift &&
-                        (mean_w_ - ref_w_).norm() < th_.gyro_mean_rad_per_s;
+  const bool near_ref =
+      have_ref_ && (mean_f_ - ref_f_).norm() < shift && (mean_w_ - ref_w_).norm() < th_.gyro_mean_rad_per_s;
   if (veto || !quiet) {
     standing_ = false;
   } else if (!standing_) {

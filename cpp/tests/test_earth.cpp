@@ -32,8 +32,8 @@ TEST_CASE("geodetic round trip everywhere, poles and -5 km .. +100 km included")
     worst_m = std::max(worst_m, std::abs(out.height_m - in.height_m));
     worst_rad = std::max(worst_rad, std::abs(out.lat_rad - in.lat_rad));
     if (std::abs(in.lat_rad) < M_PI / 2 - 1e-9) {
-      worst_rad = std::max(worst_rad, std::abs(std::remainder(out.lon_rad - in.lon_rad, 2 * M_PI)) *
-                                          std::cos(in.lat_rad));
+      worst_rad =
+          std::max(worst_rad, std::abs(std::remainder(out.lon_rad - in.lon_rad, 2 * M_PI)) * std::cos(in.lat_rad));
     }
   };
   for (int i = 0; i < 200000; ++i) check({lat(rng), lon(rng), h(rng)});

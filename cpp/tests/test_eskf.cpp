@@ -42,8 +42,8 @@ Eigen::Matrix<double, 3 * NB, 3 * NB> dense(const BlockMat<NB>& m) {
 
 // Van Loan (1978): exp([[-F, Qc], [0, F^T]] dt) = [[., Phi^-1 Qd], [0, Phi^T]].
 template <int NB, class Blocks>
-void van_loan(const BlockMat<NB>& F, const Blocks& qc, double dt,
-              Eigen::Matrix<double, 3 * NB, 3 * NB>& phi, Eigen::Matrix<double, 3 * NB, 3 * NB>& qd) {
+void van_loan(const BlockMat<NB>& F, const Blocks& qc, double dt, Eigen::Matrix<double, 3 * NB, 3 * NB>& phi,
+              Eigen::Matrix<double, 3 * NB, 3 * NB>& qd) {
   constexpr int n = 3 * NB;
   Eigen::MatrixXd a = Eigen::MatrixXd::Zero(2 * n, 2 * n);
   const auto fd = dense(F);
@@ -71,8 +71,8 @@ void compare_with_van_loan(double dt) {
   // matters is the effect on the propagated covariance, not a block's own size.
   constexpr int n = 3 * NB;
   Eigen::Matrix<double, n, 1> s;
-  s.template segment<15>(0) << Vec3::Constant(0.01), Vec3::Constant(0.1), Vec3::Constant(1.0),
-      Vec3::Constant(1e-3), Vec3::Constant(0.01);
+  s.template segment<15>(0) << Vec3::Constant(0.01), Vec3::Constant(0.1), Vec3::Constant(1.0), Vec3::Constant(1e-3),
+      Vec3::Constant(0.01);
   if constexpr (NB == 7) s.template segment<6>(15).setConstant(1e-3);
   const auto scaled = [&](const Eigen::Matrix<double, n, n>& a) {
     return (s.cwiseInverse().asDiagonal() * a * s.asDiagonal()).cwiseAbs().maxCoeff();
@@ -80,8 +80,8 @@ void compare_with_van_loan(double dt) {
   const Eigen::Matrix<double, n, 1> qs = qd_ref.diagonal().cwiseMax(1e-300).cwiseSqrt();
   const double worst_phi = scaled(dense(phi) - phi_ref);
   const double worst_first_order = scaled(Eigen::Matrix<double, n, n>::Identity() + dense(F) * dt - phi_ref);
-  const double worst_qd = (qs.cwiseInverse().asDiagonal() * (qd - qd_ref) * qs.cwiseInverse().asDiagonal())
-                              .cwiseAbs().maxCoeff();
+  const double worst_qd =
+      (qs.cwiseInverse().asDiagonal() * (qd - qd_ref) * qs.cwiseInverse().asDiagonal()).cwiseAbs().maxCoeff();
   // The propagated covariance, normalised like a correlation matrix: what the filter uses.
   const Eigen::Matrix<double, n, n> p0 = s.cwiseAbs2().asDiagonal();
   const Eigen::Matrix<double, n, n> p_ref = phi_ref * p0 * phi_ref.transpose() + qd_ref;
@@ -156,7 +156,7 @@ TEST_CASE("lever arm: the update's attitude Jacobian matches a numerical derivat
     d(k) = 1e-6;
     g.nav.q_eb = f.nav.q_eb * quat_from_rotvec(d);
     const auto mg = position_fix(g, z, Mat3::Identity(), lever);
-    const Vec3 numeric = (m.y - mg.y) / 1e-6;  // y = z - h(x): h grows by H dx
+    const Vec3 numeric = (m.y - mg.y) / 1e-6;     // y = z - h(x): h grows by H dx
     CHECK((numeric - m.H.col(k)).norm() < 1e-5);  // second-order term: |l| 1e-6 / 2
   }
 }

@@ -41,8 +41,8 @@ constexpr std::array<const char*, 7> kBlock{"att", "vel", "pos", "bg", "ba", "sg
 // difference stays far above rounding at ECEF magnitudes), small for angles.
 VecN fd_steps() {
   VecN h;
-  h << Vec3::Constant(1e-5), Vec3::Constant(1.0), Vec3::Constant(10.0), Vec3::Constant(1e-5),
-      Vec3::Constant(1e-3), Vec3::Constant(1e-5), Vec3::Constant(1e-5), 10.0, 1.0;
+  h << Vec3::Constant(1e-5), Vec3::Constant(1.0), Vec3::Constant(10.0), Vec3::Constant(1e-5), Vec3::Constant(1e-3),
+      Vec3::Constant(1e-5), Vec3::Constant(1e-5), 10.0, 1.0;
   return h;
 }
 
@@ -183,8 +183,8 @@ TEST_CASE("Phi matches a finite-difference linearisation of the mechanisation") 
     const Case c = random_case(rng, dt);
     const MatN phi = phi_by_differences(c);
     // The bias and scale-factor states are constants of the mechanisation: their rows of Phi are identity.
-    worst_bias_rows = std::max(worst_bias_rows,
-                               (phi.middleRows<12>(es::bg) - MatN::Identity().middleRows<12>(es::bg)).norm());
+    worst_bias_rows =
+        std::max(worst_bias_rows, (phi.middleRows<12>(es::bg) - MatN::Identity().middleRows<12>(es::bg)).norm());
     // Clock: bias integrates drift, nothing else couples.
     Eigen::Matrix2d clk;
     clk << 1.0, dt, 0.0, 1.0;
@@ -336,8 +336,8 @@ TEST_CASE("every aiding source's H matches finite differences of an independent 
   }
   for (const auto& [k, v] : worst.rel) MESSAGE(k << " worst relative error " << v);
   // Exact: position and velocity states, clock.
-  for (const char* k : {"position_fix_pos", "position_fix_att", "gnss_velocity_vel", "zero_velocity_vel",
-                        "pseudorange_clock"})
+  for (const char* k :
+       {"position_fix_pos", "position_fix_att", "gnss_velocity_vel", "zero_velocity_vel", "pseudorange_clock"})
     CHECK_MESSAGE(worst.rel[k] < 1e-6, std::string(k));
   // The pseudorange treats the Sagnac term as a constant: omega r_sat / c ~ 6e-6 of the line of sight.
   CHECK(worst.rel["pseudorange_pos"] < 1e-4);
@@ -429,9 +429,9 @@ TEST_CASE("fix-error states: Phi and the fix's H match finite differences") {
     const double phi_gm = std::exp(-dt / tau);
     worst_gm_phi = std::max(worst_gm_phi, (fd.bottomRightCorner<3, 3>() - phi_gm * Mat3::Identity()).norm() +
                                               (cap.phi.bottomRightCorner<3, 3>() - phi_gm * Mat3::Identity()).norm());
-    worst_cross = std::max(worst_cross, fd.bottomLeftCorner<3, 21>().norm() + fd.topRightCorner<21, 3>().norm() +
-                                            cap.phi.bottomLeftCorner<3, 21>().norm() +
-                                            cap.phi.topRightCorner<21, 3>().norm());
+    worst_cross =
+        std::max(worst_cross, fd.bottomLeftCorner<3, 21>().norm() + fd.topRightCorner<21, 3>().norm() +
+                                  cap.phi.bottomLeftCorner<3, 21>().norm() + cap.phi.topRightCorner<21, 3>().norm());
     // The navigation block is the one the test above checks; here only that it is the same Phi.
     worst_nav = std::max(worst_nav, (cap.phi.topLeftCorner<21, 21>() - code_phi(c)).norm());
 
@@ -455,8 +455,9 @@ TEST_CASE("fix-error states: Phi and the fix's H match finite differences") {
     const Vec3 z = f.nav.r_ecef_m + f.nav.q_eb * w.lever + f.fix_error;
     CHECK((position_fix(f, z, Mat3::Identity(), w.lever).y).norm() < 1e-6);
   }
-  MESSAGE("fix error: Phi block " << worst_gm_phi << ", cross blocks " << worst_cross << ", nav block vs the 21-state Phi "
-          << worst_nav << "; H nav columns " << worst_h << ", H fix-error columns " << worst_h_gm);
+  MESSAGE("fix error: Phi block " << worst_gm_phi << ", cross blocks " << worst_cross
+                                  << ", nav block vs the 21-state Phi " << worst_nav << "; H nav columns " << worst_h
+                                  << ", H fix-error columns " << worst_h_gm);
   CHECK(worst_gm_phi < 1e-7);
   CHECK(worst_cross < 1e-6);
   CHECK(worst_nav < 1e-12);

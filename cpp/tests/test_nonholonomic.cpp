@@ -38,13 +38,20 @@ TEST_CASE("vehicle velocity: the Jacobian matches finite differences (velocity, 
   const auto f = moving_filter();
   const auto m = vehicle_velocity(f, kCvb, kPoint, kRate);
   for (int k = 0; k < 3; ++k) {
-    const Vec3 dv = numeric_column(f, [k](auto& g, double h) { g.nav.v_ecef_mps(k) += h; }, 1e-4);
+    const Vec3 dv = numeric_column(
+        f, [k](auto& g, double h) { g.nav.v_ecef_mps(k) += h; }, 1e-4);
     CHECK((dv - m.H.col(es::vel + k)).norm() < 1e-8);
     const Vec3 dth = numeric_column(
-        f, [k](auto& g, double h) { Vec3 d = Vec3::Zero(); d(k) = h; g.nav.q_eb = g.nav.q_eb * quat_from_rotvec(d); },
+        f,
+        [k](auto& g, double h) {
+          Vec3 d = Vec3::Zero();
+          d(k) = h;
+          g.nav.q_eb = g.nav.q_eb * quat_from_rotvec(d);
+        },
         1e-7);
     CHECK((dth - m.H.col(es::att + k)).norm() < 1e-5);  // second order: |v| 1e-7
-    const Vec3 dbg = numeric_column(f, [k](auto& g, double h) { g.imu.gyro_bias_rad_per_s(k) += h; }, 1e-6);
+    const Vec3 dbg = numeric_column(
+        f, [k](auto& g, double h) { g.imu.gyro_bias_rad_per_s(k) += h; }, 1e-6);
     CHECK((dbg - m.H.col(es::bg + k)).norm() < 1e-8);
   }
   // Nothing else moves the vehicle velocity.

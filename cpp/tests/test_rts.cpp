@@ -22,14 +22,19 @@ struct Recorded {
   long outputs = 0;
   explicit Recorded(std::size_t chunk) : tape(chunk) {}
   void propagate(const MatN& phi) { Eigen::Map<MatN>(tape.append(SmootherTape::kPropagate, kN * kN)) = phi; }
-  void update(const Eigen::MatrixXd& H, const Eigen::MatrixXd& K, const Eigen::MatrixXd& s_inv, const Eigen::VectorXd& y) {
+  void update(const Eigen::MatrixXd& H, const Eigen::MatrixXd& K, const Eigen::MatrixXd& s_inv,
+              const Eigen::VectorXd& y) {
     const int m = static_cast<int>(H.rows());
     double* d = tape.append(SmootherTape::kUpdate, 1 + 2 * m * kN + m * m + m + 9);
     *d++ = m;
-    Eigen::Map<Eigen::MatrixXd>(d, m, kN) = H; d += m * kN;
-    Eigen::Map<Eigen::MatrixXd>(d, kN, m) = K; d += kN * m;
-    Eigen::Map<Eigen::MatrixXd>(d, m, m) = s_inv; d += m * m;
-    Eigen::Map<Eigen::VectorXd>(d, m) = y; d += m;
+    Eigen::Map<Eigen::MatrixXd>(d, m, kN) = H;
+    d += m * kN;
+    Eigen::Map<Eigen::MatrixXd>(d, kN, m) = K;
+    d += kN * m;
+    Eigen::Map<Eigen::MatrixXd>(d, m, m) = s_inv;
+    d += m * m;
+    Eigen::Map<Eigen::VectorXd>(d, m) = y;
+    d += m;
     Eigen::Map<Mat3>{d} = Mat3::Identity();
   }
   void output(const VecN& x, const MatN& p) {
@@ -114,8 +119,10 @@ TEST_CASE("smoother backward pass equals a textbook RTS, in memory and spilled t
     Run bf, tb;
     std::size_t spilled = 0;
     smooth_both(chunk, bf, tb, spilled);
-    if (chunk == 4096) CHECK(spilled > 0);
-    else CHECK(spilled == 0);
+    if (chunk == 4096)
+      CHECK(spilled > 0);
+    else
+      CHECK(spilled == 0);
     double dx = 0.0, dp = 0.0, gain = 0.0;
     for (std::size_t k = 0; k < bf.xs.size(); ++k) {
       dx = std::max(dx, (bf.xs[k] - tb.xs[k]).cwiseAbs().maxCoeff());
@@ -207,16 +214,23 @@ TEST_CASE("smoother backward pass: sparse transitions and updates equal the dens
       for (int r = 0; r < m; ++r) y(r) = n01(rng);
       const Vec3 dth(0.1 * n01(rng), 0.1 * n01(rng), 0.3 * n01(rng));  // large injected attitude
       Mat3 g = Mat3::Identity();
-      g(0, 1) = 0.5 * dth.z(); g(1, 0) = -0.5 * dth.z();
-      g(0, 2) = -0.5 * dth.y(); g(2, 0) = 0.5 * dth.y();
-      g(1, 2) = 0.5 * dth.x(); g(2, 1) = -0.5 * dth.x();  // I - [dth/2]x
+      g(0, 1) = 0.5 * dth.z();
+      g(1, 0) = -0.5 * dth.z();
+      g(0, 2) = -0.5 * dth.y();
+      g(2, 0) = 0.5 * dth.y();
+      g(1, 2) = 0.5 * dth.x();
+      g(2, 1) = -0.5 * dth.x();  // I - [dth/2]x
       double* d = tape.append(SmootherTape::kUpdate, 1 + 2 * m * N + m * m + m + 9);
       std::vector<double> copy;
       *d++ = m;
-      Eigen::Map<Eigen::MatrixXd>(d, m, N) = H; d += m * N;
-      Eigen::Map<Eigen::MatrixXd>(d, N, m) = K; d += N * m;
-      Eigen::Map<Eigen::MatrixXd>(d, m, m) = s_inv; d += m * m;
-      Eigen::Map<Eigen::VectorXd>(d, m) = y; d += m;
+      Eigen::Map<Eigen::MatrixXd>(d, m, N) = H;
+      d += m * N;
+      Eigen::Map<Eigen::MatrixXd>(d, N, m) = K;
+      d += N * m;
+      Eigen::Map<Eigen::MatrixXd>(d, m, m) = s_inv;
+      d += m * m;
+      Eigen::Map<Eigen::VectorXd>(d, m) = y;
+      d += m;
       Eigen::Map<Mat3>{d} = g;
       records.push_back({2, {}});
       auto& r = records.back().second;

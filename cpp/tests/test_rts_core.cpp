@@ -24,11 +24,11 @@ struct Tap final : EskfObserver<3 * NB + NC> {
   using VecN = Eigen::Matrix<double, N, 1>;
   using Base = EskfObserver<N>;
   struct Event {
-    int kind;       // 1 propagate, 2 update, 3 transition, 4 output
-    MatN a;         // Phi or A
-    MatN p_after;   // the forward covariance after this record
-    VecN ky;        // an update's injected correction
-    Mat3 g;         // an update's reset
+    int kind;      // 1 propagate, 2 update, 3 transition, 4 output
+    MatN a;        // Phi or A
+    MatN p_after;  // the forward covariance after this record
+    VecN ky;       // an update's injected correction
+    Mat3 g;        // an update's reset
   };
   const Eskf<NB, NC>* core = nullptr;
   EskfRecorder<NB, NC> rec{std::size_t(64) << 20};
@@ -134,8 +134,8 @@ struct FixErrorRun {
       tap.output();
       Eigen::Matrix<double, 21, 1> row;
       row << core.nav.t_s, core.nav.r_ecef_m, core.nav.v_ecef_mps, core.nav.q_eb.w(), core.nav.q_eb.x(),
-          core.nav.q_eb.y(), core.nav.q_eb.z(), core.imu.gyro_bias_rad_per_s, core.imu.accel_bias_mps2,
-          core.fix_error, 0.0;
+          core.nav.q_eb.y(), core.nav.q_eb.z(), core.imu.gyro_bias_rad_per_s, core.imu.accel_bias_mps2, core.fix_error,
+          0.0;
       forward_rows.push_back(row);
     };
     output();
@@ -212,8 +212,9 @@ TEST_CASE("smoother on the loose core with fix-error states, resets and a headin
     // The textbook's smoothed position, velocity and fix error: forward nominal plus its dx.
     d_pos = std::max(d_pos, (s.segment<3>(1) - (f.segment<3>(1) + dx.segment<3>(es::pos))).cwiseAbs().maxCoeff());
     d_vel = std::max(d_vel, (s.segment<3>(4) - (f.segment<3>(4) + dx.segment<3>(es::vel))).cwiseAbs().maxCoeff());
-    d_fe = std::max(d_fe, (s.segment<3>(17) - (f.segment<3>(17) + dx.segment<3>(FixErrorRun::Core::kFixError)))
-                              .cwiseAbs().maxCoeff());
+    d_fe = std::max(
+        d_fe,
+        (s.segment<3>(17) - (f.segment<3>(17) + dx.segment<3>(FixErrorRun::Core::kFixError))).cwiseAbs().maxCoeff());
     moved = std::max(moved, dx.segment<3>(FixErrorRun::Core::kFixError).cwiseAbs().maxCoeff());
     // Covariance of everything but the attitude (its rows turn with the smoothed attitude).
     const auto a = run.smoothed_p[k].bottomRightCorner<15, 15>();

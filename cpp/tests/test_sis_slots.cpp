@@ -34,7 +34,7 @@ TEST_CASE("SisSlots: satellites ranged at this epoch or the one before are not r
   CHECK(s.prn(c.slot) == 3);
   s.begin_epoch(4.0);
   s.begin_epoch(5.0);
-  s.begin_epoch(4.5);  // not later: ignored
+  s.begin_epoch(4.5);                  // not later: ignored
   const auto d = s.assign(2, 0, 5.0);  // the one used longest ago goes: satellite 1's (t = 2)
   CHECK(d.outcome == Outcome::Taken);
   CHECK(s.prn(d.slot) == 2);

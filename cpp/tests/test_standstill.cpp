@@ -65,7 +65,7 @@ TEST_CASE("standstill: the same decisions at 50, 64, 200 and 400 Hz") {
       const Run r = rest_then_pull(rate, 0.3, seed);
       INFO("rate " << rate << " seed " << seed);
       CHECK(r.first_standing_s > 0.0);
-      CHECK(r.first_standing_s < 0.6);  // one window (0.5 s) and a block
+      CHECK(r.first_standing_s < 0.6);    // one window (0.5 s) and a block
       CHECK(r.standing_fraction == 1.0);  // no missed standstill at rest
       // A smooth 0.3 m/s^2 pull-away (speed 0.15 m/s after 0.5 s) ends it quickly.
       CHECK(r.end_after_s > 0.0);
@@ -205,7 +205,8 @@ TEST_CASE("fixes inside a long IMU gap set no heading, and increments covering t
   // that cover their whole step (rates integrated), 5 Hz fixes with velocity, and 2 s of
   // IMU samples missing at 20 s while the fixes go on.
   const Stand s;
-  const Vec3 v = rot_ned_to_ecef(s.site.lat_rad, s.site.lon_rad) * Vec3(10.0 * std::cos(0.5), 10.0 * std::sin(0.5), 0.0);
+  const Vec3 v =
+      rot_ned_to_ecef(s.site.lat_rad, s.site.lon_rad) * Vec3(10.0 * std::cos(0.5), 10.0 * std::sin(0.5), 0.0);
   auto r_at = [&](double t) { return Vec3(s.r + v * t); };
   auto f_body = [&](double t) {  // at constant ECEF velocity C f = -gamma + 2 w_ie x v
     return Vec3(s.q.conjugate() * (2.0 * earth_rate_ecef().cross(v) - normal_gravity_ecef(r_at(t))));

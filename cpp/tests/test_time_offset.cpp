@@ -22,9 +22,9 @@ using Core = Eskf<5, 2, 1>;
 constexpr int kT = Core::kTimeOffset;
 
 const Vec3 kLever(0.6, -0.3, -1.1);
-const Vec3 kRate(0.05, -0.08, 0.3);     // rad/s, body: turning
-const Vec3 kForce(1.5, -0.8, -9.6);     // m/s^2, body: accelerating while turning
-constexpr double kStep = 0.002;         // s
+const Vec3 kRate(0.05, -0.08, 0.3);  // rad/s, body: turning
+const Vec3 kForce(1.5, -0.8, -9.6);  // m/s^2, body: accelerating while turning
+constexpr double kStep = 0.002;      // s
 
 Core moving_core() {
   Core f;

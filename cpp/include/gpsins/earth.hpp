@@ -50,9 +50,7 @@ inline Vec3 earth_rate_ecef() { return Vec3(0.0, 0.0, wgs84::omega_rad_per_s); }
 // Skew-symmetric (cross-product) matrix: skew(a) * b == a.cross(b).
 inline Mat3 skew(const Vec3& v) {
   Mat3 s;
-  s << 0.0, -v.z(), v.y(),
-       v.z(), 0.0, -v.x(),
-      -v.y(), v.x(), 0.0;
+  s << 0.0, -v.z(), v.y(), v.z(), 0.0, -v.x(), -v.y(), v.x(), 0.0;
   return s;
 }
 

@@ -55,7 +55,7 @@ struct ProcessNoise {
   Vec3 accel_bias_drive_var = Vec3::Zero();  // (m/s^2)^2/s
   Vec3 gyro_bias_inv_tau = Vec3::Zero();     // 1/s; 0 = random walk or constant
   Vec3 accel_bias_inv_tau = Vec3::Zero();
-  Vec3 gyro_sf_drive_var = Vec3::Zero();     // 1/s
+  Vec3 gyro_sf_drive_var = Vec3::Zero();  // 1/s
   Vec3 accel_sf_drive_var = Vec3::Zero();
   // Gyro misalignment left by the calibration (variance of each off-diagonal element
   // of the triad's matrix, rad^2): white attitude noise driven by the rate, below.
@@ -106,7 +106,7 @@ struct UpdateResult {
   double log_det_s = 0.0;  // ln det S: with the NIS, the update's Gaussian log-likelihood
   double r_scale = 1.0;    // > 1: a robust update, its R scaled by this (InsFilter::apply)
   bool accepted = false;
-  bool guarded = false;  // rejected because the result was not a valid covariance
+  bool guarded = false;           // rejected because the result was not a valid covariance
   bool attitude_refused = false;  // rejected: the attitude correction exceeded its limit
 };
 
@@ -119,9 +119,15 @@ struct BlockMat {
   Mat3& at(int i, int j) { return b[i * NB + j]; }
   const Mat3& at(int i, int j) const { return b[i * NB + j]; }
   bool has(int i, int j) const { return nz[i * NB + j]; }
-  void set(int i, int j, const Mat3& m) { b[i * NB + j] = m; nz[i * NB + j] = true; }
+  void set(int i, int j, const Mat3& m) {
+    b[i * NB + j] = m;
+    nz[i * NB + j] = true;
+  }
   void add(int i, int j, const Mat3& m) {
-    if (has(i, j)) at(i, j) += m; else set(i, j, m);
+    if (has(i, j))
+      at(i, j) += m;
+    else
+      set(i, j, m);
   }
   void clear() { nz.fill(false); }
 };
@@ -148,9 +154,9 @@ class Eskf {
   static constexpr int N = kNav + NC + NT;
   static constexpr bool kHasClock = NC == 2 || NC == kTightAugmented;
   static constexpr int kSisCount = NC == kTightAugmented ? kSisSlots : 0;
-  static constexpr int kSis = kNav;                 // kSisCount slots
-  static constexpr int kClock = kNav + kSisCount;   // kHasClock
-  static constexpr int kFixError = kNav;  // NC == 3
+  static constexpr int kSis = kNav;                // kSisCount slots
+  static constexpr int kClock = kNav + kSisCount;  // kHasClock
+  static constexpr int kFixError = kNav;           // NC == 3
   using VecSis = Eigen::Matrix<double, kSisSlots, 1>;
   static constexpr int kTimeOffset = kNav + NC;  // NT == 1
   using VecN = Eigen::Matrix<double, N, 1>;
@@ -160,9 +166,9 @@ class Eskf {
   NavState nav;
   ImuErrorEstimate imu;
   Eigen::Vector2d clock = Eigen::Vector2d::Zero();  // receiver clock bias (m), drift (m/s)
-  Vec3 fix_error = Vec3::Zero();  // NC == 3: the fix's correlated error estimate, ECEF (m)
-  VecSis sis = VecSis::Zero();    // kSisCount: each slot's signal-in-space error estimate (m)
-  double time_offset_s = 0.0;     // NT == 1: dt_imu (see the layout above)
+  Vec3 fix_error = Vec3::Zero();                    // NC == 3: the fix's correlated error estimate, ECEF (m)
+  VecSis sis = VecSis::Zero();                      // kSisCount: each slot's signal-in-space error estimate (m)
+  double time_offset_s = 0.0;                       // NT == 1: dt_imu (see the layout above)
   MatN P = MatN::Zero();
   ProcessNoise noise;
   EskfObserver<N>* observer = nullptr;  // a smoother recording the forward pass (rts.hpp)
@@ -170,8 +176,8 @@ class Eskf {
   // Raw increment corrected by the current bias and scale-factor estimates.
   Increment corrected(const Increment& raw) const {
     Increment c = raw;
-    c.dtheta_rad = (raw.dtheta_rad - imu.gyro_bias_rad_per_s * raw.dt_s).cwiseQuotient(
-        Vec3::Ones() + imu.gyro_scale_factor);
+    c.dtheta_rad =
+        (raw.dtheta_rad - imu.gyro_bias_rad_per_s * raw.dt_s).cwiseQuotient(Vec3::Ones() + imu.gyro_scale_factor);
     c.dv_mps = (raw.dv_mps - imu.accel_bias_mps2 * raw.dt_s).cwiseQuotient(Vec3::Ones() + imu.accel_scale_factor);
     return c;
   }
@@ -502,15 +508,16 @@ UpdateResult<M> Eskf<NB, NC, NT>::update(const Eigen::Matrix<double, M, 1>& y, c
   return res;
 }
 
-#define GPSINS_ESKF_UPDATE(NB, NC, NT, M)                                                         \
-  template UpdateResult<M> Eskf<NB, NC, NT>::update<M>(                                         \
-      const Eigen::Matrix<double, M, 1>&, const Eigen::Matrix<double, M, Eskf<NB, NC, NT>::N>&, \
-      const Eigen::Matrix<double, M, M>&, double, double);
+#define GPSINS_ESKF_UPDATE(NB, NC, NT, M)                                                                    \
+  template UpdateResult<M> Eskf<NB, NC, NT>::update<M>(const Eigen::Matrix<double, M, 1>&,                   \
+                                                       const Eigen::Matrix<double, M, Eskf<NB, NC, NT>::N>&, \
+                                                       const Eigen::Matrix<double, M, M>&, double, double);
 // The updates of one filter variant (cpp/src/eskf_updates/ instantiates them).
 #define GPSINS_ESKF_UPDATES(NB, NC, NT) \
   GPSINS_ESKF_UPDATE(NB, NC, NT, 1) GPSINS_ESKF_UPDATE(NB, NC, NT, 2) GPSINS_ESKF_UPDATE(NB, NC, NT, 3)
-#define GPSINS_ESKF_UPDATES_EXTERN(NB, NC, NT) \
-  extern GPSINS_ESKF_UPDATE(NB, NC, NT, 1) extern GPSINS_ESKF_UPDATE(NB, NC, NT, 2) extern GPSINS_ESKF_UPDATE(NB, NC, NT, 3)
+#define GPSINS_ESKF_UPDATES_EXTERN(NB, NC, NT)                                                                        \
+  extern GPSINS_ESKF_UPDATE(NB, NC, NT, 1) extern GPSINS_ESKF_UPDATE(NB, NC, NT, 2) extern GPSINS_ESKF_UPDATE(NB, NC, \
+                                                                                                              NT, 3)
 
 GPSINS_ESKF_UPDATES_EXTERN(5, 0, 0)
 GPSINS_ESKF_UPDATES_EXTERN(7, 0, 0)

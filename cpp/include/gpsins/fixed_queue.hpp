@@ -39,7 +39,7 @@ class FixedQueue {
 
  private:
   std::array<T, N> items_{};
-  int head_ = 0;   // the oldest value's index
+  int head_ = 0;  // the oldest value's index
   int count_ = 0;
 };
 

@@ -80,7 +80,7 @@ struct InsConfig {
   double clock_drift_noise_mps_per_sqrt_s = 0.01;  // a TCXO; larger for a poorer oscillator
 
   // Initialisation.
-  double level_time_s = 1.0;  // accelerometer mean for roll and pitch
+  double level_time_s = 1.0;                                          // accelerometer mean for roll and pitch
   double initial_yaw_rad = std::numeric_limits<double>::quiet_NaN();  // NaN: from GNSS course
   double heading_min_speed_mps = 3.0;
   double heading_sigma_rad = 0.05;
@@ -180,7 +180,7 @@ struct InsConfig {
   // stamps (after the data set's declared offset) lag GNSS time, i.e. what should be
   // added to the declared offset. Constant plus a slow random walk.
   bool estimate_time_offset = false;
-  double time_offset_sigma_s = 0.05;         // initial sigma
+  double time_offset_sigma_s = 0.05;          // initial sigma
   double time_offset_rw_s_per_sqrt_s = 1e-5;  // random walk
 
   // Standstill (see standstill.hpp): spreads of block means over the window,

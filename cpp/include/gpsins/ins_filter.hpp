@@ -278,8 +278,8 @@ class InsFilter {
   bool standstill_ = false;
   int standstill_blocks_ = 0;
   double gnss_speed_mps_ = -1.0, gnss_speed_t_ = -1e300;  // last GNSS speed and its time
-  double gnss_speed_sigma_mps_ = 0.0;  // that speed's sigma (per horizontal axis)
-  bool moved_ = false;  // the filter or GNSS has shown motion since the start
+  double gnss_speed_sigma_mps_ = 0.0;                     // that speed's sigma (per horizontal axis)
+  bool moved_ = false;                                    // the filter or GNSS has shown motion since the start
 
   // Sustained GNSS rejection.
   double rejected_since_ = -1.0;
@@ -296,7 +296,8 @@ class InsFilter {
   std::array<int, gnss::kMaxSatId + 1> last_lock_{};
   std::array<double, gnss::kMaxSatId + 1> locked_since_{};
   std::array<bool, gnss::kMaxSatId + 1> tracked_{};
-  std::array<double, gnss::kMaxSatId + 1> pr_used_t_{};  // time of each satellite's last update (NaN: none since acquisition)
+  std::array<double, gnss::kMaxSatId + 1>
+      pr_used_t_{};  // time of each satellite's last update (NaN: none since acquisition)
   bool clock_set_ = false;
   bool clock_suspect_ = false;  // the last epoch's median residual lay beyond the gate
   double last_clock_median_m_ = 0.0;

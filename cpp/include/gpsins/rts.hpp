@@ -59,7 +59,7 @@ class SmootherTape {
 
   // Appends one record: n doubles of payload, then its kind and length.
   double* append(Kind kind, int n);
-  std::size_t bytes() const { return bytes_; }        // everything recorded
+  std::size_t bytes() const { return bytes_; }  // everything recorded
   std::size_t spilled_bytes() const { return spilled_; }
   std::size_t chunks_spilled() const { return chunks_.size(); }
 
@@ -70,7 +70,10 @@ class SmootherTape {
   void spill();
   std::size_t chunk_bytes_;
   std::vector<double> buf_;  // current chunk (payload and trailers as doubles)
-  struct Chunk { long offset; std::size_t n; };
+  struct Chunk {
+    long offset;
+    std::size_t n;
+  };
   std::vector<Chunk> chunks_;
   std::FILE* file_ = nullptr;
   long file_end_ = 0;
@@ -144,7 +147,11 @@ class BackwardPass {
       start[j] = nz;
       for (int i = 0; i < N; ++i) {
         const double v = d[j * N + i];
-        if (v != 0.0) { row[nz] = i; val[nz] = v; ++nz; }
+        if (v != 0.0) {
+          row[nz] = i;
+          val[nz] = v;
+          ++nz;
+        }
       }
     }
     start[N] = nz;
@@ -242,7 +249,10 @@ class EskfRecorder final : public EskfObserver<3 * NB + NC + NT> {
   explicit EskfRecorder(std::size_t chunk_bytes) : tape_(chunk_bytes) {}
 
   void on_propagate(const MatN& phi) override {
-    if (have_phi_) phi_ = (phi * phi_).eval(); else phi_ = phi;
+    if (have_phi_)
+      phi_ = (phi * phi_).eval();
+    else
+      phi_ = phi;
     have_phi_ = true;
   }
   void on_update(const typename Base::MatRef& H, const typename Base::MatRef& K, const typename Base::MatRef& s_inv,
@@ -251,10 +261,14 @@ class EskfRecorder final : public EskfObserver<3 * NB + NC + NT> {
     const int m = static_cast<int>(H.rows());
     double* d = tape_.append(SmootherTape::kUpdate, 1 + 2 * m * N + m * m + m + 9);
     *d++ = m;
-    Eigen::Map<Eigen::MatrixXd>(d, m, N) = H; d += m * N;
-    Eigen::Map<Eigen::MatrixXd>(d, N, m) = K; d += N * m;
-    Eigen::Map<Eigen::MatrixXd>(d, m, m) = s_inv; d += m * m;
-    Eigen::Map<Eigen::VectorXd>(d, m) = y; d += m;
+    Eigen::Map<Eigen::MatrixXd>(d, m, N) = H;
+    d += m * N;
+    Eigen::Map<Eigen::MatrixXd>(d, N, m) = K;
+    d += N * m;
+    Eigen::Map<Eigen::MatrixXd>(d, m, m) = s_inv;
+    d += m * m;
+    Eigen::Map<Eigen::VectorXd>(d, m) = y;
+    d += m;
     Eigen::Map<Mat3>{d} = g;
   }
   void on_transition(const MatN& a) override {
@@ -269,7 +283,10 @@ class EskfRecorder final : public EskfObserver<3 * NB + NC + NT> {
     *o++ = e.nav.t_s;
     for (int i = 0; i < 3; ++i) *o++ = e.nav.r_ecef_m(i);
     for (int i = 0; i < 3; ++i) *o++ = e.nav.v_ecef_mps(i);
-    *o++ = e.nav.q_eb.w(); *o++ = e.nav.q_eb.x(); *o++ = e.nav.q_eb.y(); *o++ = e.nav.q_eb.z();
+    *o++ = e.nav.q_eb.w();
+    *o++ = e.nav.q_eb.x();
+    *o++ = e.nav.q_eb.y();
+    *o++ = e.nav.q_eb.z();
     for (int i = 0; i < 3; ++i) *o++ = e.imu.gyro_bias_rad_per_s(i);
     for (int i = 0; i < 3; ++i) *o++ = e.imu.accel_bias_mps2(i);
     if constexpr (NB == 7) {
@@ -278,7 +295,10 @@ class EskfRecorder final : public EskfObserver<3 * NB + NC + NT> {
     }
     if constexpr (Core::kSisCount > 0)
       for (int i = 0; i < Core::kSisCount; ++i) *o++ = e.sis(i);
-    if constexpr (Core::kHasClock) { *o++ = e.clock(0); *o++ = e.clock(1); }
+    if constexpr (Core::kHasClock) {
+      *o++ = e.clock(0);
+      *o++ = e.clock(1);
+    }
     if constexpr (NC == 3)
       for (int i = 0; i < 3; ++i) *o++ = e.fix_error(i);
     if constexpr (NT == 1) *o++ = e.time_offset_s;
@@ -338,7 +358,10 @@ void EskfRecorder<NB, NC, NT>::smooth(const std::function<void(long, const doubl
       row[static_cast<std::size_t>(1 + i)] += dx(es::pos + i);
       row[static_cast<std::size_t>(4 + i)] += dx(es::vel + i);
     }
-    row[7] = q.w(); row[8] = q.x(); row[9] = q.y(); row[10] = q.z();
+    row[7] = q.w();
+    row[8] = q.x();
+    row[9] = q.y();
+    row[10] = q.z();
     for (int i = 0; i < 3 * (NB - 3) + NC + NT; ++i) row[static_cast<std::size_t>(11 + i)] += dx(es::bg + i);
     // The smoothed covariance in the error definition of the smoothed nominal.
     const Mat3 g = Mat3::Identity() - skew(0.5 * dth);

@@ -7,9 +7,9 @@
 //   (per axis) and the mean rate less bias and Earth rate are small;
 // - at rest: once standing, the window's mean specific force and rate, and the
 //   mean of its newest quarter, stay near their mean since standing began
-//   (threshold at least five sigmas of the window mean's noise) (pulling away moves the mean specific force by the acceleration even
-//   when the motion is smooth; the filter's own velocity cannot show it, since
-//   zero-velocity updates pin it).
+//   (threshold at least five sigmas of the window mean's noise) (pulling away moves the mean specific force by the
+//   acceleration even when the motion is smooth; the filter's own velocity cannot show it, since zero-velocity updates
+//   pin it).
 // Standing can only begin when the caller allows it (the filter's speed, which
 // no zero-velocity update has pinned yet, and the GNSS speed); a GNSS speed
 // above its limit ends it. For holdoff_s after a standstill ends the filter's
@@ -26,10 +26,10 @@ namespace gpsins {
 struct StandstillThresholds {
   double window_s = 0.5;
   double block_s = 0.05;
-  double accel_std_mps2 = 0.12;        // spread of block means, per axis
-  double gyro_std_rad_per_s = 0.015;   // spread of block means, per axis
-  double gyro_mean_rad_per_s = 0.02;   // |mean rate - bias - Earth rate|, and drift from the start
-  double accel_shift_mps2 = 0.05;      // |mean specific force - its value when standing began|
+  double accel_std_mps2 = 0.12;       // spread of block means, per axis
+  double gyro_std_rad_per_s = 0.015;  // spread of block means, per axis
+  double gyro_mean_rad_per_s = 0.02;  // |mean rate - bias - Earth rate|, and drift from the start
+  double accel_shift_mps2 = 0.05;     // |mean specific force - its value when standing began|
   double holdoff_s = 2.0;
   Vec3 accel_vrw_mps_per_sqrt_s = Vec3::Constant(1e-2);  // for the newest quarter's noise allowance
 };

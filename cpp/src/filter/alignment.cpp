@@ -127,9 +127,9 @@ void InsFilter<NB, NC, NT>::set_heading(const FixInput& fix, const Vec3& v_ecef,
   heading_known_ = true;
 }
 
-#define GPSINS_INSTANTIATE(NB, NC, NT) \
+#define GPSINS_INSTANTIATE(NB, NC, NT)                              \
   template void InsFilter<NB, NC, NT>::initialise(const FixInput&); \
-  template void InsFilter<NB, NC, NT>::decouple_yaw(); \
+  template void InsFilter<NB, NC, NT>::decouple_yaw();              \
   template void InsFilter<NB, NC, NT>::set_heading(const FixInput&, const Vec3&, double, double);
 GPSINS_FOR_EACH_FILTER(GPSINS_INSTANTIATE)
 #undef GPSINS_INSTANTIATE

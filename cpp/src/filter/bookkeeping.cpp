@@ -7,10 +7,14 @@ namespace gpsins {
 
 const char* input_status_text(InputStatus s) {
   switch (s) {
-    case InputStatus::Ok: return "ok";
-    case InputStatus::NonFinite: return "value is NaN or infinite";
-    case InputStatus::TimeNotIncreasing: return "time does not increase";
-    case InputStatus::BadValue: return "value out of range";
+    case InputStatus::Ok:
+      return "ok";
+    case InputStatus::NonFinite:
+      return "value is NaN or infinite";
+    case InputStatus::TimeNotIncreasing:
+      return "time does not increase";
+    case InputStatus::BadValue:
+      return "value out of range";
   }
   return "unknown";
 }
@@ -20,8 +24,7 @@ void InsFilter<NB, NC, NT>::event(int kind, double value) {
   if (events_) events_->push_back(FilterEvent{t_last_, kind, value});
 }
 
-#define GPSINS_INSTANTIATE(NB, NC, NT) \
-  template void InsFilter<NB, NC, NT>::event(int, double);
+#define GPSINS_INSTANTIATE(NB, NC, NT) template void InsFilter<NB, NC, NT>::event(int, double);
 GPSINS_FOR_EACH_FILTER(GPSINS_INSTANTIATE)
 #undef GPSINS_INSTANTIATE
 

@@ -45,8 +45,8 @@ void InsFilter<NB, NC, NT>::restart_after_gap(double gap_s, double t_end) {
   const double sv = cfg_.velocity_sigma_mps + a * gap_s, sp = cfg_.position_sigma_m + 0.5 * a * gap_s * gap_s;
   P.template topRows<9>().setZero();
   P.template leftCols<9>().setZero();
-  const Vec3 att_var(att_ned(0, 0) + square(cfg_.attitude_sigma_rad).x(), att_ned(1, 1) + square(cfg_.attitude_sigma_rad).y(),
-                     M_PI * M_PI);
+  const Vec3 att_var(att_ned(0, 0) + square(cfg_.attitude_sigma_rad).x(),
+                     att_ned(1, 1) + square(cfg_.attitude_sigma_rad).y(), M_PI * M_PI);
   P.template block<3, 3>(es::att, es::att) = c_bn * att_var.asDiagonal() * c_bn.transpose();
   P.template block<3, 3>(es::vel, es::vel) = Mat3::Identity() * sv * sv;
   P.template block<3, 3>(es::pos, es::pos) = Mat3::Identity() * sp * sp;
@@ -61,7 +61,7 @@ void InsFilter<NB, NC, NT>::restart_after_gap(double gap_s, double t_end) {
     pending_pr_.clear();  // the clock restarts from the next epoch after the gap
     core_.note_restart(Core::kClock, 2);
   }
-  core_.note_restart(0, 9);  // the time offset is kept: a property of the sensors
+  core_.note_restart(0, 9);                      // the time offset is kept: a property of the sensors
   if constexpr (NT == 1) accel_ecef_.setZero();  // the coast below has none
   heading_known_ = false;
   rejecting_ = false;

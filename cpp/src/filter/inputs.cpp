@@ -111,7 +111,10 @@ InputStatus InsFilter<NB, NC, NT>::push_fix(const FixInput& given) {
     // Already past it: use it now (its latency is below one IMU interval when
     // measurements arrive in order).
     ++counters_.fixes_late;
-    if (initialised_) process_fix(fix); else ++counters_.fixes_before_alignment;
+    if (initialised_)
+      process_fix(fix);
+    else
+      ++counters_.fixes_before_alignment;
     return InputStatus::Ok;
   }
   if (pending_.full()) {  // keep the newest; the oldest is used now
@@ -123,7 +126,10 @@ InputStatus InsFilter<NB, NC, NT>::push_fix(const FixInput& given) {
       ++counters_.fixes_in_imu_gap;
     } else {
       ++counters_.fixes_late;
-      if (initialised_) process_fix(oldest); else ++counters_.fixes_before_alignment;
+      if (initialised_)
+        process_fix(oldest);
+      else
+        ++counters_.fixes_before_alignment;
     }
   }
   pending_.push_back(fix);
@@ -263,13 +269,13 @@ double InsFilter<NB, NC, NT>::out_of_range(const Vec3& dtheta, const Vec3& dv, d
   return r;
 }
 
-#define GPSINS_INSTANTIATE(NB, NC, NT) \
-  template InsFilter<NB, NC, NT>::InsFilter(const InsConfig&); \
-  template InputStatus InsFilter<NB, NC, NT>::push_fix(const FixInput&); \
+#define GPSINS_INSTANTIATE(NB, NC, NT)                                                    \
+  template InsFilter<NB, NC, NT>::InsFilter(const InsConfig&);                            \
+  template InputStatus InsFilter<NB, NC, NT>::push_fix(const FixInput&);                  \
   template InputStatus InsFilter<NB, NC, NT>::push_imu(double, const Vec3&, const Vec3&); \
-  template InputStatus InsFilter<NB, NC, NT>::push_attitude(const AttitudeInput&); \
+  template InputStatus InsFilter<NB, NC, NT>::push_attitude(const AttitudeInput&);        \
   template InputStatus InsFilter<NB, NC, NT>::push_pseudoranges(const PseudorangeEpoch&); \
-  template void InsFilter<NB, NC, NT>::track_step(double); \
+  template void InsFilter<NB, NC, NT>::track_step(double);                                \
   template double InsFilter<NB, NC, NT>::out_of_range(const Vec3&, const Vec3&, double) const;
 GPSINS_FOR_EACH_FILTER(GPSINS_INSTANTIATE)
 #undef GPSINS_INSTANTIATE

@@ -18,9 +18,12 @@
 // (scale factors), no augmented states, the tight filter's (signal-in-space
 // slots and clock) or the loose filter's fix error, without and with the IMU
 // time offset. The bindings' AnyFilter holds the same twelve.
+// (clang-format would reflow this list differently on each pass)
+// clang-format off
 #define GPSINS_FOR_EACH_FILTER(X)                                                                 \
   X(5, 0, 0) X(7, 0, 0) X(5, kTightAugmented, 0) X(7, kTightAugmented, 0) X(5, 3, 0) X(7, 3, 0) \
   X(5, 0, 1) X(7, 0, 1) X(5, kTightAugmented, 1) X(7, kTightAugmented, 1) X(5, 3, 1) X(7, 3, 1)
+// clang-format on
 
 namespace gpsins {
 namespace filter_detail {

@@ -29,7 +29,8 @@ Vec3 stated_or(const Vec3& stated, const Vec3& fallback) {
 
 template <int NB, int NC, int NT>
 void InsFilter<NB, NC, NT>::process_fix(const FixInput& fix) {
-  if (cfg_.fix_max_dop > 0.0 && (fix.hdop > cfg_.fix_max_dop || (fix.mode == kFixMode3D && fix.vdop > cfg_.fix_max_dop))) {
+  if (cfg_.fix_max_dop > 0.0 &&
+      (fix.hdop > cfg_.fix_max_dop || (fix.mode == kFixMode3D && fix.vdop > cfg_.fix_max_dop))) {
     // A 3D fix 300 m off at HDOP 99.9 passed the gate on the simulated motorway and pulled
     // the filter onto the 2D fixes 200 m off that followed. Its velocity is no better: it
     // sets no heading and no speed, and it is no previous fix to difference with.
@@ -58,10 +59,12 @@ void InsFilter<NB, NC, NT>::process_fix(const FixInput& fix) {
     const Vec3 v_ned = c_en.transpose() * v;
     const double speed = std::hypot(v_ned.x(), v_ned.y());
     const double course_sigma_rad = speed > 0.0 ? sigma_v_mps / speed : std::numeric_limits<double>::infinity();
-    const bool accurate = cfg_.heading_max_course_sigma_rad > 0.0 && course_sigma_rad <= cfg_.heading_max_course_sigma_rad;
+    const bool accurate =
+        cfg_.heading_max_course_sigma_rad > 0.0 && course_sigma_rad <= cfg_.heading_max_course_sigma_rad;
     if (v.allFinite() && (speed >= cfg_.heading_min_speed_mps || accurate))
       set_heading(fix, v, std::atan2(v_ned.y(), v_ned.x()),
-                  std::isfinite(course_sigma_rad) ? std::max(cfg_.heading_sigma_rad, course_sigma_rad) : cfg_.heading_sigma_rad);
+                  std::isfinite(course_sigma_rad) ? std::max(cfg_.heading_sigma_rad, course_sigma_rad)
+                                                  : cfg_.heading_sigma_rad);
   }
   if (fix.v_ecef_mps.allFinite()) {
     const Vec3 v_ned = c_en.transpose() * fix.v_ecef_mps;
@@ -178,11 +181,11 @@ Mat3 InsFilter<NB, NC, NT>::fix_error_map(const FixInput& fix) const {
   return c_en * fix_error_dops(fix).asDiagonal() * c_en.transpose();
 }
 
-#define GPSINS_INSTANTIATE(NB, NC, NT) \
-  template void InsFilter<NB, NC, NT>::process_fix(const FixInput&); \
-  template double InsFilter<NB, NC, NT>::fix_speed_sigma(const FixInput&) const; \
+#define GPSINS_INSTANTIATE(NB, NC, NT)                                                         \
+  template void InsFilter<NB, NC, NT>::process_fix(const FixInput&);                           \
+  template double InsFilter<NB, NC, NT>::fix_speed_sigma(const FixInput&) const;               \
   template Mat3 InsFilter<NB, NC, NT>::fast_fix_error_cov(const FixInput&, const Mat3&) const; \
-  template Vec3 InsFilter<NB, NC, NT>::fix_error_dops(const FixInput&); \
+  template Vec3 InsFilter<NB, NC, NT>::fix_error_dops(const FixInput&);                        \
   template Mat3 InsFilter<NB, NC, NT>::fix_error_map(const FixInput&) const;
 GPSINS_FOR_EACH_FILTER(GPSINS_INSTANTIATE)
 #undef GPSINS_INSTANTIATE

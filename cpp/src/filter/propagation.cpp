@@ -16,7 +16,8 @@ template <int NB, int NC, int NT>
 Increment InsFilter<NB, NC, NT>::calibrated(double dt, const Vec3& dtheta, const Vec3& dv) const {
   Increment inc;
   inc.dt_s = dt;
-  inc.dtheta_rad = (dtheta - cfg_.gyro_bias_cal_rad_per_s * dt).cwiseQuotient(Vec3::Ones() + cfg_.gyro_scale_factor_cal);
+  inc.dtheta_rad =
+      (dtheta - cfg_.gyro_bias_cal_rad_per_s * dt).cwiseQuotient(Vec3::Ones() + cfg_.gyro_scale_factor_cal);
   inc.dv_mps = (dv - cfg_.accel_bias_cal_mps2 * dt).cwiseQuotient(Vec3::Ones() + cfg_.accel_scale_factor_cal);
   return inc;
 }
@@ -125,17 +126,17 @@ Vec3 InsFilter<NB, NC, NT>::antenna_velocity_now() const {
 // NT == 1: what a GNSS velocity's or range rate's time offset column needs.
 template <int NB, int NC, int NT>
 Vec3 InsFilter<NB, NC, NT>::antenna_acceleration_now() const {
-  return antenna_acceleration(accel_ecef_, core_.nav.q_eb.toRotationMatrix(), body_rate_wrt_earth(core_, gyro_rate_now()),
-                              cfg_.lever_arm_body_m);
+  return antenna_acceleration(accel_ecef_, core_.nav.q_eb.toRotationMatrix(),
+                              body_rate_wrt_earth(core_, gyro_rate_now()), cfg_.lever_arm_body_m);
 }
 
-#define GPSINS_INSTANTIATE(NB, NC, NT) \
+#define GPSINS_INSTANTIATE(NB, NC, NT)                                                          \
   template Increment InsFilter<NB, NC, NT>::calibrated(double, const Vec3&, const Vec3&) const; \
-  template void InsFilter<NB, NC, NT>::propagate_to(const Increment&); \
-  template void InsFilter<NB, NC, NT>::propagate_nav(const Increment&, double); \
-  template Vec3 InsFilter<NB, NC, NT>::velocity_change_since(double) const; \
-  template void InsFilter<NB, NC, NT>::inflate_unknown_heading(const Increment&); \
-  template Vec3 InsFilter<NB, NC, NT>::antenna_velocity_now() const; \
+  template void InsFilter<NB, NC, NT>::propagate_to(const Increment&);                          \
+  template void InsFilter<NB, NC, NT>::propagate_nav(const Increment&, double);                 \
+  template Vec3 InsFilter<NB, NC, NT>::velocity_change_since(double) const;                     \
+  template void InsFilter<NB, NC, NT>::inflate_unknown_heading(const Increment&);               \
+  template Vec3 InsFilter<NB, NC, NT>::antenna_velocity_now() const;                            \
   template Vec3 InsFilter<NB, NC, NT>::antenna_acceleration_now() const;
 GPSINS_FOR_EACH_FILTER(GPSINS_INSTANTIATE)
 #undef GPSINS_INSTANTIATE

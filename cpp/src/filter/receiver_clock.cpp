@@ -100,7 +100,7 @@ void InsFilter<NB, NC, NT>::check_clock(const PrUse* use, int n, double t) {
   }
 }
 
-#define GPSINS_INSTANTIATE(NB, NC, NT) \
+#define GPSINS_INSTANTIATE(NB, NC, NT)                                       \
   template void InsFilter<NB, NC, NT>::track_locks(const PseudorangeEpoch&); \
   template void InsFilter<NB, NC, NT>::check_clock(const InsFilter<NB, NC, NT>::PrUse*, int, double);
 GPSINS_FOR_EACH_FILTER(GPSINS_INSTANTIATE)

@@ -48,8 +48,9 @@ void InsFilter<NB, NC, NT>::reset_to_fix(const FixInput& fix) {
   const Geodetic llh = ecef_to_geodetic(core_.nav.r_ecef_m);
   const Mat3 c_bn = core_.nav.q_eb.toRotationMatrix().transpose() * rot_ned_to_ecef(llh.lat_rad, llh.lon_rad);
   const Mat3 att_ned = c_bn.transpose() * P.template block<3, 3>(es::att, es::att) * c_bn;
-  const Vec3 att_var = att_ned.diagonal() + square(Vec3(cfg_.attitude_sigma_rad.x(), cfg_.attitude_sigma_rad.y(),
-                                                        heading_known_ ? cfg_.heading_sigma_rad : cfg_.attitude_sigma_rad.z()));
+  const Vec3 att_var =
+      att_ned.diagonal() + square(Vec3(cfg_.attitude_sigma_rad.x(), cfg_.attitude_sigma_rad.y(),
+                                       heading_known_ ? cfg_.heading_sigma_rad : cfg_.attitude_sigma_rad.z()));
   P.template topRows<9>().setZero();
   P.template leftCols<9>().setZero();
   P.template block<3, 3>(es::att, es::att) = c_bn * att_var.asDiagonal() * c_bn.transpose();
@@ -63,7 +64,7 @@ void InsFilter<NB, NC, NT>::reset_to_fix(const FixInput& fix) {
   if constexpr (Core::kHasClock) clock_set_ = false;
 }
 
-#define GPSINS_INSTANTIATE(NB, NC, NT) \
+#define GPSINS_INSTANTIATE(NB, NC, NT)                          \
   template void InsFilter<NB, NC, NT>::note_gnss(bool, double); \
   template void InsFilter<NB, NC, NT>::reset_to_fix(const FixInput&);
 GPSINS_FOR_EACH_FILTER(GPSINS_INSTANTIATE)

@@ -76,8 +76,8 @@ void InsFilter<NB, NC, NT>::restart_sis_slot(int slot, double var_m2) {
   }
 }
 
-#define GPSINS_INSTANTIATE(NB, NC, NT) \
-  template int InsFilter<NB, NC, NT>::sis_slot(int, int, double, double); \
+#define GPSINS_INSTANTIATE(NB, NC, NT)                                                                          \
+  template int InsFilter<NB, NC, NT>::sis_slot(int, int, double, double);                                       \
   template void InsFilter<NB, NC, NT>::assign_sis(InsFilter<NB, NC, NT>::PrUse*, int, const PseudorangeEpoch&); \
   template void InsFilter<NB, NC, NT>::restart_sis_slot(int, double);
 GPSINS_FOR_EACH_FILTER(GPSINS_INSTANTIATE)

@@ -61,7 +61,8 @@ void InsFilter<NB, NC, NT>::detect_standstill(const Increment& inc) {
     if (standstill_) ++counters_.standstill_samples;
     return;
   }
-  const Vec3 rate = (detector_.mean_w() - core_.imu.gyro_bias_rad_per_s).cwiseQuotient(Vec3::Ones() + core_.imu.gyro_scale_factor);
+  const Vec3 rate =
+      (detector_.mean_w() - core_.imu.gyro_bias_rad_per_s).cwiseQuotient(Vec3::Ones() + core_.imu.gyro_scale_factor);
   const Vec3 earth_b = core_.nav.q_eb.conjugate() * earth_rate_ecef();
   // The filter's speed may start a standstill (no zero-velocity update has pinned
   // it yet); a recent GNSS speed above its limit bars or ends one.
@@ -85,10 +86,10 @@ void InsFilter<NB, NC, NT>::detect_standstill(const Increment& inc) {
   const bool veto = gnss_moving || zupt_refused;
   // The detector reads may_begin only when nothing vetoes and it is not standing already: only
   // then is the force test (a 3x3 solve every sample otherwise) worth doing.
-  const bool may_begin = !veto && !detector_.standing() &&
-                         (slow_for_sure ||
-                          (gnss_fresh && gnss_speed_sigma_mps_ <= cfg_.standstill_max_gnss_speed_mps)) &&
-                         force_at_rest(core_, detector_, cfg_);
+  const bool may_begin =
+      !veto && !detector_.standing() &&
+      (slow_for_sure || (gnss_fresh && gnss_speed_sigma_mps_ <= cfg_.standstill_max_gnss_speed_mps)) &&
+      force_at_rest(core_, detector_, cfg_);
   standstill_ = detector_.decide(rate - earth_b, may_begin, veto, t_last_);
   if (!standstill_) {
     standstill_blocks_ = 0;
@@ -108,8 +109,9 @@ void InsFilter<NB, NC, NT>::detect_standstill(const Increment& inc) {
     return;
   }
   if (standstill_blocks_ % detector_.window_blocks() == 0) {
-    const Vec3 var = detector_.mean_rate_variance().cwiseMax(square(cfg_.gyro_arw_rad_per_sqrt_s) / detector_.window_duration_s()) +
-                     Vec3::Constant(cfg_.zero_rate_sigma_rad_per_s * cfg_.zero_rate_sigma_rad_per_s);
+    const Vec3 var =
+        detector_.mean_rate_variance().cwiseMax(square(cfg_.gyro_arw_rad_per_sqrt_s) / detector_.window_duration_s()) +
+        Vec3::Constant(cfg_.zero_rate_sigma_rad_per_s * cfg_.zero_rate_sigma_rad_per_s);
     auto mz = zero_rate(core_, rate, var);
     // Without a heading the attitude coupling (Earth rate seen through a wrong
     // yaw) is far outside the linear range: use the update for the biases only.
@@ -119,8 +121,7 @@ void InsFilter<NB, NC, NT>::detect_standstill(const Increment& inc) {
   }
 }
 
-#define GPSINS_INSTANTIATE(NB, NC, NT) \
-  template void InsFilter<NB, NC, NT>::detect_standstill(const Increment&);
+#define GPSINS_INSTANTIATE(NB, NC, NT) template void InsFilter<NB, NC, NT>::detect_standstill(const Increment&);
 GPSINS_FOR_EACH_FILTER(GPSINS_INSTANTIATE)
 #undef GPSINS_INSTANTIATE
 

@@ -21,7 +21,7 @@ namespace {
 // variance is multiplied by when a satellite's updates dt apart are treated as
 // independent. a = 0 (factor 1) without a previous update or for a white error.
 double gm_update_factor(double dt, double tau) {
-  if (!(dt > 0.0) || !(tau > 0.0)) return 1.0;  // dt NaN: none since acquisition
+  if (!(dt > 0.0) || !(tau > 0.0)) return 1.0;        // dt NaN: none since acquisition
   const double one_minus_a = -std::expm1(-dt / tau);  // accurate for dt << tau
   return (2.0 - one_minus_a) / one_minus_a;
 }
@@ -48,7 +48,8 @@ double InsFilter<NB, NC, NT>::correlated_variance(int prn, double t, double el_r
 // One pseudorange as a measurement: geometry, clock, the IMU time offset's range
 // rate and, when it has a slot, the satellite's signal-in-space error.
 template <int NB, int NC, int NT>
-Measurement<1, InsFilter<NB, NC, NT>::N> InsFilter<NB, NC, NT>::range_measurement(const PrUse& u, const Vec3& v_a) const {
+Measurement<1, InsFilter<NB, NC, NT>::N> InsFilter<NB, NC, NT>::range_measurement(const PrUse& u,
+                                                                                  const Vec3& v_a) const {
   if constexpr (Core::kHasClock) {
     auto m = pseudorange(core_, cfg_.lever_arm_body_m, u.sat, u.pr_corr, u.sagnac, u.var);
     add_time_offset(m, core_, es::pos, v_a, heading_known_);  // the range rate the receiver's motion gives
@@ -124,8 +125,8 @@ void InsFilter<NB, NC, NT>::process_pseudoranges(const PseudorangeEpoch& ep) {
     if (ep.ranges) assign_sis(use.data(), n, ep);
     // GPS first, Galileo after it (see update_galileo): the clock states are GPS's. In
     // each, the ranges to use before those only the Doppler is used of.
-    const auto galileo_first = std::stable_partition(use.begin(), use.begin() + n,
-                                                     [](const PrUse& u) { return !gnss::is_galileo(u.prn); });
+    const auto galileo_first =
+        std::stable_partition(use.begin(), use.begin() + n, [](const PrUse& u) { return !gnss::is_galileo(u.prn); });
     const auto ranged = [](const PrUse& u) { return u.range; };
     const auto gps_end = std::stable_partition(use.begin(), galileo_first, ranged);
     const auto galileo_end = std::stable_partition(galileo_first, use.begin() + n, ranged);
@@ -227,10 +228,11 @@ bool InsFilter<NB, NC, NT>::update_range_rates(const PrUse* use, int n) {
   return any;
 }
 
-#define GPSINS_INSTANTIATE(NB, NC, NT) \
-  template double InsFilter<NB, NC, NT>::correlated_variance(int, double, double, double) const; \
-  template Measurement<1, InsFilter<NB, NC, NT>::N> InsFilter<NB, NC, NT>::range_measurement(const InsFilter<NB, NC, NT>::PrUse&, const Vec3&) const; \
-  template void InsFilter<NB, NC, NT>::process_pseudoranges(const PseudorangeEpoch&); \
+#define GPSINS_INSTANTIATE(NB, NC, NT)                                                                                \
+  template double InsFilter<NB, NC, NT>::correlated_variance(int, double, double, double) const;                      \
+  template Measurement<1, InsFilter<NB, NC, NT>::N> InsFilter<NB, NC, NT>::range_measurement(                         \
+      const InsFilter<NB, NC, NT>::PrUse&, const Vec3&) const;                                                        \
+  template void InsFilter<NB, NC, NT>::process_pseudoranges(const PseudorangeEpoch&);                                 \
   template bool InsFilter<NB, NC, NT>::update_galileo(const InsFilter<NB, NC, NT>::PrUse*, int, const Vec3&, double); \
   template bool InsFilter<NB, NC, NT>::update_range_rates(const InsFilter<NB, NC, NT>::PrUse*, int);
 GPSINS_FOR_EACH_FILTER(GPSINS_INSTANTIATE)

@@ -58,7 +58,7 @@ void InsFilter<NB, NC, NT>::process_attitude(const AttitudeInput& a, const Incre
   if (heading_known_ && !was_known) event(kHeadingSet, yaw);
 }
 
-#define GPSINS_INSTANTIATE(NB, NC, NT) \
+#define GPSINS_INSTANTIATE(NB, NC, NT)                                      \
   template void InsFilter<NB, NC, NT>::constrain_vehicle(const Increment&); \
   template void InsFilter<NB, NC, NT>::process_attitude(const AttitudeInput&, const Increment&);
 GPSINS_FOR_EACH_FILTER(GPSINS_INSTANTIATE)

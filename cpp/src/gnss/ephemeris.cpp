@@ -104,7 +104,7 @@ SatMotion sat_motion(const Ephemeris& eph, double t_abs) {
 }
 
 double ura_m(int index) {
-  static constexpr std::array<double, 15> table{2.4, 3.4, 4.85, 6.85, 9.65, 13.65, 24.0, 48.0,
+  static constexpr std::array<double, 15> table{2.4,  3.4,   4.85,  6.85,  9.65,   13.65,  24.0,  48.0,
                                                 96.0, 192.0, 384.0, 768.0, 1536.0, 3072.0, 6144.0};
   return index >= 0 && index < 15 ? table[static_cast<std::size_t>(index)] : 6144.0;
 }

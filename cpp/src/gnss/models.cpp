@@ -17,9 +17,7 @@ AzEl az_el(const Geodetic& llh, const Vec3& rx, const Vec3& sat) {
   return out;
 }
 
-double sagnac_m(const Vec3& s, const Vec3& r) {
-  return kOmegaEarth * (s.x() * r.y() - s.y() * r.x()) / kSpeedOfLight;
-}
+double sagnac_m(const Vec3& s, const Vec3& r) { return kOmegaEarth * (s.x() * r.y() - s.y() * r.x()) / kSpeedOfLight; }
 
 double sagnac_rate_mps(const Vec3& s, const Vec3& vs, const Vec3& r, const Vec3& vr) {
   return kOmegaEarth * (vs.x() * r.y() + s.x() * vr.y() - vs.y() * r.x() - s.y() * vr.x()) / kSpeedOfLight;
@@ -56,7 +54,8 @@ double saastamoinen_m(const Geodetic& llh, double el_rad, double humidity) {
   const double temp_k = 15.0 - 6.5e-3 * h + 273.16;
   const double e = 6.108 * humidity * std::exp((17.15 * temp_k - 4684.0) / (temp_k - 38.45));
   const double cos_z = std::cos(M_PI / 2.0 - el_rad);
-  const double dry = 0.0022768 * pressure_hpa / (1.0 - 0.00266 * std::cos(2.0 * llh.lat_rad) - 0.00028 * h / 1e3) / cos_z;
+  const double dry =
+      0.0022768 * pressure_hpa / (1.0 - 0.00266 * std::cos(2.0 * llh.lat_rad) - 0.00028 * h / 1e3) / cos_z;
   const double wet = 0.002277 * (1255.0 / temp_k + 0.05) * e / cos_z;
   return dry + wet;
 }

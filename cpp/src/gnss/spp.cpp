@@ -82,7 +82,8 @@ Solve solve(const std::array<Prepared, kMaxSats>& p, int n, int skip, const Klob
     s.n = m;
     if (m < 4) return s;
     const auto hw = (w.head(m).asDiagonal() * h.topRows(m)).eval();
-    const Eigen::Vector4d dx = (hw.transpose() * hw).ldlt().solve(hw.transpose() * (w.head(m).asDiagonal() * v.head(m)));
+    const Eigen::Vector4d dx =
+        (hw.transpose() * hw).ldlt().solve(hw.transpose() * (w.head(m).asDiagonal() * v.head(m)));
     s.x += dx;
     s.iterations = it + 1;
     s.chi2 = (w.head(m).asDiagonal() * v.head(m)).squaredNorm();

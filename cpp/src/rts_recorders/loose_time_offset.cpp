@@ -1,7 +1,6 @@
-// The smoother's recorders (their backward pass) for the loose filters without augmented states, with the IMU time offset,
-// with and without the scale-factor states: one of six files, so that the twelve
-// state layouts' backward passes build in parallel, each file within the memory
-// of a small machine (rts.hpp).
+// The smoother's recorders (their backward pass) for the loose filters without augmented states, with the IMU time
+// offset, with and without the scale-factor states: one of six files, so that the twelve state layouts' backward passes
+// build in parallel, each file within the memory of a small machine (rts.hpp).
 #include "gpsins/rts.hpp"
 
 namespace gpsins {

@@ -45,8 +45,9 @@ inline double wrap_pi(double a) { return std::remainder(a, 2.0 * M_PI); }
 
 // Rows: yaw, then pitch when use_pitch. Innovations are z - h, the yaw wrapped.
 template <int M, int NB, int NC, int NT>
-Measurement<M, Eskf<NB, NC, NT>::N> baseline_attitude(const Eskf<NB, NC, NT>& f, const Vec3& baseline_body, double yaw_rad,
-                                                  double pitch_rad, double sigma_yaw_rad, double sigma_pitch_rad) {
+Measurement<M, Eskf<NB, NC, NT>::N> baseline_attitude(const Eskf<NB, NC, NT>& f, const Vec3& baseline_body,
+                                                      double yaw_rad, double pitch_rad, double sigma_yaw_rad,
+                                                      double sigma_pitch_rad) {
   static_assert(M == 1 || M == 2, "yaw, or yaw and pitch");
   Measurement<M, Eskf<NB, NC, NT>::N> m;
   const Geodetic llh = ecef_to_geodetic(f.nav.r_ecef_m);

@@ -17,12 +17,13 @@ namespace gpsins {
 // The vehicle point's velocity in vehicle axes and its Jacobian (rows forward,
 // right, down). w_ib_body: the calibrated gyro rate, before the estimated bias.
 template <int NB, int NC, int NT>
-Measurement<3, Eskf<NB, NC, NT>::N> vehicle_velocity(const Eskf<NB, NC, NT>& f, const Mat3& c_vb, const Vec3& point_body_m,
-                                                  const Vec3& w_ib_body_rad_per_s) {
+Measurement<3, Eskf<NB, NC, NT>::N> vehicle_velocity(const Eskf<NB, NC, NT>& f, const Mat3& c_vb,
+                                                     const Vec3& point_body_m, const Vec3& w_ib_body_rad_per_s) {
   Measurement<3, Eskf<NB, NC, NT>::N> m;
   const Mat3 c_be = f.nav.q_eb.toRotationMatrix().transpose();
   const Vec3 w_ie_b = c_be * earth_rate_ecef();
-  const Vec3 w_ib = (w_ib_body_rad_per_s - f.imu.gyro_bias_rad_per_s).cwiseQuotient(Vec3::Ones() + f.imu.gyro_scale_factor);
+  const Vec3 w_ib =
+      (w_ib_body_rad_per_s - f.imu.gyro_bias_rad_per_s).cwiseQuotient(Vec3::Ones() + f.imu.gyro_scale_factor);
   const Vec3 w = w_ib - w_ie_b;
   const Vec3 v_b = c_be * f.nav.v_ecef_mps;
   m.y = -(c_vb * (v_b + w.cross(point_body_m)));  // y = z - h with z = 0; the caller sets the rows' z
@@ -36,7 +37,7 @@ Measurement<3, Eskf<NB, NC, NT>::N> vehicle_velocity(const Eskf<NB, NC, NT>& f, 
 // No lateral and no vertical velocity: the rows right and down, z = 0.
 template <int NB, int NC, int NT>
 Measurement<2, Eskf<NB, NC, NT>::N> nonholonomic(const Eskf<NB, NC, NT>& f, const Mat3& c_vb, const Vec3& point_body_m,
-                                              const Vec3& w_ib_body_rad_per_s, double sigma_mps) {
+                                                 const Vec3& w_ib_body_rad_per_s, double sigma_mps) {
   const auto full = vehicle_velocity(f, c_vb, point_body_m, w_ib_body_rad_per_s);
   Eigen::Matrix<double, 2, 3> rows = Eigen::Matrix<double, 2, 3>::Zero();
   rows(0, 1) = 1.0;
@@ -48,8 +49,9 @@ Measurement<2, Eskf<NB, NC, NT>::N> nonholonomic(const Eskf<NB, NC, NT>& f, cons
 
 // Odometer speed along the vehicle's forward axis.
 template <int NB, int NC, int NT>
-Measurement<1, Eskf<NB, NC, NT>::N> odometer_speed(const Eskf<NB, NC, NT>& f, const Mat3& c_vb, const Vec3& point_body_m,
-                                                const Vec3& w_ib_body_rad_per_s, double speed_mps, double sigma_mps) {
+Measurement<1, Eskf<NB, NC, NT>::N> odometer_speed(const Eskf<NB, NC, NT>& f, const Mat3& c_vb,
+                                                   const Vec3& point_body_m, const Vec3& w_ib_body_rad_per_s,
+                                                   double speed_mps, double sigma_mps) {
   const auto full = vehicle_velocity(f, c_vb, point_body_m, w_ib_body_rad_per_s);
   const Eigen::Matrix<double, 1, 3> row(1.0, 0.0, 0.0);
   auto m = project(full, row);

@@ -14,8 +14,8 @@ namespace gpsins {
 
 template <int NB, int NC, int NT>
 Measurement<3, Eskf<NB, NC, NT>::N> position_fix(const Eskf<NB, NC, NT>& f, const Vec3& r_antenna_ecef_m,
-                                              const Mat3& cov_ecef_m2, const Vec3& lever_body_m,
-                                              const Mat3& fix_error_map = Mat3::Identity()) {
+                                                 const Mat3& cov_ecef_m2, const Vec3& lever_body_m,
+                                                 const Mat3& fix_error_map = Mat3::Identity()) {
   Measurement<3, Eskf<NB, NC, NT>::N> m;
   const Mat3 c = f.nav.q_eb.toRotationMatrix();
   m.y = r_antenna_ecef_m - (f.nav.r_ecef_m + c * lever_body_m);

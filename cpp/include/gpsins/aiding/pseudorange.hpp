@@ -10,8 +10,9 @@
 namespace gpsins {
 
 template <int NB, int NC, int NT>
-Measurement<1, Eskf<NB, NC, NT>::N> pseudorange(const Eskf<NB, NC, NT>& f, const Vec3& lever_body_m, const Vec3& sat_ecef,
-                                             double corrected_pr_m, double sagnac_m, double variance_m2) {
+Measurement<1, Eskf<NB, NC, NT>::N> pseudorange(const Eskf<NB, NC, NT>& f, const Vec3& lever_body_m,
+                                                const Vec3& sat_ecef, double corrected_pr_m, double sagnac_m,
+                                                double variance_m2) {
   static_assert(Eskf<NB, NC, NT>::kHasClock, "pseudoranges need the receiver clock states");
   Measurement<1, Eskf<NB, NC, NT>::N> m;
   const Mat3 c = f.nav.q_eb.toRotationMatrix();

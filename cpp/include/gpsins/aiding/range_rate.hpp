@@ -19,9 +19,9 @@ namespace gpsins {
 
 template <int NB, int NC, int NT>
 Measurement<1, Eskf<NB, NC, NT>::N> range_rate(const Eskf<NB, NC, NT>& f, const Vec3& lever_body_m,
-                                              const Vec3& gyro_rate_rad_per_s, const Vec3& sat_ecef,
-                                              const Vec3& sat_v_ecef_mps, double corrected_rate_mps,
-                                              double variance_m2_per_s2) {
+                                               const Vec3& gyro_rate_rad_per_s, const Vec3& sat_ecef,
+                                               const Vec3& sat_v_ecef_mps, double corrected_rate_mps,
+                                               double variance_m2_per_s2) {
   static_assert(Eskf<NB, NC, NT>::kHasClock, "range rates need the receiver clock drift state");
   const Mat3 c = f.nav.q_eb.toRotationMatrix();
   const Vec3 r_a = f.nav.r_ecef_m + c * lever_body_m;
@@ -33,8 +33,7 @@ Measurement<1, Eskf<NB, NC, NT>::N> range_rate(const Eskf<NB, NC, NT>& f, const 
   const Vec3 g = -(v_rel - u * u.dot(v_rel)) / rho;
   const auto dv_a = gnss_velocity(f, v_a, Mat3::Zero(), lever_body_m, gyro_rate_rad_per_s);
   Measurement<1, Eskf<NB, NC, NT>::N> m;
-  m.y(0) = corrected_rate_mps -
-           (u.dot(v_rel) + gnss::sagnac_rate_mps(sat_ecef, sat_v_ecef_mps, r_a, v_a) + f.clock(1));
+  m.y(0) = corrected_rate_mps - (u.dot(v_rel) + gnss::sagnac_rate_mps(sat_ecef, sat_v_ecef_mps, r_a, v_a) + f.clock(1));
   m.H = -u.transpose() * dv_a.H;
   m.H.template block<1, 3>(0, es::pos) += g.transpose();
   m.H.template block<1, 3>(0, es::att) -= g.transpose() * c * skew(lever_body_m);  // d(r_a)/d(theta) = -C [l]x

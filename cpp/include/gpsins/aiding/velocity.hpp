@@ -22,8 +22,8 @@ Vec3 corrected_gyro_rate(const Eskf<NB, NC, NT>& f, const Vec3& gyro_rate_rad_pe
 
 template <int NB, int NC, int NT>
 Measurement<3, Eskf<NB, NC, NT>::N> gnss_velocity(const Eskf<NB, NC, NT>& f, const Vec3& v_antenna_ecef_mps,
-                                               const Mat3& cov, const Vec3& lever_body_m,
-                                               const Vec3& gyro_rate_rad_per_s) {
+                                                  const Mat3& cov, const Vec3& lever_body_m,
+                                                  const Vec3& gyro_rate_rad_per_s) {
   Measurement<3, Eskf<NB, NC, NT>::N> m;
   const Mat3 c = f.nav.q_eb.toRotationMatrix();
   const Vec3 inv_1s = (Vec3::Ones() + f.imu.gyro_scale_factor).cwiseInverse();

@@ -12,7 +12,7 @@ namespace gpsins {
 
 template <int NB, int NC, int NT>
 Measurement<3, Eskf<NB, NC, NT>::N> zero_rate(const Eskf<NB, NC, NT>& f, const Vec3& mean_corrected_rate_rad_per_s,
-                                           const Vec3& var_rad2_per_s2) {
+                                              const Vec3& var_rad2_per_s2) {
   Measurement<3, Eskf<NB, NC, NT>::N> m;
   const Vec3 earth_b = f.nav.q_eb.conjugate() * earth_rate_ecef();
   const Vec3 inv_1s = (Vec3::Ones() + f.imu.gyro_scale_factor).cwiseInverse();

@@ -14,12 +14,12 @@
 namespace gpsins::gnss {
 
 inline constexpr double kSpeedOfLight = 299792458.0;
-inline constexpr double kGm = 3.986005e14;              // IS-GPS-200 value of mu, m^3/s^2
-inline constexpr double kOmegaEarth = 7.2921151467e-5;  // IS-GPS-200 Earth rate, rad/s
-inline constexpr double kGpsPi = 3.1415926535898;       // the semicircle of IS-GPS-200
+inline constexpr double kGm = 3.986005e14;                // IS-GPS-200 value of mu, m^3/s^2
+inline constexpr double kOmegaEarth = 7.2921151467e-5;    // IS-GPS-200 Earth rate, rad/s
+inline constexpr double kGpsPi = 3.1415926535898;         // the semicircle of IS-GPS-200
 inline constexpr double kRelativityF = -4.442807633e-10;  // s/sqrt(m)
 inline constexpr double kSecondsPerWeek = 604800.0;
-inline constexpr double kGmGalileo = 3.986004418e14;           // OS SIS ICD value of mu, m^3/s^2
+inline constexpr double kGmGalileo = 3.986004418e14;             // OS SIS ICD value of mu, m^3/s^2
 inline constexpr double kRelativityFGalileo = -4.442807309e-10;  // -2 sqrt(mu) / c^2 with Galileo's mu
 
 // Satellite ids: GPS PRN 1..32 as they are, Galileo E01..E36 as 33..68.
@@ -29,12 +29,12 @@ inline constexpr bool is_sat_id(int id) { return id >= 1 && id <= kMaxSatId; }
 inline constexpr bool is_galileo(int id) { return id > kGalileoIdOffset && id <= kMaxSatId; }
 
 struct Ephemeris {
-  int prn = 0;   // satellite id (is_sat_id): Galileo's are offset by kGalileoIdOffset
-  int week = 0;  // full GPS week of toe (Galileo: its GST week + 1024, GST keeping GPS seconds)
+  int prn = 0;                      // satellite id (is_sat_id): Galileo's are offset by kGalileoIdOffset
+  int week = 0;                     // full GPS week of toe (Galileo: its GST week + 1024, GST keeping GPS seconds)
   double toe_s = 0.0, toc_s = 0.0;  // seconds of week
   double sqrt_a = 0.0, e = 0.0, i0 = 0.0, omega0 = 0.0, omega = 0.0, m0 = 0.0;  // m^1/2, -, rad
-  double delta_n = 0.0, idot = 0.0, omega_dot = 0.0;                             // rad/s
-  double cuc = 0.0, cus = 0.0, crc = 0.0, crs = 0.0, cic = 0.0, cis = 0.0;       // rad, m
+  double delta_n = 0.0, idot = 0.0, omega_dot = 0.0;                            // rad/s
+  double cuc = 0.0, cus = 0.0, crc = 0.0, crs = 0.0, cic = 0.0, cis = 0.0;      // rad, m
   double af0 = 0.0, af1 = 0.0, af2 = 0.0, tgd_s = 0.0;  // Galileo: tgd_s is BGD(E1, E5b) of I/NAV
   int iode = 0, iodc = 0, health = 0, ura_index = 0;
   bool fit_interval_long = false;
@@ -44,8 +44,7 @@ struct Ephemeris {
 
 // Subframes 1, 2, 3, words 3..10, each 24 bits (parity removed), MSB first.
 // `week_hint` resolves the 10-bit week number (nearest to it).
-bool decode_subframes(const std::array<std::array<std::uint32_t, 8>, 3>& words, int prn, int week_hint,
-                      Ephemeris& out);
+bool decode_subframes(const std::array<std::array<std::uint32_t, 8>, 3>& words, int prn, int week_hint, Ephemeris& out);
 
 struct SatState {
   Vec3 r_ecef_m = Vec3::Zero();  // ECEF at the transmission time (frame of that instant)
