@@ -9,7 +9,7 @@ measurement epoch to the first byte of ID 23, plus the logger's).
 
 Two methods:
 
-- ``report`` (seed 004, 4.3.2): IMU start = GPS time of the first GPS sample
+- ``report`` (the FOI report, 4.3.2): IMU start = GPS time of the first GPS sample
   minus the difference of the two sensors' first system stamps; sample k at
   start + k / 64 s. Every dropped frame shifts all later samples by 1/64 s.
 - ``robust`` (default), in four stages:
