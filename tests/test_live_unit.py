@@ -2,14 +2,11 @@
 logger, its command one the CLI accepts, the sessions read only, the network the loopback's, and a sandbox
 systemd itself scores as confined."""
 
-import re
 import shlex
-import shutil
-import subprocess
 import tomllib
 from pathlib import Path
 
-import pytest
+from systemd_units import exposure, settings
 
 from gpsins import cli
 
@@ -17,20 +14,8 @@ LOGGER = Path(__file__).resolve().parents[1] / "logger"
 UNIT = LOGGER / "gpsins-live.service"
 
 
-def _settings(path: Path) -> dict[str, list[str]]:
-    """KEY=VALUE lines, continuation lines joined, each key's values in order."""
-    out: dict[str, list[str]] = {}
-    text = re.sub(r"\\\n\s*", " ", path.read_text())
-    for line in text.splitlines():
-        line = line.strip()
-        if line and not line.startswith(("#", "[")) and "=" in line:
-            key, value = line.split("=", 1)
-            out.setdefault(key, []).append(value)
-    return out
-
-
 def test_the_unit_runs_a_live_command_the_cli_accepts_on_the_loggers_root():
-    u = _settings(UNIT)
+    u = settings(UNIT)
     argv = shlex.split(u["ExecStart"][0])
     assert Path(argv[0]).name == "gpsins"
     args = cli.build_parser().parse_args(argv[1:])
@@ -44,7 +29,7 @@ def test_the_unit_runs_a_live_command_the_cli_accepts_on_the_loggers_root():
 
 
 def test_the_unit_follows_the_logger_reads_sessions_only_and_stays_on_the_loopback():
-    u, logger = _settings(UNIT), _settings(LOGGER / "gpsins-logger.service")
+    u, logger = settings(UNIT), settings(LOGGER / "gpsins-logger.service")
     assert "gpsins-logger.service" in u["After"][0].split()
     # The same user as the logger (its sessions are 0750), the logger's state directory mounted read only.
     assert u["User"] == logger["User"]
@@ -58,12 +43,5 @@ def test_the_unit_follows_the_logger_reads_sessions_only_and_stays_on_the_loopba
 
 
 def test_the_units_exposure_score():
-    exe = shutil.which("systemd-analyze")
-    if not exe:
-        pytest.skip("systemd-analyze not installed (Debian package systemd)")
-    p = subprocess.run([exe, "security", "--offline=true", str(UNIT)], capture_output=True, text=True, timeout=60)
-    m = re.search(r"Overall exposure level for \S+: ([0-9.]+)", p.stdout + p.stderr)
-    assert m, p.stdout + p.stderr
-    print(f"exposure {m.group(1)}")
     # systemd's own scale: below 2 is "OK", the logger's unit sits at about 0.5.
-    assert float(m.group(1)) <= 2.0
+    assert exposure(UNIT) <= 2.0

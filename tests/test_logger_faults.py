@@ -4,7 +4,6 @@ unwritable session root, unplugged, locked and forbidden devices, a port closing
 import contextlib
 import fcntl
 import os
-import re
 import shutil
 import subprocess
 import sys
@@ -21,6 +20,7 @@ from gpsins.emulate import PtyLink
 from gpsins_logger.port import SensorThread
 from gpsins_logger.recorder import SensorInfo, Session
 from ptyrig import file_size, run_rig, sent_ok, unplug, wait_until, write_config
+from systemd_units import exposure, settings
 
 
 @contextlib.contextmanager
@@ -347,18 +347,8 @@ def test_stamps_of_a_sensor_never_run_backwards_when_bytes_come_faster_than_the_
 UNIT = Path(__file__).resolve().parents[1] / "logger" / "gpsins-logger.service"
 
 
-def _unit_settings() -> dict[str, list[str]]:
-    out: dict[str, list[str]] = {}
-    for line in UNIT.read_text().splitlines():
-        line = line.strip()
-        if line and not line.startswith(("#", "[")) and "=" in line:
-            key, value = line.split("=", 1)
-            out.setdefault(key, []).append(value)
-    return out
-
-
 def test_service_unit_keeps_the_daemon_working_and_confined():
-    u = _unit_settings()
+    u = settings(UNIT)
     assert u["User"] != ["root"] and "dialout" in " ".join(u.get("SupplementaryGroups", []) + u.get("Group", []))
     assert u["StateDirectory"] == ["gpsins"] and u["ProtectSystem"] == ["strict"]
     root = tomllib.loads((UNIT.parent / "logger.example.toml").read_text())["session"]["root"]
@@ -372,11 +362,4 @@ def test_service_unit_keeps_the_daemon_working_and_confined():
 
 
 def test_service_unit_exposure_score():
-    exe = shutil.which("systemd-analyze")
-    if not exe:
-        pytest.skip("systemd-analyze not installed (Debian package systemd)")
-    p = subprocess.run([exe, "security", "--offline=true", str(UNIT)], capture_output=True, text=True, timeout=60)
-    m = re.search(r"Overall exposure level for \S+: ([0-9.]+)", p.stdout + p.stderr)
-    assert m, p.stdout + p.stderr
-    print(f"exposure {m.group(1)}")
-    assert float(m.group(1)) <= 2.0
+    assert exposure(UNIT) <= 2.0
