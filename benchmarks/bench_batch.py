@@ -10,14 +10,16 @@ import tempfile
 import time
 from pathlib import Path
 
-from gpsins import batch, sim
+from gpsins.montecarlo import batch
+from gpsins import sim
+from gpsins.sim import scenario
 from gpsins.montecarlo.runner import open_client
 from gpsins.sim.session import write_session
 
 
 def main(n: int = 20) -> None:
     root = Path(tempfile.mkdtemp(prefix="bench_batch_"))
-    sc = sim.load("default")
+    sc = scenario.load("default")
     for seed in range(n):
         write_session(sim.simulate(sc, seed=seed), root / "sessions" / f"s{seed}")
     arms = (batch.Arm("default"), batch.Arm("report2005", "report2005"))

@@ -65,11 +65,11 @@ MISMATCH_CASES = {"gate off": {"gate_probability": 0.0}, "no noise fit": {"fit_n
 
 
 def scenario(duration_s: float, ride: bool = False, warmup: bool = False):
-    from gpsins import sim
+    from gpsins.sim import scenario as scenario_mod
     from gpsins.sim.ride import RideModel
     from gpsins.sim.scenario import first_seconds, with_imu_rate
 
-    sc = first_seconds(with_imu_rate(sim.load("urban_highway"), 100), duration_s)
+    sc = first_seconds(with_imu_rate(scenario_mod.load("urban_highway"), 100), duration_s)
     sc.imu = dataclasses.replace(sc.imu, **CONSUMER_MEMS, **(WARMUP if warmup else {}))
     if ride:
         sc.ride = RideModel(**RIDE)
@@ -78,7 +78,8 @@ def scenario(duration_s: float, ride: bool = False, warmup: bool = False):
 
 def run(seed: int, duration_s: float, smooth: bool, work: Path, ride: bool = False, warmup: bool = False,
         mismatch: bool = False) -> list[dict]:
-    from gpsins import replay, sim
+    from gpsins.replay import run as replay
+    from gpsins import sim
     from gpsins.sim import dataset_writer
 
     t0 = time.perf_counter()

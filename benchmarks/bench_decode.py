@@ -26,7 +26,7 @@ from bench_reader import peak_rss_mb  # the same VmHWM reading (this directory i
 
 
 def repeat_session(src: Path, dst: Path, hours: float) -> dict:
-    from gpsins import logs
+    from gpsins.session import logs
 
     side = json.loads((src / "session.json").read_text())
     dst.mkdir()
@@ -54,7 +54,7 @@ def repeat_session(src: Path, dst: Path, hours: float) -> dict:
 
 
 def run_case(case: str, session: Path) -> dict:
-    from gpsins import logs, measurements
+    from gpsins.session import logs, measurements
 
     t, cpu = time.perf_counter(), time.process_time()
     if case == "decode":
@@ -79,11 +79,12 @@ def main() -> None:
         print(json.dumps(run_case(a.case, Path(a.session))))
         return
     from gpsins import sim
+    from gpsins.sim import scenario
     from gpsins.sim.session import write_session
 
     with tempfile.TemporaryDirectory() as d:
         one = Path(d) / "one"
-        write_session(sim.simulate(sim.load("default"), seed=0), one)
+        write_session(sim.simulate(scenario.load("default"), seed=0), one)
         for hours in a.hours:
             long = Path(d) / f"long-{hours:g}"
             info = repeat_session(one, long, hours)

@@ -24,7 +24,10 @@ import time
 
 import numpy as np
 
-from gpsins import _core, evaluate, filter as flt, sim
+from gpsins import _core, evaluate, sim
+from gpsins.nav import runs as flt
+from gpsins.nav import config as nav_config
+from gpsins.sim import scenario
 
 
 def peak_mb() -> float:
@@ -46,8 +49,8 @@ def synthetic(n: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def speed(repeats: int) -> None:
-    s = sim.simulate(sim.load("default"), 0)
-    cfg = flt.load_config(None, sim.imu_noise_truth(s.scenario.imu))
+    s = sim.simulate(scenario.load("default"), 0)
+    cfg = nav_config.load_config(None, sim.imu_noise_truth(s.scenario.imu))
     imu, fixes = sim.imu_table(s), sim.fix_table(s)
     flt.run(imu, fixes, cfg)  # warm up
     t0, c0 = time.perf_counter(), time.process_time()
@@ -59,7 +62,7 @@ def speed(repeats: int) -> None:
           f"{sol.counters['zero_velocity_updates']} ZUPT, {sol.counters['fixes_accepted']} fixes per run)")
     n = 1_000_000
     imu, fixes = synthetic(n)
-    cfg2 = flt.load_config(None, {"initial_yaw_deg": 0.0, "zero_velocity_updates": False, "gate_probability": 0.0})
+    cfg2 = nav_config.load_config(None, {"initial_yaw_deg": 0.0, "zero_velocity_updates": False, "gate_probability": 0.0})
     before = peak_mb()
     t0, c0 = time.perf_counter(), time.process_time()
     sol = flt.run(imu, fixes, cfg2, output_every=64)
@@ -70,11 +73,11 @@ def speed(repeats: int) -> None:
 
 
 def nees(seeds: int) -> None:
-    sc = sim.load("default")
+    sc = scenario.load("default")
     runs = []
     for seed in range(seeds):
         s = sim.simulate(sc, seed)
-        cfg = flt.load_config(None, sim.imu_noise_truth(sc.imu))
+        cfg = nav_config.load_config(None, sim.imu_noise_truth(sc.imu))
         sol = flt.run(sim.imu_table(s), sim.fix_table(s), cfg, covariance=True)
         tr = s.truth
         err = evaluate.nav_errors(sol, evaluate.Truth(tr.t, tr.r_ecef, tr.v_ecef, tr.q_eb))
@@ -98,13 +101,13 @@ def tight(repeats: int) -> None:
     at 1 Hz, through the batch API (29 states: 12 signal-in-space slots and the clock)."""
     from gpsins.sim import ephemeris as sim_eph
 
-    s = sim.simulate(sim.load("default"), 0)
+    s = sim.simulate(scenario.load("default"), 0)
     ephs = [_core.gnss.decode_subframes(sim_eph.encode_subframes(e), e.prn, 1590) for e in s.gnss.ephemerides.values()]
     prs = sim.pseudorange_table(s)
     imu, fixes = sim.imu_table(s), sim.fix_table(s)
     offset = s.scenario.start.gps_week * 604800.0 + s.scenario.start.gps_tow_s
     for dec in (1, 10):
-        cfg = flt.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), "mode": "tight",
+        cfg = nav_config.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), "mode": "tight",
                                      "pseudorange_decimation": dec})
         kw = dict(pseudoranges=prs, ephemerides=ephs, klobuchar=(s.gnss.ion_alpha, s.gnss.ion_beta),
                   gps_time_offset_s=offset)
@@ -121,15 +124,15 @@ def tight(repeats: int) -> None:
 
 
 def checks() -> None:
-    s = sim.simulate(sim.load("default"), 0)
+    s = sim.simulate(scenario.load("default"), 0)
     tr = evaluate.Truth(s.truth.t, s.truth.r_ecef, s.truth.v_ecef, s.truth.q_eb)
     clean = sim.imu_table(s)
     dead = clean.copy()
     dead[(dead[:, 0] >= 100) & (dead[:, 0] < 110), 4:7] = 0.0
     for name, imu in (("default drive", clean), ("10 s zero dv", dead)):
-        for check in flt.UPDATE_CHECKS:
+        for check in nav_config.UPDATE_CHECKS:
             for reset in (5.0, 0.0):
-                cfg = flt.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), "update_check": check,
+                cfg = nav_config.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), "update_check": check,
                                              "gnss_reset_timeout_s": reset})
                 sol = flt.run(imu, sim.fix_table(s), cfg, covariance=True)
                 err = evaluate.nav_errors(sol, tr)

@@ -29,8 +29,9 @@ import sys
 import numpy as np
 
 from gpsins import sim
-from gpsins.gnss_errors import autocovariance_sums, fit_white_gauss_markov as fit, fit_white_two_gauss_markov, \
-    fix_errors_per_dop
+from gpsins.sim import scenario
+from gpsins.evaluate.gnss_errors import (autocovariance_sums, fit_white_gauss_markov as fit,
+                                         fit_white_two_gauss_markov, fix_errors_per_dop)
 from gpsins.sim import earth
 
 MAX_LAG_S = 300
@@ -118,7 +119,7 @@ def main() -> None:
     args = [a for a in sys.argv[1:] if not a.startswith("--")]
     name = args[0] if args else "long"
     seeds = int(args[1]) if len(args) > 1 else 3
-    sc = sim.load(name)
+    sc = scenario.load(name)
     g = sc.gnss
     f = measure(sc, seeds, f"{name}, {seeds} seeds, every error source")
     uere_h = np.hypot(f["N"][0], f["E"][0]) / np.sqrt(2)

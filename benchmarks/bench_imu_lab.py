@@ -22,7 +22,9 @@ from pathlib import Path
 import numpy as np
 
 from gpsins import evaluate, sim
-from gpsins import filter as flt
+from gpsins.sim import scenario
+from gpsins.nav import runs as flt
+from gpsins.nav import config as nav_config
 from gpsins.imu import lab
 from gpsins.sim import lab as sim_lab
 
@@ -87,11 +89,11 @@ def main() -> None:
         err = np.sqrt(np.mean([(r[n][0] - r[n][2]) ** 2 for r in rows]))
         print(f"{n:22s} {np.mean(np.abs(z[n]) <= 3):16.2f} {np.sqrt(np.mean(z[n] ** 2)):7.2f} {sig:13.2e} {err:10.2e}")
     # The generated presets against the hand-written one on the default drive.
-    drive = sim.load("default")
+    drive = scenario.load("default")
     comp = []
     for seed, p in enumerate(presets):
         s = sim.simulate(drive, seed=seed)
-        comp.append((horizontal_rms(s, flt.load_config("default")), horizontal_rms(s, flt.load_config(None, p))))
+        comp.append((horizontal_rms(s, nav_config.load_config("default")), horizontal_rms(s, nav_config.load_config(None, p))))
         print(f"  seed {seed}: default {comp[-1][0]:.3f} m, generated {comp[-1][1]:.3f} m", flush=True)
     comp = np.array(comp)
     print(f"\ndefault drive, horizontal position RMS (m) over {len(comp)} seeds:")

@@ -25,7 +25,10 @@ from pathlib import Path
 
 import numpy as np
 
-from gpsins import live, logs, mainjob, measurements, replay, results, sim
+from gpsins.session import logs, measurements
+from gpsins import mainjob, sim
+from gpsins.replay import run, results
+from gpsins.live import outputs
 from gpsins.sim.scenario import parse
 from gpsins_logger import superstar2 as ss2
 
@@ -102,7 +105,7 @@ def main(drive_s: float = 60.0, interval_s: float = 0.02, fix_rate_hz: float = 1
     # Sentences and epochs are one to one and in order (every epoch sent): live.f64 gives each sentence's
     # epoch time exactly (the sentence's own time is to 0.01 s).
     # The client may have connected after the first sentences: the first it got, by its time.
-    epoch_t = live.read_epochs(root / "live" / "live.f64")["t"]
+    epoch_t = outputs.read_epochs(root / "live" / "live.f64")["t"]
     leap = dec.gps.leap_s or 0
     h = arrivals[0][1].split(",")[1] if arrivals else "000000"
     tow0 = ((int(h[:2]) * 3600 + int(h[2:4]) * 60 + float(h[4:]) + leap) % 86400
@@ -124,8 +127,8 @@ def main(drive_s: float = 60.0, interval_s: float = 0.02, fix_rate_hz: float = 1
     print(f"{drive_s:.0f} s drive at real time, fixes at {fix_rate_hz:g} Hz, IMU at {dec.imu.rate_hz} Hz, live "
           f"polling every {interval_s:g} s: CPU {100 * used / wall:.1f} % of a core ({used:.1f} s in {wall:.0f} s)")
     # The finished session replayed with the same configuration: the live solution against it.
-    z = results.load(replay.replay(session, root / "replay").out)
-    e = live.read_epochs(root / "live" / "live.f64")
+    z = results.load(run.replay(session, root / "replay").out)
+    e = outputs.read_epochs(root / "live" / "live.f64")
     if len(e["t"]) == len(z["t"]):
         dr = np.linalg.norm(e["r_ecef"] - z["r_ecef"], axis=1)
         dq = np.degrees(2 * np.arccos(np.clip(np.abs(np.sum(e["q_eb"] * z["q_eb"], axis=1)), 0, 1)))

@@ -15,14 +15,17 @@ import sys
 
 import numpy as np
 
-from gpsins import evaluate, filter as flt, sim
+from gpsins import evaluate, sim
+from gpsins.nav import runs as flt
+from gpsins.nav import config as nav_config
+from gpsins.sim import scenario
 
 WHITE_FIXES = {"fix_uere_m": 3.0, "fix_uere_2d_m": 0.0, "fix_error_gm_sigma_m": 0.0}
 WHITE_1HZ = {"pseudorange_decimation": 10, "pseudorange_error_gm_sigma_m": 0.0}
 
 
 def run(s, mode: str, over: dict):
-    cfg = flt.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), "mode": mode, **over})
+    cfg = nav_config.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), "mode": mode, **over})
     extra = sim.tight_inputs(s) if mode == "tight" else {}
     return flt.run(sim.imu_table(s), sim.fix_table(s), cfg, covariance=True, output_every=16, **extra)
 
@@ -35,7 +38,7 @@ def main() -> None:
         cases += [("loose white", "loose", WHITE_FIXES), ("tight 1 Hz white", "tight", WHITE_1HZ)]
     lo, hi = evaluate.nees_band(9, 1)
     for seed in range(seeds):
-        s = sim.simulate(sim.load("long"), seed)
+        s = sim.simulate(scenario.load("long"), seed)
         tr = evaluate.Truth(s.truth.t, s.truth.r_ecef, s.truth.v_ecef, s.truth.q_eb)
         for name, mode, over in cases:
             sol = run(s, mode, over)

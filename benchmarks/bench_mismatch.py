@@ -50,17 +50,19 @@ import time
 import numpy as np
 
 from gpsins import evaluate, sim
-from gpsins import filter as flt
+from gpsins.sim import scenario
+from gpsins.nav import runs as flt
+from gpsins.nav import config as nav_config
 from gpsins.sim import unit
 
 
 def main(seeds: int = 20, mode: str = "loose", preset: bool = False, sis: bool = True, overrides=None) -> None:
     ds = unit.Datasheet()
     rx = {} if preset else unit.receiver_overrides(unit.ReceiverErrors(), mode)
-    cfg = flt.load_config(None, {**unit.filter_overrides(ds), "mode": mode, **rx, **(overrides or {})})
+    cfg = nav_config.load_config(None, {**unit.filter_overrides(ds), "mode": mode, **rx, **(overrides or {})})
     nees, start = [], time.time()
     for seed in range(seeds):
-        sc = sim.load("default")
+        sc = scenario.load("default")
         if not sis:
             sc.gnss.sis_error_m = 0.0
         sc.imu = unit.draw_unit(ds, np.random.default_rng([seed, 21]), sc.imu)
@@ -85,6 +87,6 @@ def main(seeds: int = 20, mode: str = "loose", preset: bool = False, sis: bool =
 
 if __name__ == "__main__":
     words = [a for a in sys.argv[3:] if "=" not in a]
-    keys = flt.parse_overrides([a for a in sys.argv[3:] if "=" in a])  # key=value: filter settings, as --set
+    keys = nav_config.parse_overrides([a for a in sys.argv[3:] if "=" in a])  # key=value: filter settings, as --set
     main(int(sys.argv[1]) if len(sys.argv) > 1 else 20, sys.argv[2] if len(sys.argv) > 2 else "loose",
          "preset" in words, "nosis" not in words, keys)

@@ -26,7 +26,7 @@ from pathlib import Path
 
 
 def measure(scenario, seeds: list[int], mode: str, workers: int, out: Path) -> dict:
-    from gpsins.montecarlo import Plan, open_client, run_plan
+    from gpsins.montecarlo.runner import Plan, open_client, run_plan
 
     modes = ["loose", "tight"] if mode == "both" else [mode]
     plan = Plan(scenario=scenario, seeds=seeds, out=out, modes=modes)
@@ -81,9 +81,9 @@ def main() -> int:
     ap.add_argument("--wait-quiet", type=float, default=0.0, metavar="S",
                     help="before each measurement wait up to S seconds for the CPUs to be mostly free of other work")
     a = ap.parse_args()
-    from gpsins import sim
+    from gpsins.sim import scenario as scenario_mod
 
-    sc = sim.load(a.scenario)
+    sc = scenario_mod.load(a.scenario)
     counts = [int(x) for x in a.workers.split(",")]
     root = Path(a.keep) if a.keep else Path(tempfile.mkdtemp(prefix="bench-mc-"))
     print(f"{sc.name} ({sc.duration_s:.0f} s), {a.seeds} seeds, mode {a.mode}, workers {counts}, "

@@ -17,16 +17,18 @@ import sys
 import numpy as np
 
 from gpsins import _core, evaluate, sim
-from gpsins import filter as flt
+from gpsins.sim import scenario
+from gpsins.nav import runs as flt
+from gpsins.nav import config as nav_config
 from gpsins.sim import atmosphere, unit
 
 
 def main(seeds: int = 3) -> None:
     ds = unit.Datasheet()
-    cfg = flt.load_config(None, {**unit.filter_overrides(ds), "mode": "tight"})
+    cfg = nav_config.load_config(None, {**unit.filter_overrides(ds), "mode": "tight"})
     gm, sis_sigma = cfg["pseudorange_error_gm_sigma_m"], cfg["pseudorange_sis_sigma_m"]
     for seed in range(seeds):
-        sc = sim.load("default")
+        sc = scenario.load("default")
         sc.imu = unit.draw_unit(ds, np.random.default_rng([seed, 21]), sc.imu)
         s = sim.simulate(sc, seed=seed)
         sis_model = sc.gnss.sis_error_m

@@ -70,7 +70,7 @@ def rss_mb() -> float:
 
 
 def run_case(case: str, path: Path, block_mb: float) -> dict:
-    from gpsins import logs
+    from gpsins.session import logs
 
     block = int(block_mb * 2**20)
     before = rss_mb()

@@ -21,8 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-from gpsins import filter as flt
-from gpsins.readers import imu_csv, ubx
+from gpsins.nav import runs as flt
+from gpsins.formats import imu_csv, ubx
 
 WALK_UBX = Path(__file__).resolve().parents[1] / "tests" / "data" / "walk_0827" / "gnss_1730.ubx"
 

@@ -65,7 +65,7 @@ def _rejected(counters: dict, mode: str) -> str:
 
 def metrics(run_dir: Path, mode: str) -> dict:
     """Figures of one replay from its results and run.json."""
-    from gpsins import results as results_mod
+    from gpsins.replay import results as results_mod
 
     summary = json.loads((run_dir / "run.json").read_text())
     z = results_mod.load(run_dir)
@@ -91,7 +91,9 @@ def metrics(run_dir: Path, mode: str) -> dict:
 def run_case(rate: int, profile: str, seed: int, modes: tuple[str, ...], preset: str, overrides: dict,
              preset_rate: bool, keep: str | None) -> list[dict]:
     """Simulate one session and replay it in each mode (in a worker process)."""
-    from gpsins import replay, sim
+    from gpsins.replay import run
+    from gpsins import sim
+    from gpsins.sim import scenario
     from gpsins.sim.scenario import with_imu_rate
     from gpsins.sim.session import write_session
 
@@ -99,7 +101,7 @@ def run_case(rate: int, profile: str, seed: int, modes: tuple[str, ...], preset:
     rows = []
     try:
         t0 = time.perf_counter()
-        sc = with_imu_rate(sim.load(profile), rate)
+        sc = with_imu_rate(scenario.load(profile), rate)
         s = sim.simulate(sc, seed)
         write_session(s, tmp / "session")
         del s
@@ -111,7 +113,7 @@ def run_case(rate: int, profile: str, seed: int, modes: tuple[str, ...], preset:
             t1 = time.perf_counter()
             base = {"rate_hz": rate, "profile": profile, "seed": seed, "mode": mode, "simulate_s": sim_s}
             try:
-                replay.replay(tmp / "session", tmp / mode, mode=mode, config=preset, overrides=cfg_over)
+                run.replay(tmp / "session", tmp / mode, mode=mode, config=preset, overrides=cfg_over)
                 row = {**base, **metrics(tmp / mode, mode)}
             except Exception as e:  # a run that does not replay is a result of the sweep
                 row = {**base, "error": f"{type(e).__name__}: {e}".splitlines()[0][:160], "converged": False}
@@ -170,9 +172,9 @@ def summary(rows: list[dict]) -> list[str]:
 def estimate_mb(rate: int, profile: str) -> float:
     """A run's peak RSS, from measured ones: about 6.5 kB per IMU sample (the replay keeps every
     epoch's state and covariance) plus the interpreter."""
-    from gpsins import sim
+    from gpsins.sim import scenario
 
-    return 300.0 + 6.5e-3 * rate * sim.load(profile).duration_s
+    return 300.0 + 6.5e-3 * rate * scenario.load(profile).duration_s
 
 
 def _list(text: str, kind=str) -> list:

@@ -26,13 +26,16 @@ import time
 
 import numpy as np
 
-from gpsins import evaluate, fix_scatter, sim
-from gpsins import filter as flt
+from gpsins import evaluate, sim
+from gpsins.nav import fix_scatter
+from gpsins.sim import scenario
+from gpsins.nav import runs as flt
+from gpsins.nav import config as nav_config
 
 
 def main(seed: int = 0, white: bool = False) -> None:
     t0 = time.time()
-    sc = sim.load("roller-coaster")
+    sc = scenario.load("roller-coaster")
     s = sim.simulate(sc, seed=seed)
     tr = s.truth
     truth = evaluate.Truth(tr.t, tr.r_ecef, tr.v_ecef, tr.q_eb)
@@ -48,7 +51,7 @@ def main(seed: int = 0, white: bool = False) -> None:
     for mode, extra in (("loose", {}), ("tight", tight)):
         t1 = time.time()
         over = {} if white else fix_scatter.filter_overrides(est, mode)
-        cfg = flt.load_config(None, {**sim.imu_noise_truth(sc.imu), "mode": mode, **over})
+        cfg = nav_config.load_config(None, {**sim.imu_noise_truth(sc.imu), "mode": mode, **over})
         sol = flt.run(sim.imu_table(s), fixes, cfg, covariance=True, **extra)
         err = evaluate.nav_errors(sol, truth)
         print(f"\n{mode}: {time.time() - t1:.1f} s, diverged {sol.counters['diverged']}, "

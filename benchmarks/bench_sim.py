@@ -24,6 +24,7 @@ import time
 from pathlib import Path
 
 from gpsins import sim
+from gpsins.sim import scenario
 from gpsins.sim.scenario import with_imu_rate
 from gpsins.sim.session import simulate_session, write_session
 
@@ -31,7 +32,7 @@ DEFAULT_PROFILES = ["default", "long"]
 
 
 def one(name: str, rate: int | None, seed: int, block_s: float, whole: bool, out_dir: str | None) -> dict:
-    sc = sim.load(name)
+    sc = scenario.load(name)
     if rate:
         sc = with_imu_rate(sc, rate)
     with tempfile.TemporaryDirectory(dir=out_dir) as d:

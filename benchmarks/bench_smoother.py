@@ -79,13 +79,16 @@ import time
 
 import numpy as np
 
-from gpsins import _core, evaluate, filter as flt, sim
+from gpsins import _core, evaluate, sim
+from gpsins.nav import runs as flt
+from gpsins.nav import config as nav_config
+from gpsins.sim import scenario
 
 
 def speed(repeats: int) -> None:
     from gpsins.sim import ephemeris as sim_eph
 
-    s = sim.simulate(sim.load("default"), 0)
+    s = sim.simulate(scenario.load("default"), 0)
     imu, fixes = sim.imu_table(s), sim.fix_table(s)
     ephs = [_core.gnss.decode_subframes(sim_eph.encode_subframes(e), e.prn, s.scenario.start.gps_week)
             for e in s.gnss.ephemerides.values()]
@@ -93,7 +96,7 @@ def speed(repeats: int) -> None:
     tight = dict(pseudoranges=sim.pseudorange_table(s), ephemerides=ephs,
                  klobuchar=(s.gnss.ion_alpha, s.gnss.ion_beta), gps_time_offset_s=offset)
     for mode, kw in (("loose", {}), ("tight", tight)):
-        cfg = flt.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), "mode": mode})
+        cfg = nav_config.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), "mode": mode})
         t0 = time.process_time()
         for _ in range(repeats):
             flt.run(imu, fixes, cfg, covariance=True, **kw)
@@ -109,7 +112,7 @@ def speed(repeats: int) -> None:
               f"(whole flt.run, CPU), forward recording {n / fwd:,.0f} epochs/s, backward {n / bwd:,.0f} epochs/s "
               f"(backward/forward time {bwd / fwd:.2f}); tape {info['tape_bytes'] / info['outputs']:,.0f} "
               f"bytes per output epoch, {info['tape_bytes'] / 2**20:.1f} MiB")
-    cfg = flt.load_config(None, sim.imu_noise_truth(s.scenario.imu))
+    cfg = nav_config.load_config(None, sim.imu_noise_truth(s.scenario.imu))
     sol = flt.run(imu, fixes, cfg, covariance=True, smooth=True, smooth_chunk_mb=1.0)
     info = sol.extra["smooth_info"]
     print(f"loose, spilled in 1 MiB chunks: {info['chunks_spilled']} chunks, {info['spilled_bytes'] / 2**20:.1f} MiB "
@@ -118,12 +121,12 @@ def speed(repeats: int) -> None:
     import tempfile
     from pathlib import Path
 
-    from gpsins import replay
+    from gpsins.replay import run
     toml = Path(__file__).resolve().parent.parent / "tests" / "data" / "walk_0827" / "walk_0827_ubx.toml"
     fwd = bwd = 0.0
     for _ in range(repeats):
         with tempfile.TemporaryDirectory() as d:
-            info = replay.replay(toml, Path(d) / "r", smooth=True).summary["smoothed"]["info"]
+            info = run.replay(toml, Path(d) / "r", smooth=True).summary["smoothed"]["info"]
         fwd += info["forward_cpu_s"] / repeats
         bwd += info["backward_cpu_s"] / repeats
     n = info["outputs"]
@@ -165,13 +168,13 @@ def fixes_from_the_filter_model(s, cfg: dict, rng: np.random.Generator) -> np.nd
 def smoothed_runs(seeds: int, matched_imu: bool, matched_fixes: bool, covariance: bool):
     """(seed, simulation, forward solution with its smoothed one, truth) of the default drive per seed,
     the unit's unmodelled terms off with matched_imu, the fixes from the filter's model with matched_fixes."""
-    sc = sim.load("default")
+    sc = scenario.load("default")
     if matched_imu:
         for term in UNMODELLED_IMU_TERMS:
             sc.imu.terms[term] = False
     for seed in range(seeds):
         s = sim.simulate(sc, seed)
-        cfg = flt.load_config(None, sim.imu_noise_truth(sc.imu))
+        cfg = nav_config.load_config(None, sim.imu_noise_truth(sc.imu))
         fixes = fixes_from_the_filter_model(s, cfg, np.random.default_rng([seed, 18])) if matched_fixes \
             else sim.fix_table(s)
         sol = flt.run(sim.imu_table(s), fixes, cfg, covariance=covariance, smooth=True)

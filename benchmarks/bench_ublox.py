@@ -24,11 +24,14 @@ from pathlib import Path
 
 import numpy as np
 
-from gpsins import logs, mainjob, replay, sim
-from gpsins.emulate import UbloxEmulators
+from gpsins.session import logs
+from gpsins import mainjob, sim
+from gpsins.replay import run
+from gpsins.devices.emulate import UbloxEmulators
 from gpsins.sim.scenario import parse
-from gpsins.sim.session import write_truth
-from gpsins.sources import UbloxSimSource, UbxCaptureSource
+from gpsins.formats.truth import write_truth
+from gpsins.sim.ublox import UbloxSimSource
+from gpsins.devices.sources import UbxCaptureSource
 from gpsins_logger.ubx import NmeaCounter
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -105,7 +108,7 @@ def main() -> None:
             else:
                 session = mainjob.record_drive(s, out, args.speed)
             for mode in ("loose", "tight"):
-                res = replay.replay(session, out / mode, mode=mode, **mainjob.replay_latencies(device, args.speed))
+                res = run.replay(session, out / mode, mode=mode, **mainjob.replay_latencies(device, args.speed))
                 rows[(device, mode)] = res.summary["errors"]
         print(f"\nerrors against the truth (from the first known heading), drive of {s.scenario.duration_s:.0f} s:")
         print(f"{'device':<11} {'mode':<6} {'h RMS m':>8} {'h max m':>8} {'v RMS m':>8} {'NEES9':>7} "

@@ -20,8 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from gpsins import filter as flt
-from gpsins import replay
+from gpsins.nav import config as nav_config
+from gpsins.replay import run
 
 WALK = Path(__file__).resolve().parents[1] / "tests" / "data" / "walk_0827"
 
@@ -32,14 +32,14 @@ def main() -> None:
     ap.add_argument("--shifts", default="-10,-6,-2,0,2,6,10", help="seconds added to the first outage's 25 s")
     ap.add_argument("--set", action="append", metavar="KEY=VALUE", help="override one configuration key")
     args = ap.parse_args()
-    overrides = flt.parse_overrides(args.set or [])
+    overrides = nav_config.parse_overrides(args.set or [])
     shifts = [float(x) for x in args.shifts.split(",")]
     for name in args.sets.split(","):
         fwd, smo, outside = [], [], []
         t0 = time.perf_counter()
         for shift in shifts:
             with tempfile.TemporaryDirectory() as d:
-                res = replay.replay(WALK / f"{name}.toml", Path(d) / "r", outages=f"{25 + shift:g}:15:45:45",
+                res = run.replay(WALK / f"{name}.toml", Path(d) / "r", outages=f"{25 + shift:g}:15:45:45",
                                     smooth=True, overrides=overrides).summary
             f, s = res["scoring"], res["smoothed"]["scoring"]
             fwd += [o["max_h_m"] for o in f["per_outage"] if np.isfinite(o["max_h_m"])]

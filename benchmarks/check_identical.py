@@ -73,7 +73,7 @@ def same_array(a: np.ndarray, b: np.ndarray) -> bool:
 
 
 def compare(ref: Path, out: Path) -> int:
-    from gpsins import results
+    from gpsins.replay import results
 
     dirs = result_dirs(ref)
     if not dirs:

@@ -350,7 +350,7 @@ def estimate(inputs):
         i = k - k0
         out["r"][i], out["v"][i], out["C"][i], out["P"][i], out["b"][i] = r, v, C, P[:9, :9], np.r_[bg, ba]
 
-    # gpsins.estimator takes the covariance in local axes: attitude error about north, east, down,
+    # gpsins.nav.estimator takes the covariance in local axes: attitude error about north, east, down,
     # velocity and position in NED (it turns them into its own filter's axes for the NEES).
     m = len(t) - k0
     C_ne = np.swapaxes(ned_to_ecef(*lat_lon(out["r"])), 1, 2)

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from gpsins.sources import StaticSource
+from gpsins.devices.sources import StaticSource
 
 
 def ss2_frames(seconds: float = 20.0, seed: int = 0) -> list[bytes]:
@@ -154,7 +154,7 @@ class Corpus:
 
 
 def fuzz_reader_case(c: Corpus, rng: np.random.Generator) -> FuzzTally:
-    from gpsins import logs
+    from gpsins.session import logs
 
     t = FuzzTally(cases=1)
     data, origin, kinds = mutate(c.records_bytes, rng)

@@ -18,9 +18,9 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from gpsins import logs
-from gpsins.emulate import Emulators, Faults
-from gpsins.sources import StaticSource
+from gpsins.session import logs
+from gpsins.devices.emulate import Emulators, Faults
+from gpsins.devices.sources import StaticSource
 
 # How long any one condition may take before the test fails: far beyond what
 # an idle machine needs (milliseconds to a few seconds), so load cannot trip it.

@@ -8,7 +8,9 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from gpsins import batch, replay, sim
+from gpsins.montecarlo import batch
+from gpsins.replay import run
+from gpsins import sim
 from gpsins.montecarlo.runner import open_client
 from gpsins.sim.session import write_session
 
@@ -43,7 +45,7 @@ def test_two_presets_paired_over_ten_recordings_on_two_local_workers(recordings,
     assert len(rows) == 20
     # One row against a replay of its own.
     r = next(x for x in rows if x["arm"] == "report2005" and x["recording"].endswith("s3"))
-    alone = replay.replay(r["recording"], tmp_path / "alone", config="report2005", outages="20:10:30")
+    alone = run.replay(r["recording"], tmp_path / "alone", config="report2005", outages="20:10:30")
     assert float(r["h_rms_m"]) == pytest.approx(alone.summary["errors"]["horizontal_rms_m"], rel=1e-12)
     # The paired interval against scipy's paired t-test.
     by = {(x["recording"], x["arm"]): float(x["h_rms_m"]) for x in rows}
@@ -65,7 +67,7 @@ def test_batch_on_a_scheduler_the_user_runs(recordings, tmp_path):
     root, _ = recordings
     from dask.distributed import Client
 
-    arms = (batch.Arm("default"), batch.Arm("builtin", None, "gpsins.estimator:builtin"))
+    arms = (batch.Arm("default"), batch.Arm("builtin", None, "gpsins.nav.estimator:builtin"))
     with external_cluster(tmp_path, 2) as (address, worker_pids), Client(address) as client:
         comparison = batch.run([root / "sessions" / f"s{k}" for k in range(4)], arms, tmp_path / "b",
                                client=client)

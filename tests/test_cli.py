@@ -8,7 +8,8 @@ import sys
 import numpy as np
 import pytest
 
-from gpsins import cli, logs, sim
+from gpsins import cli, sim
+from gpsins.session import logs
 from gpsins.sim.scenario import parse
 from gpsins.sim.session import write_session
 
@@ -112,14 +113,14 @@ def test_set_help_lists_keys_nested_keys_and_presets(capsys, session, tmp_path):
 
 
 def test_set_reaches_nested_keys_and_radians_replace_degrees():
-    from gpsins import filter as flt
+    from gpsins.nav import config as nav_config
 
-    cfg = flt.load_config(None, flt.parse_overrides(["imu_noise.gyro_arw_rad_per_sqrt_s=2e-3",
+    cfg = nav_config.load_config(None, nav_config.parse_overrides(["imu_noise.gyro_arw_rad_per_sqrt_s=2e-3",
                                                      "heading_sigma_rad=0.1", "lever_arm_body_m=[0.1, 0, -0.5]"]))
     assert cfg["imu_noise"]["gyro_arw_rad_per_sqrt_s"] == 2e-3
     assert cfg["imu_noise"]["bias_tau_s"] == 100.0  # the rest of the table stays
     assert "heading_sigma_deg" not in cfg  # the preset's degrees would otherwise win
-    core = flt.core_config(cfg)
+    core = nav_config.core_config(cfg)
     assert np.allclose(core.gyro_arw_rad_per_sqrt_s, 2e-3) and core.heading_sigma_rad == 0.1
     assert np.allclose(core.lever_arm_body_m, [0.1, 0, -0.5])
 
@@ -153,7 +154,7 @@ def test_spp_without_epochs_fails(capsys, tmp_path):
 
 
 def test_spp_compares_with_the_truth_next_to_the_session(capsys, session):
-    from gpsins import spp
+    from gpsins.gnss import spp
 
     assert cli.main(["spp", str(session)]) == 0
     out = capsys.readouterr().out
@@ -252,9 +253,9 @@ def test_the_main_job_reruns_into_the_same_out(tmp_path):
     assert (tmp_path / "o" / "session").is_dir() and (tmp_path / "o" / "session-2").is_dir()
     assert "session-2" in (tmp_path / "o" / "run.json").read_text()
     # gpsins live navigated beside the logger during the drive (issue 39): its solution is there.
-    from gpsins import live
+    from gpsins.live import outputs
 
-    assert len(live.read_epochs(tmp_path / "o" / "live" / "live.f64")["t"]) > 500
+    assert len(outputs.read_epochs(tmp_path / "o" / "live" / "live.f64")["t"]) > 500
 
 
 def test_set_help_on_a_data_set_shows_the_values_it_runs_with(capsys):
@@ -262,13 +263,13 @@ def test_set_help_on_a_data_set_shows_the_values_it_runs_with(capsys):
     priors (dataset.GENERIC_MEMS), which the default preset does not hold."""
     from pathlib import Path
 
-    from gpsins import dataset
+    from gpsins.dataset import load
 
     walk = Path(__file__).parent / "data" / "walk_0827" / "walk_0827_facts.toml"
     assert cli.main(["replay", str(walk), "--out", "unused", "--set", "help"]) == 0
     out = capsys.readouterr().out
     assert "platform = handheld" in out
-    want = dataset.GENERIC_MEMS["gyro_bias_residual_rad_per_s"]
+    want = load.GENERIC_MEMS["gyro_bias_residual_rad_per_s"]
     assert f"gyro_bias_residual_rad_per_s = {want}" in out
     assert cli.main(["replay", "x", "--out", "unused", "--set", "help"]) == 0
     assert f"gyro_bias_residual_rad_per_s = {want}" not in capsys.readouterr().out
@@ -280,7 +281,7 @@ def test_a_full_disk_during_replay_is_one_line_and_leaves_nothing_partial(capsys
     import gc
     from pathlib import Path
 
-    from gpsins import solution
+    from gpsins.replay import solution
 
     def full(self, *a, **k):
         raise OSError(errno_mod.ENOSPC, "No space left on device")

@@ -8,9 +8,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gpsins import _core, dataset, outages
-from gpsins.dataset import DatasetError
-from gpsins.readers import ubx
+from gpsins import _core
+from gpsins.dataset import load
+from gpsins.evaluate import outages
+from gpsins.dataset.load import DatasetError
+from gpsins.formats import ubx
 
 WALK = Path(__file__).parent / "data" / "walk_0827"
 
@@ -18,7 +20,7 @@ WALK = Path(__file__).parent / "data" / "walk_0827"
 # --- the walk ------------------------------------------------------------------------------------------------
 
 def test_walk_dataset_loads_with_mounting_reference_and_schedule():
-    ds = dataset.load(WALK / "walk_0827.toml")
+    ds = load.load(WALK / "walk_0827.toml")
     assert ds.name == "walk_0827" and ds.gnss_format == "rtklib-pos" and ds.vehicle_kind == "none"
     assert len(ds.imu) == 20454 and len(ds.fixes) == 536
     assert len(ds.reference) == 349 and set(ds.reference.q) == {1}  # the README's fix epochs
@@ -39,7 +41,7 @@ def test_walk_dataset_loads_with_mounting_reference_and_schedule():
 
 
 def test_walk_ubx_dataset_has_pseudoranges_ephemerides_and_fixes():
-    ds = dataset.load(WALK / "walk_0827_ubx.toml")
+    ds = load.load(WALK / "walk_0827_ubx.toml")
     n_gps = 3842
     n = len(ds.pseudoranges)
     assert n > n_gps and (ds.pseudoranges.prn <= 32).sum() == n_gps and len(ds.fixes) == 536
@@ -57,11 +59,11 @@ def test_gnss_systems_pick_what_a_ubx_stream_gives(tmp_path):
         for f in ("gnss_1730.ubx", "imu_1730_sf.csv", "gnss_1730_sf.pos"):
             (tmp_path / f).unlink(missing_ok=True)
             (tmp_path / f).symlink_to((WALK / f).resolve())
-        ds = dataset.load(p)
+        ds = load.load(p)
         assert ds.navigation.prns() == ids and set(ubx.system_of(ds.pseudoranges.prn)) == set(systems)
     p.write_text(text.replace('format = "ubx"', 'format = "ubx"\nsystems = ["glonass"]'))
     with pytest.raises(DatasetError, match=r"\[gnss\] systems"):
-        dataset.load(p)
+        load.load(p)
 
 
 # --- synthetic sets: mounting, time offset, formats -----------------------------------------------------------
@@ -98,7 +100,7 @@ antenna_m = [0.5, -0.2, -1.0]
 [vehicle]
 kind = "car"
 """)
-    ds = dataset.load(tmp_path / "set.toml")
+    ds = load.load(tmp_path / "set.toml")
     np.testing.assert_allclose(ds.imu.t_abs, t + 0.25)
     # v_body = M v_imu, by hand: x_b = y_i, y_b = -x_i, z_b = z_i.
     np.testing.assert_allclose(ds.imu.dv_mps, np.column_stack([dv[:, 1], -dv[:, 0], dv[:, 2]]), rtol=1e-15)
@@ -126,7 +128,7 @@ nav = "{(rel / '07590920.05n').as_posix()}"
 [scoring]
 outages = "600:60:900"
 """)
-    ds = dataset.load(tmp_path / "set.toml")
+    ds = load.load(tmp_path / "set.toml")
     assert len(ds.pseudoranges.epochs()) == 120 and len(ds.navigation.ephemerides) > 20
     assert len(ds.navigation.alpha) == 4
     t0 = ds.gnss_span()[0]
@@ -158,9 +160,9 @@ week = 1653
 [vehicle]
 kind = "none"
 """
-    dataset.load(_write(tmp_path, "ok.toml", text))  # the unedited file is fine
+    load.load(_write(tmp_path, "ok.toml", text))  # the unedited file is fine
     with pytest.raises(DatasetError, match=match) as e:
-        dataset.load(_write(tmp_path, "bad.toml", edit(text)))
+        load.load(_write(tmp_path, "bad.toml", edit(text)))
     assert "bad.toml" in str(e.value)
 
 
@@ -273,7 +275,7 @@ def test_scoring_never_interpolates_across_an_update():
 def _circling_fixes(velocity_at):
     """4 Hz RTK-fixed fixes of a walk round a 5 m circle at 1.5 m/s (north-east, fixed height), with the
     stated velocity from ``velocity_at(t, positions, times)``."""
-    from gpsins.readers.common import Fixes
+    from gpsins.formats.common import Fixes
     llh = np.array([np.radians(40.0), np.radians(-105.0), 1600.0])
     t = np.arange(0.0, 30.0, 0.25)
     ned = lambda x: np.column_stack([5 * np.cos(0.3 * x), 5 * np.sin(0.3 * x), 0 * x])  # noqa: E731
@@ -288,18 +290,18 @@ def test_velocity_lag_is_measured_from_the_fixes_positions():
     # gives, per the walk): half an epoch. The true values are set by construction, not by the estimator.
     now = _circling_fixes(lambda t, ned: np.column_stack([-1.5 * np.sin(0.3 * t), 1.5 * np.cos(0.3 * t), 0 * t]))
     mean = _circling_fixes(lambda t, ned: (ned(t) - ned(t - 0.25)) / 0.25)
-    a, b = dataset.velocity_lag(now), dataset.velocity_lag(mean)
+    a, b = load.velocity_lag(now), load.velocity_lag(mean)
     assert a["epochs"] == len(now) - 2 and a["interval_s"] == pytest.approx(0.25)  # all but the ends
     assert abs(a["lag_s"]) < 0.005 and b["lag_s"] == pytest.approx(0.125, abs=0.005)
     assert b["rms_mps"] < 0.01 < b["rms_mps_at_zero_lag"]
     # Standalone (Q 5) fixes cannot tell: no figure.
     mean.q[:] = 5
-    assert dataset.velocity_lag(mean) is None
+    assert load.velocity_lag(mean) is None
 
 
 def test_the_walk_velocity_lag_is_half_its_epoch():
-    from gpsins.readers import rtklib_pos
-    m = dataset.velocity_lag(rtklib_pos.read(WALK / "gnss_1730_sf.pos"))
+    from gpsins.formats import rtklib_pos
+    m = load.velocity_lag(rtklib_pos.read(WALK / "gnss_1730_sf.pos"))
     assert m["lag_s"] == pytest.approx(0.125, abs=0.01) and m["rms_mps"] < 0.5 * m["rms_mps_at_zero_lag"]
 
 
@@ -313,7 +315,7 @@ def test_a_damaged_ubx_stream_is_one_note_and_the_rest_is_kept(tmp_path):
     text = text.replace('file = "imu_1730_sf.csv"', f'file = "{rel}/imu_1730_sf.csv"')
     text = text.replace('file = "gnss_1730.ubx"', 'file = "damaged.ubx"')
     text = text.replace('reference = "gnss_1730_sf.pos"', f'reference = "{rel}/gnss_1730_sf.pos"')
-    ds = dataset.load(_write(tmp_path, "d.toml", text))
+    ds = load.load(_write(tmp_path, "d.toml", text))
     assert ds.skipped["ubx: damaged stretches"] == 1
     frame_len = 8 + data[at + 4] + 256 * data[at + 5]  # the damaged frame, nothing more
     assert [n for n in ds.notes if "skipped" in n] == [
@@ -341,12 +343,12 @@ week = 1653
 
 
 def test_sigma_floor_table_reaches_the_fix_table(tmp_path):
-    ds = dataset.load(_kfgins_set(tmp_path, "[gnss.sigma_floor_m]\nunknown = [0.1, 0.2]\n"))
+    ds = load.load(_kfgins_set(tmp_path, "[gnss.sigma_floor_m]\nunknown = [0.1, 0.2]\n"))
     assert ds.sigma_floor_m == {"unknown": (0.1, 0.2)}
-    h, v = dataset.fix_sigmas(ds.fixes, ds.sigma_floor_m, ds.sigma_default_m)
+    h, v = load.fix_sigmas(ds.fixes, ds.sigma_floor_m, ds.sigma_default_m)
     np.testing.assert_allclose(h, [0.1, 0.5])  # a stated zero takes the floor; 0.5 is above it
     np.testing.assert_allclose(v, [0.2, 1.0])
-    assert dataset.velocity_sigma(ds.fixes) is None  # kf-gins fixes have no velocity
+    assert load.velocity_sigma(ds.fixes) is None  # kf-gins fixes have no velocity
 
 
 @pytest.mark.parametrize("extra, match", [
@@ -357,7 +359,7 @@ def test_sigma_floor_table_reaches_the_fix_table(tmp_path):
 ])
 def test_bad_sigma_keys_name_the_field(tmp_path, extra, match):
     with pytest.raises(DatasetError, match=match):
-        dataset.load(_kfgins_set(tmp_path, extra))
+        load.load(_kfgins_set(tmp_path, extra))
 
 
 def test_what_the_gnss_readers_leave_out_is_counted_with_the_imus(tmp_path):
@@ -371,6 +373,6 @@ def test_what_the_gnss_readers_leave_out_is_counted_with_the_imus(tmp_path):
     cols[2] = "nan"  # the latitude
     lines[k] = "  ".join(cols) + "\n"
     (tmp_path / "gnss_1730_sf.pos").write_text("".join(lines))
-    ds = dataset.load(tmp_path / "walk_0827.toml")
+    ds = load.load(tmp_path / "walk_0827.toml")
     assert len(ds.fixes) == 535
     assert sum(v for k, v in ds.skipped.items() if k.startswith("GNSS")) == 1, ds.skipped

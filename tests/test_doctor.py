@@ -9,8 +9,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gpsins import cli, dataset, doctor, replay
-from gpsins.sim import dataset_writer, load, simulate
+from gpsins import cli
+from gpsins.dataset import load as dataset, doctor
+from gpsins.replay import run
+from gpsins.sim import dataset_writer, simulate
+from gpsins.sim.scenario import load
 
 WALK = Path(__file__).parent / "data" / "walk_0827"
 
@@ -49,7 +52,7 @@ def test_a_mistake_is_refused_with_what_was_measured(tmp_path, edit, check, says
     print(f.line())
     assert f.level == "error" and says in f.text
     with pytest.raises(dataset.DatasetError, match="contradict the declaration"):
-        replay.load_inputs(p)
+        run.load_inputs(p)
     assert cli.main(["check", str(p)]) == 2
 
 
@@ -66,7 +69,7 @@ def test_tight_without_pseudoranges_is_refused_and_force_replays(tmp_path):
     assert findings(p, ("tight",))["mode"].level == "error"
     assert cli.main(["replay", str(p), "--mode", "tight", "--out", str(tmp_path / "o")]) == 2
     # --force: a person who knows better gets the replay, and run.json keeps what the doctor said.
-    res = replay.replay(WALK / "walk_0827.toml", tmp_path / "forced", force=True, mode="loose")
+    res = run.replay(WALK / "walk_0827.toml", tmp_path / "forced", force=True, mode="loose")
     assert [f["level"] for f in res.summary["doctor"]].count("error") == 0
 
 
@@ -119,7 +122,7 @@ def test_the_template_for_the_walks_files_guesses_what_the_shipped_data_set_decl
     out.write_text(out.read_text().replace("imu_to_body_ypr_deg = [0.0, 0.0, 0.0]",
                                            "imu_to_body_ypr_deg = [-90.0, 0.0, 180.0]"))
     assert not doctor.diagnose(dataset.load(out)).errors()
-    res = replay.replay(out, tmp_path / "r", outages="25:15:45:45")
+    res = run.replay(out, tmp_path / "r", outages="25:15:45:45")
     assert res.summary["imu_samples"] == 20454
 
 

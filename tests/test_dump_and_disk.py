@@ -9,9 +9,9 @@ import time
 
 import numpy as np
 
-from gpsins import dump
+from gpsins.session import dump
 from gpsins.cli import main as cli_main
-from gpsins.sources import StaticSource
+from gpsins.devices.sources import StaticSource
 from gpsins_logger import bp3010
 from gpsins_logger import superstar2 as ss2
 from gpsins_logger.recorder import DiskHealth, SensorInfo, Session

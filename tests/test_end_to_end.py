@@ -8,11 +8,13 @@ import matplotlib.pyplot as plt
 import numpy as np
 from figcheck import check_figure
 
-from gpsins import mainjob, replay, report, sim
-from gpsins import results as results_mod
+from gpsins import mainjob, report, sim
+from gpsins.replay import run
+from gpsins.replay import results as results_mod
 from gpsins.sim.messages import MEASUREMENT_DELAY_S
 from gpsins.sim.scenario import parse
-from gpsins.sim.session import write_session, write_truth
+from gpsins.sim.session import write_session
+from gpsins.formats.truth import write_truth
 
 START = {"gps_week": 1590, "gps_tow_s": 419400.0, "lat_deg": 59.37, "lon_deg": 17.95, "height_m": 30.0,
          "heading_deg": 160.0}
@@ -29,7 +31,7 @@ def test_drive_through_ptys_logger_replay_and_report(tmp_path):
     session = mainjob.record_drive(s, tmp_path, speed=speed)
     outs = []
     for mode in ("loose", "tight"):
-        res = replay.replay(session, tmp_path / mode, mode=mode, gps_latency_s=MEASUREMENT_DELAY_S / speed + 5e-4)
+        res = run.replay(session, tmp_path / mode, mode=mode, gps_latency_s=MEASUREMENT_DELAY_S / speed + 5e-4)
         summary = json.loads((tmp_path / mode / "run.json").read_text())
         assert summary["counters"]["imu_samples"] == len(s.imu_t)
         assert summary["alignment"]["imu_frames_missing"] == 0
@@ -74,7 +76,7 @@ def test_a_damaged_session_still_replays_and_says_what_was_skipped(tmp_path):
         for at in rng.integers(1000, len(data) - 1000, 5):
             data[at:at + 40] = rng.integers(0, 256, 40, dtype=np.uint8).tobytes()
         (d / name).write_bytes(bytes(data[:-cut]))
-    res = replay.replay(d, tmp_path / "out", gps_latency_s=MEASUREMENT_DELAY_S)
+    res = run.replay(d, tmp_path / "out", gps_latency_s=MEASUREMENT_DELAY_S)
     sk = res.summary["skipped"]
     assert any("imu: bytes between frames" in k for k in sk) and any("gps: bytes between frames" in k for k in sk)
     assert any("imu: truncated" in k for k in sk) and any("gps: truncated" in k for k in sk)

@@ -8,7 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gpsins import cli, estimator, replay, results, sim
+from gpsins import cli, sim
+from gpsins.nav import estimator
+from gpsins.replay import run, results
 from gpsins.sim.session import write_session
 
 from drives import START, stand_and_drive
@@ -37,10 +39,10 @@ def _sections(out):
 @pytest.mark.parametrize("mode", ["loose", "tight"])
 def test_the_builtin_filter_as_a_plug_in_scores_exactly_as_native(drive, tmp_path, mode):
     _, d = drive
-    native = replay.replay(d, tmp_path / "native", mode=mode, outages="35:10:25")
-    plugged = replay.replay(d, tmp_path / "plugin", mode=mode, outages="35:10:25",
-                            estimator="gpsins.estimator:builtin")
-    assert plugged.summary["estimator"] == "gpsins.estimator:builtin"
+    native = run.replay(d, tmp_path / "native", mode=mode, outages="35:10:25")
+    plugged = run.replay(d, tmp_path / "plugin", mode=mode, outages="35:10:25",
+                            estimator="gpsins.nav.estimator:builtin")
+    assert plugged.summary["estimator"] == "gpsins.nav.estimator:builtin"
     assert _sections(native.out) == _sections(plugged.out)
     a, b = results.load(native.out), results.load(plugged.out)
     for k in ("t", "r_ecef", "sigma_ned_m", "err_ned_m", "nees9"):
@@ -52,7 +54,7 @@ def test_any_estimator_is_scored_like_the_filter(drive, tmp_path, monkeypatch):
     the ones computed here from the simulator's truth with this test's own local-level rotation."""
     s, d = drive
     monkeypatch.setitem(sys.modules, "plugin_under_test", sys.modules[__name__])
-    res = replay.replay(d, tmp_path / "fixes", estimator="plugin_under_test:receiver_fixes")
+    res = run.replay(d, tmp_path / "fixes", estimator="plugin_under_test:receiver_fixes")
     f = sim.fix_table(s)
     f = f[np.isin(f[:, 9], (2, 3))]
     t = f[:, 0] + START["gps_tow_s"]  # the replay's time base: seconds of the week
@@ -70,8 +72,8 @@ def test_any_estimator_is_scored_like_the_filter(drive, tmp_path, monkeypatch):
     assert e["vertical_rms_m"] == pytest.approx(np.sqrt(np.mean((d_ecef @ down) ** 2)), rel=1e-3)
 
 
-@pytest.mark.parametrize("spec,says", [("nosuchmodule:f", "cannot import"), ("gpsins.estimator:nosuch", "has no"),
-                                       ("gpsins.estimator", "package.module:name")])
+@pytest.mark.parametrize("spec,says", [("nosuchmodule:f", "cannot import"), ("gpsins.nav.estimator:nosuch", "has no"),
+                                       ("gpsins.nav.estimator", "package.module:name")])
 def test_a_bad_estimator_is_one_line(drive, tmp_path, capsys, spec, says):
     _, d = drive
     assert cli.main(["replay", str(d), "--out", str(tmp_path / "o"), "--estimator", spec]) == 2
@@ -93,7 +95,7 @@ def test_score_of_a_replays_pos_gives_its_drift(tmp_path):
     scores worse (0.087 against 0.046 m on the walk): a .pos has no update instants, so the solution is
     interpolated across the fixes' steps, which the replay's own scoring never does."""
     walk = Path(__file__).parent / "data" / "walk_0827" / "walk_0827.toml"
-    own = replay.replay(walk, tmp_path / "own")
+    own = run.replay(walk, tmp_path / "own")
     assert cli.main(["score", str(own.out / "solution.pos"), "--against", str(walk), "--out",
                      str(tmp_path / "scored")]) == 0
     a, b = (json.loads((p / "run.json").read_text())["scoring"] for p in (own.out, tmp_path / "scored"))
@@ -107,7 +109,7 @@ def test_score_of_a_kf_gins_navigation_file(drive, tmp_path):
     longitude, height, velocity NED, roll, pitch, yaw) and scored against the session: the errors
     against the truth are the replay's own, the attitude read back within the file's digits."""
     _, d = drive
-    own = replay.replay(d, tmp_path / "own")
+    own = run.replay(d, tmp_path / "own")
     z = results.load(own.out)
     k = z["heading_known"]
     llh, ypr = z["llh"][k], z["ypr_deg"][k]
@@ -136,10 +138,10 @@ def test_report_puts_any_number_of_named_results_side_by_side(drive, tmp_path, m
     palette's first four)."""
     _, d = drive
     monkeypatch.setitem(sys.modules, "plugin_under_test", sys.modules[__name__])
-    outs = {"native-loose": replay.replay(d, tmp_path / "l").out, "native-tight": replay.replay(
+    outs = {"native-loose": run.replay(d, tmp_path / "l").out, "native-tight": run.replay(
         d, tmp_path / "t", mode="tight").out,
-            "wrapped": replay.replay(d, tmp_path / "w", estimator="gpsins.estimator:builtin").out,
-            "receiver": replay.replay(d, tmp_path / "f", estimator="plugin_under_test:receiver_fixes").out}
+            "wrapped": run.replay(d, tmp_path / "w", estimator="gpsins.nav.estimator:builtin").out,
+            "receiver": run.replay(d, tmp_path / "f", estimator="plugin_under_test:receiver_fixes").out}
     assert cli.main(["score", str(outs["native-loose"] / "solution.pos"), "--against", str(d), "--out",
                      str(tmp_path / "s")]) == 0
     outs["from-file"] = tmp_path / "s"
@@ -153,7 +155,7 @@ def test_score_of_a_csv_with_declared_columns(drive, tmp_path, capsys):
     """The same solution as a CSV (seconds of week, latitude/longitude/height, NED velocity, a column to
     skip, quaternion) scores as the replay itself; a bad value is named by line and column."""
     _, d = drive
-    own = replay.replay(d, tmp_path / "own")
+    own = run.replay(d, tmp_path / "own")
     z = results.load(own.out)
     k = z["heading_known"]
     llh = z["llh"][k]

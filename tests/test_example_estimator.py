@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from gpsins import replay, results, sim
+from gpsins.replay import run, results
+from gpsins import sim
 from gpsins.sim.scenario import parse
 from gpsins.sim.session import write_session
 
@@ -45,8 +46,8 @@ def drive(tmp_path_factory, examples_on_path):
     s = sim.simulate(sc, seed=SEED)
     root = tmp_path_factory.mktemp("example_drive")
     write_session(s, root / "session")
-    return (s, replay.replay(root / "session", root / "example", estimator=SPEC),
-            replay.replay(root / "session", root / "native"))
+    return (s, run.replay(root / "session", root / "example", estimator=SPEC),
+            run.replay(root / "session", root / "native"))
 
 
 def horizontal_errors(s, out, t_from):
@@ -108,8 +109,8 @@ def test_the_example_nees_lies_in_the_chi_square_band(drive):
 @pytest.fixture(scope="module")
 def walk(tmp_path_factory, examples_on_path):
     root = tmp_path_factory.mktemp("example_walk")
-    return (replay.replay(WALK, root / "example", estimator=SPEC, outages=WALK_OUTAGES),
-            replay.replay(WALK, root / "native", outages=WALK_OUTAGES))
+    return (run.replay(WALK, root / "example", estimator=SPEC, outages=WALK_OUTAGES),
+            run.replay(WALK, root / "native", outages=WALK_OUTAGES))
 
 
 def free_inertial_bound_m(fixes: np.ndarray, outage_s: float = 15.0) -> float:

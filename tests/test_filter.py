@@ -7,7 +7,10 @@ import tomllib
 import numpy as np
 import pytest
 
-from gpsins import evaluate, filter as flt, sim
+from gpsins import evaluate, sim
+from gpsins.nav import runs as flt
+from gpsins.nav import config as nav_config
+from gpsins.sim import scenario as scenario_mod
 from gpsins.sim.scenario import parse
 
 START = {"gps_week": 1590, "gps_tow_s": 419400.0, "lat_deg": 59.37, "lon_deg": 17.95, "height_m": 30.0,
@@ -36,19 +39,19 @@ def truth_of(s):
 
 
 def run_sim(s, overrides=None, **kw):
-    cfg = flt.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), **(overrides or {})})
+    cfg = nav_config.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), **(overrides or {})})
     return flt.run(sim.imu_table(s), sim.fix_table(s), cfg, covariance=True, **kw)
 
 
 @pytest.fixture(scope="module")
 def default_run():
-    s = sim.simulate(sim.load("default"), seed=0)
+    s = sim.simulate(scenario_mod.load("default"), seed=0)
     return s, run_sim(s)
 
 
 def test_standing_still_levels_to_the_accelerometer_biases_and_learns_the_gyro_biases():
     s = sim.simulate(scenario([{"label": "parked", "duration_s": 120, "speed_mps": 0}]), seed=4)
-    cfg = flt.load_config(None, sim.imu_noise_truth(s.scenario.imu))
+    cfg = nav_config.load_config(None, sim.imu_noise_truth(s.scenario.imu))
     sol = flt.run(sim.imu_table(s), sim.fix_table(s), cfg, covariance=True)
     err = evaluate.nav_errors(sol, truth_of(s))
     end = sol.t > sol.t[-1] - 10.0
@@ -81,12 +84,12 @@ def test_standing_still_levels_to_the_accelerometer_biases_and_learns_the_gyro_b
     ab_true = (s.imu_errors.accel_bias_mps2 + s.imu_errors.accel_bias_drift[-1]) - np.array(m.accel_bias_mps2)
     g_sig, a_sig = sol.sigma[-1, 9:12], sol.sigma[-1, 12:15]
     assert np.all(np.abs(sol.gyro_bias[-1] - gb_true) < 3 * g_sig)
-    assert np.all(g_sig < 0.25 * flt.core_config(cfg).gyro_bias_sigma_rad_per_s)
+    assert np.all(g_sig < 0.25 * nav_config.core_config(cfg).gyro_bias_sigma_rad_per_s)
     assert abs(sol.accel_bias[-1, 2] - ab_true[2]) < 3 * a_sig[2]
-    assert a_sig[2] < 0.2 * flt.core_config(cfg).accel_bias_sigma_mps2[2]
+    assert a_sig[2] < 0.2 * nav_config.core_config(cfg).accel_bias_sigma_mps2[2]
     # The horizontal accelerometer biases are unobservable at rest: their sigma must not shrink
     # (x and y are not exactly horizontal, so allow a little).
-    assert np.all(a_sig[:2] > 0.9 * flt.core_config(cfg).accel_bias_sigma_mps2[:2])
+    assert np.all(a_sig[:2] > 0.9 * nav_config.core_config(cfg).accel_bias_sigma_mps2[:2])
     # Position within the fix noise: the fixes' own error spread.
     fix = sim.fix_table(s)
     fix = fix[(fix[:, 9] == 2) & (fix[:, 0] > s.truth.t[0]) & (fix[:, 0] < s.truth.t[-1])]
@@ -131,7 +134,7 @@ def test_nees_of_the_navigation_states_is_consistent_over_five_seeds():
 
 def test_streaming_and_batch_give_identical_results():
     s = sim.simulate(scenario(DRIVE[:3]), seed=1)
-    cfg = flt.load_config(None, sim.imu_noise_truth(s.scenario.imu))
+    cfg = nav_config.load_config(None, sim.imu_noise_truth(s.scenario.imu))
     imu, fixes = sim.imu_table(s), sim.fix_table(s)
     batch = flt.run(imu, fixes, cfg)
     f = flt.streaming(cfg)
@@ -152,7 +155,7 @@ def test_streaming_and_batch_give_identical_results():
 def test_a_fix_between_samples_is_applied_at_its_own_time():
     s = sim.simulate(scenario(DRIVE[:3]), seed=2)
     imu, fixes = sim.imu_table(s), sim.fix_table(s)
-    sol = flt.run(imu, fixes, flt.load_config(None, sim.imu_noise_truth(s.scenario.imu)))
+    sol = flt.run(imu, fixes, nav_config.load_config(None, sim.imu_noise_truth(s.scenario.imu)))
     u = sol.updates
     fix_updates = u["t"][(u["kind"] == 1) | (u["kind"] == 2)]
     used = fixes[(fixes[:, 9] == 2) | (fixes[:, 9] == 3)][:, 0]
@@ -170,7 +173,7 @@ def test_dropped_imu_frames_are_bridged_and_counted():
     imu = sim.imu_table(s)
     keep = np.ones(len(imu), bool)
     keep[[1500, 1501, 1502, 2200]] = False
-    sol = flt.run(imu[keep], sim.fix_table(s), flt.load_config(None, sim.imu_noise_truth(s.scenario.imu)),
+    sol = flt.run(imu[keep], sim.fix_table(s), nav_config.load_config(None, sim.imu_noise_truth(s.scenario.imu)),
                   covariance=True)
     assert sol.counters["imu_gaps_bridged"] == 2
     assert sol.counters["imu_samples"] == keep.sum()
@@ -193,7 +196,7 @@ def test_increments_that_cover_a_double_step_are_integrated_once():
     # The hard gate, so that the fixes do not mend what the integration got wrong: down-weighted
     # updates (robust_after_rejections) pull the bridged run back (2.30 m, 1.87x), and the test is
     # about the increments.
-    cfg = flt.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), "robust_after_rejections": 0})
+    cfg = nav_config.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), "robust_after_rejections": 0})
 
     def h_rms(sol):
         e = evaluate.nav_errors(sol, tr)
@@ -224,15 +227,15 @@ def test_bad_input_names_the_row(mutate, message):
 def test_wrong_shapes_and_unknown_config_keys_are_errors():
     with pytest.raises(ValueError, match=r"imu: expected shape \(n, 7\)"):
         flt.run(np.zeros((5, 6)), np.zeros((0, 10)))
-    with pytest.raises(flt.ConfigError, match="unknown key.*gyro_arw_typo"):
-        flt.load_config(None, {"gyro_arw_typo": 1.0})
-    with pytest.raises(flt.ConfigError, match="unknown preset"):
-        flt.load_config({"preset": "nope"})
+    with pytest.raises(nav_config.ConfigError, match="unknown key.*gyro_arw_typo"):
+        nav_config.load_config(None, {"gyro_arw_typo": 1.0})
+    with pytest.raises(nav_config.ConfigError, match="unknown preset"):
+        nav_config.load_config({"preset": "nope"})
 
 
 def test_report2005_preset_holds_the_reports_tables():
-    cfg = flt.load_config("report2005")
-    c = flt.core_config(cfg)
+    cfg = nav_config.load_config("report2005")
+    c = nav_config.core_config(cfg)
     assert np.allclose(c.fix_sigma_ecef_m, [1.8, 1.4, 2.0])  # Table 7.1
     assert np.allclose(np.degrees(c.attitude_sigma_rad), [5, 5, 7])  # Table 7.2
     assert c.velocity_sigma_mps == 1 and c.position_sigma_m == 10
@@ -244,9 +247,9 @@ def test_report2005_preset_holds_the_reports_tables():
 
 
 def test_config_round_trips_through_toml():
-    cfg = flt.load_config(None, {"use_fix_velocity": True, "lever_arm_body_m": [0.5, 0.0, -1.2]})
-    again = flt.load_config(tomllib.loads(flt.to_toml(cfg)))
-    a, b = flt.core_config(cfg), flt.core_config(again)
+    cfg = nav_config.load_config(None, {"use_fix_velocity": True, "lever_arm_body_m": [0.5, 0.0, -1.2]})
+    again = nav_config.load_config(tomllib.loads(nav_config.to_toml(cfg)))
+    a, b = nav_config.core_config(cfg), nav_config.core_config(again)
     for k in ("lever_arm_body_m", "gyro_arw_rad_per_sqrt_s", "attitude_sigma_rad", "gyro_bias_sigma_rad_per_s"):
         assert np.array_equal(getattr(a, k), getattr(b, k)), k
     assert b.use_fix_velocity
@@ -263,7 +266,7 @@ def test_imu_noise_turns_into_random_walk_biases_with_the_seed_conversions():
     noise = {"gyro_arw_rad_per_sqrt_s": 4.36e-5, "gyro_bias_instability_rad_per_s": b_gyro,
              "gyro_rrw_rad_per_s_sqrt_s": k_gyro, "accel_vrw_mps_per_sqrt_s": 1e-3,
              "accel_bias_instability_mps2": 0.0, "accel_rrw_mps2_per_sqrt_s": 0.0, "bias_tau_s": tau_s}
-    c = flt.core_config(flt.load_config(None, {"imu_noise": noise}))
+    c = nav_config.core_config(nav_config.load_config(None, {"imu_noise": noise}))
     floor = math.sqrt(2.0 * math.log(2.0) / math.pi) * b_gyro
     tau = np.logspace(-2, 4, 200001) * tau_s
     x = tau / tau_s
@@ -301,7 +304,7 @@ def test_gyro_noise_model_covers_the_simulated_bias_instability():
         avar = avar + r.adev ** 2 / 4
     noise = {"gyro_arw_rad_per_sqrt_s": list(arw), "gyro_bias_instability_rad_per_s": list(m.gyro_bias_instability_rad_per_s),
              "gyro_rrw_rad_per_s_sqrt_s": list(m.gyro_rrw_rad_per_s_sqrt_s)}
-    c = flt.core_config(flt.load_config(None, {"imu_noise": noise}))
+    c = nav_config.core_config(nav_config.load_config(None, {"imu_noise": noise}))
     tau = r.tau[:, None]
     white = c.gyro_arw_rad_per_sqrt_s ** 2 + c.gyro_flicker_white_rad_per_sqrt_s ** 2  # the process noise's density
     model = np.sqrt(white / tau + c.gyro_bias.random_walk_per_sqrt_s ** 2 * tau / 3)

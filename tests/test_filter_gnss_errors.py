@@ -11,7 +11,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gpsins import evaluate, filter as flt, sim
+from gpsins import evaluate, sim
+from gpsins.nav import runs as flt
+from gpsins.nav import config as nav_config
+from gpsins.sim import scenario
 
 sys.path.insert(0, str(Path(__file__).parent))
 from test_tight import both, truth_of  # noqa: E402
@@ -24,18 +27,18 @@ GM = {}
 
 @pytest.fixture(scope="module")
 def stop_and_go():
-    return sim.simulate(sim.load("stop_and_go"), seed=5)
+    return sim.simulate(scenario.load("stop_and_go"), seed=5)
 
 
 def _run(s, over, **kw):
-    cfg = flt.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), **over})
+    cfg = nav_config.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), **over})
     return flt.run(sim.imu_table(s), sim.fix_table(s), cfg, covariance=True, **kw)
 
 
 def test_fix_error_states_appear_only_when_configured(stop_and_go):
     s = stop_and_go
     cut = sim.imu_table(s)[:64 * 60]
-    cfg_w = flt.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), **WHITE})
+    cfg_w = nav_config.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), **WHITE})
     white = flt.run(cut, sim.fix_table(s), cfg_w, covariance=True)
     assert white.n_states == 15 and white.fix_error is None
     gm = _run(s, GM, output_every=64)
@@ -72,7 +75,7 @@ def test_standing_still_the_fix_error_states_keep_the_position_consistent(stop_a
 def test_smoother_runs_over_the_fix_error_states(stop_and_go):
     s = stop_and_go
     imu = sim.imu_table(s)[:64 * 200]
-    cfg = flt.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), **GM})
+    cfg = nav_config.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), **GM})
     sol = flt.run(imu, sim.fix_table(s), cfg, covariance=True, smooth=True, output_every=8)
     sm = sol.extra["smoothed"]
     assert sm.n_states == 18 and sm.fix_error.shape == sol.fix_error.shape
@@ -90,7 +93,7 @@ def test_correlated_pseudorange_variance_makes_the_confidence_independent_of_the
     """White pseudoranges at 10 Hz look ten times as informative as at 1 Hz; with the correlated
     variance sigma^2 (1 + a) / (1 - a) per update the position sigma no longer depends on the rate. (The
     signal-in-space part is left to the variance here: as states it would dominate both sigmas.)"""
-    s = sim.simulate(sim.load("default"), seed=6)
+    s = sim.simulate(scenario.load("default"), seed=6)
 
     def horizontal_sigma(**over):
         sol = both(s, pseudorange_sis_states=False, **over)["tight"]
@@ -113,12 +116,12 @@ def test_preset_fix_error_figures_are_the_simulated_receivers():
     figures (the preset's come from the 43-minute drive: benchmarks/bench_gnss_errors.py). The fast
     part is the states' (fix_error_gm_*), the slow one (orbit and clock errors, constant over a
     drive) the fixes' extra white R (fix_error_fast_* with tau 0)."""
-    from gpsins.gnss_errors import autocovariance_sums, fit_white_two_gauss_markov, fix_errors_per_dop
+    from gpsins.evaluate.gnss_errors import autocovariance_sums, fit_white_two_gauss_markov, fix_errors_per_dop
 
-    cfg = flt.load_config(None)
+    cfg = nav_config.load_config(None)
     sums, counts, per_dop, dops = 0.0, 0.0, [], []
     for seed in range(3):
-        t, e, dop = fix_errors_per_dop(sim.simulate(sim.load("default"), seed))
+        t, e, dop = fix_errors_per_dop(sim.simulate(scenario.load("default"), seed))
         a, n = autocovariance_sums(t, e, 120)
         sums, counts = sums + a, counts + n
         per_dop.append(e)
@@ -152,10 +155,10 @@ def test_fast_fix_error_weighs_like_its_inflated_variance(stop_and_go, tau_s):
     a = np.exp(-1.0 / tau_s) if tau_s > 0 else 0.0
     base = {**sim.imu_noise_truth(s.scenario.imu), "fix_error_gm_sigma_m": 0.0, "fix_uere_2d_m": 0.0,
             "fix_error_gm_dop_scaled": True}
-    fast = flt.run(imu, fixes, flt.load_config(None, {**base, "fix_uere_m": 1.0, "fix_error_fast_sigma_m": 0.7,
+    fast = flt.run(imu, fixes, nav_config.load_config(None, {**base, "fix_uere_m": 1.0, "fix_error_fast_sigma_m": 0.7,
                                                        "fix_error_fast_tau_s": tau_s}))
-    grown = flt.run(imu, fixes, flt.load_config(None, {**base, "fix_uere_m": np.sqrt(1.0 + 0.49 * (1 + a) / (1 - a))}))
-    plain = flt.run(imu, fixes, flt.load_config(None, {**base, "fix_uere_m": 1.0}))
+    grown = flt.run(imu, fixes, nav_config.load_config(None, {**base, "fix_uere_m": np.sqrt(1.0 + 0.49 * (1 + a) / (1 - a))}))
+    plain = flt.run(imu, fixes, nav_config.load_config(None, {**base, "fix_uere_m": 1.0}))
     late = fast.t > fast.t[0] + 30.0  # past the first fix, the only one without a predecessor
     np.testing.assert_allclose(fast.r_ecef[late], grown.r_ecef[late], rtol=0, atol=1e-3)
     assert np.abs(fast.r_ecef[late] - plain.r_ecef[late]).max() > 0.05
@@ -172,7 +175,7 @@ def test_white_signal_in_space_error_adds_its_variance_at_any_elevation(stop_and
     inputs = sim.tight_inputs(s)
 
     def run(**over):
-        return flt.run(imu, sim.fix_table(s), flt.load_config(None, {**base, **over}), **inputs)
+        return flt.run(imu, sim.fix_table(s), nav_config.load_config(None, {**base, **over}), **inputs)
 
     sis = run(pseudorange_sigma_m=1.0, pseudorange_sis_sigma_m=0.7)
     grown = run(pseudorange_sigma_m=np.sqrt(1.0 + 0.49), pseudorange_sis_sigma_m=0.0)
@@ -185,7 +188,7 @@ def test_correlated_signal_in_space_variance_makes_the_confidence_independent_of
     """As the multipath's: with the signal-in-space part correlated (sigma^2 (1 + a) / (1 - a) per
     update) the position sigma no longer depends on the rate; white, 10 Hz looks far more informative.
     As states (pseudorange_sis_states) it is one error per satellite at any rate, so neither does."""
-    s = sim.simulate(sim.load("default"), seed=6)
+    s = sim.simulate(scenario.load("default"), seed=6)
 
     def horizontal_sigma(**over):
         sol = both(s, pseudorange_sigma_m=0.3, pseudorange_error_gm_sigma_m=0.0, pseudorange_sis_use_ura=False,
@@ -207,13 +210,13 @@ def test_preset_signal_in_space_sigma_is_the_simulated_receivers():
     satellite, the pseudorange with it minus the pseudorange without it (all else drawn alike)."""
     per_sat = []
     for seed in range(8):
-        sc = sim.load("default")
+        sc = scenario.load("default")
         with_sis = sim.simulate(sc, seed=seed).gnss
         sc.gnss.sis_error_m = 0.0
         d = with_sis.pseudorange_m - sim.simulate(sc, seed=seed).gnss.pseudorange_m
         per_sat += [np.nanmean(d[:, j] ** 2) for j in range(d.shape[1]) if np.isfinite(d[:, j]).any()]
     rms = float(np.sqrt(np.mean(per_sat)))  # each satellite of each drive once, however long tracked
-    cfg = flt.load_config(None)
+    cfg = nav_config.load_config(None)
     print(f"simulated signal-in-space error RMS {rms:.2f} m over {len(per_sat)} satellites, preset sigma "
           f"{cfg['pseudorange_sis_sigma_m']}")
     assert not cfg["pseudorange_sis_use_ura"]
@@ -233,7 +236,7 @@ def test_signal_in_space_sigma_from_the_broadcast_ura(stop_and_go, index, ura_m)
         e.ura_index = index  # every satellite broadcasting the same URA
 
     def run(**over):
-        return flt.run(imu, sim.fix_table(s), flt.load_config(None, {**base, **over}), **inputs).r_ecef
+        return flt.run(imu, sim.fix_table(s), nav_config.load_config(None, {**base, **over}), **inputs).r_ecef
 
     ura = run(pseudorange_sis_use_ura=True, pseudorange_sis_sigma_m=0.1)
     np.testing.assert_allclose(ura, run(pseudorange_sis_use_ura=False, pseudorange_sis_sigma_m=ura_m), rtol=0, atol=1e-6)

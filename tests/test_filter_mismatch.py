@@ -8,7 +8,9 @@ import numpy as np
 import pytest
 
 from gpsins import evaluate, sim
-from gpsins import filter as flt
+from gpsins.sim import scenario
+from gpsins.nav import runs as flt
+from gpsins.nav import config as nav_config
 from gpsins.sim import unit
 
 SEEDS = 5
@@ -22,10 +24,10 @@ def _truth(s):
 @pytest.fixture(scope="module")
 def runs():
     ds = unit.Datasheet()
-    cfg = flt.load_config(None, unit.filter_overrides(ds))
+    cfg = nav_config.load_config(None, unit.filter_overrides(ds))
     out = []
     for seed in range(SEEDS):
-        sc = sim.load("default")
+        sc = scenario.load("default")
         sc.imu = unit.draw_unit(ds, np.random.default_rng([seed, 21]), sc.imu)
         s = sim.simulate(sc, seed=seed)
         sol = flt.run(sim.imu_table(s), sim.fix_table(s), cfg, covariance=True)
@@ -92,7 +94,7 @@ def test_tight_nees_under_mismatch_with_correlated_pseudorange_errors(runs):
     these seeds average 14.0, outside (multipath and atmosphere residuals stay correlated
     over tens of seconds; bench_mismatch: 20 seeds white 12.82, correlated 8.40)."""
     ds, out = runs
-    cfg = flt.load_config(None, {**unit.filter_overrides(ds), "mode": "tight",
+    cfg = nav_config.load_config(None, {**unit.filter_overrides(ds), "mode": "tight",
                                  **unit.receiver_overrides(unit.ReceiverErrors(), "tight")})
     per_seed = []
     for s, _, _ in out:

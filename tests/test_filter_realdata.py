@@ -11,8 +11,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gpsins import _core, filter as flt, replay, sim
-from gpsins import results as results_mod
+from gpsins import _core, sim
+from gpsins.nav import runs as flt
+from gpsins.replay import run
+from gpsins.nav import config as nav_config
+from gpsins.replay import results as results_mod
 from gpsins.sim import dataset_writer as dw, scenario
 
 WALK = Path(__file__).parent / "data" / "walk_0827" / "walk_0827.toml"
@@ -59,7 +62,7 @@ def _wrap(a):
 @pytest.fixture(scope="module")
 def short_drive():
     s = sim.simulate(_cut("default", 60, 10), seed=2)
-    cfg = flt.load_config(None, sim.imu_noise_truth(s.scenario.imu))
+    cfg = nav_config.load_config(None, sim.imu_noise_truth(s.scenario.imu))
     return s, cfg, sim.imu_table(s), sim.fix_table(s)
 
 
@@ -84,7 +87,7 @@ def test_stated_sigmas_replace_the_dop_model(short_drive):
     np.testing.assert_allclose(_states(flt.run(imu, same, cfg)), _states(ref), rtol=0, atol=1e-6)
     # Ten times smaller stated sigmas: the fixes' innovation sigmas shrink accordingly (without the
     # preset's correlated parts, which the stated sigmas do not replace and which stay as they were).
-    white = flt.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), "fix_error_gm_sigma_m": 0.0})
+    white = nav_config.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), "fix_error_gm_sigma_m": 0.0})
     tight = same.copy()
     tight[:, 10:13] /= 10.0
     u_ref, u_tight = flt.run(imu, same, white).updates, flt.run(imu, tight, white).updates
@@ -122,7 +125,7 @@ def handheld_walk(tmp_path_factory):
     text = re.sub(r"imu_to_body_ypr_deg = .*", "imu_to_body_ypr_deg = [0.0, 0.0, 0.0]", path.read_text())
     # The device's calibration in its own axes (the data set states the unit's, in body axes).
     m = dw.ypr_matrix(HANDHELD_OFFSET_DEG, 0.0, 0.0)
-    preset = flt.load_config(None)
+    preset = nav_config.load_config(None)
     for k in ("gyro_bias_cal_rad_per_s", "accel_bias_cal_mps2"):
         text = re.sub(rf"{k} = .*", f"{k} = {(m.T @ np.asarray(preset[k], float)).tolist()}", text)
     path.write_text(text)
@@ -131,10 +134,10 @@ def handheld_walk(tmp_path_factory):
 
 def test_heading_search_finds_a_handheld_devices_heading(handheld_walk):
     s, path = handheld_walk
-    inp = replay._dataset_inputs(path, None, {})
+    inp = run._dataset_inputs(path, None, {})
     # The simulated walk has no gait: its heading shows only while it speeds up (the first corner comes
     # 38 s after it sets off), yet the default 20 s window decides it.
-    cfg = flt.load_config(inp.base_config, inp.data_config)
+    cfg = nav_config.load_config(inp.base_config, inp.data_config)
     assert cfg["platform"] == "handheld"  # kind = "none"
     sol = flt.run(inp.imu, inp.fixes, cfg, output_every=10)
     found = sol.extra["heading_search"]
@@ -165,8 +168,8 @@ def test_heading_search_decides_on_weak_motion(tmp_path, seed):
     path = dw.write_dataset(s, tmp_path, imu_to_body_ypr_deg=(HANDHELD_OFFSET_DEG, 0.0, 0.0),
                             antenna_m=(0.0, 0.0, 0.0), vehicle_kind="none", imu_time_offset_s=0.0)
     path.write_text(re.sub(r"imu_to_body_ypr_deg = .*", "imu_to_body_ypr_deg = [0.0, 0.0, 0.0]", path.read_text()))
-    inp = replay._dataset_inputs(path, None, {})
-    found = flt.search_heading(inp.imu.table(), inp.fixes, flt.load_config(inp.base_config, inp.data_config))
+    inp = run._dataset_inputs(path, None, {})
+    found = flt.search_heading(inp.imu.table(), inp.fixes, nav_config.load_config(inp.base_config, inp.data_config))
     true_start = _true_yaw_deg(s, s.imu_t[:1])[0] + HANDHELD_OFFSET_DEG
     assert found["yaw_deg"] is not None and found["dominance"] >= flt.DOMINANCE
     assert abs(_wrap(found["yaw_deg"] - true_start)) <= 10.0, (found["yaw_deg"], true_start)
@@ -179,8 +182,8 @@ def test_no_search_without_motion_or_for_a_vehicle(short_drive):
     assert found["yaw_deg"] is None
     assert not flt.needs_heading_search(cfg)  # the default platform is a vehicle
     assert "heading_search" not in flt.run(imu, fixes, cfg).extra
-    with pytest.raises(flt.ConfigError, match="platform"):
-        flt.load_config(None, {"platform": "bicycle"})
+    with pytest.raises(nav_config.ConfigError, match="platform"):
+        nav_config.load_config(None, {"platform": "bicycle"})
 
 
 # --- land-vehicle constraint ---------------------------------------------------------------------
@@ -196,8 +199,8 @@ def car_set(tmp_path_factory):
 
 def test_nonholonomic_constraint_reduces_outage_drift_on_a_simulated_car(car_set, tmp_path):
     s, path = car_set
-    on = replay.replay(path, tmp_path / "nhc", outages="30:15:30").summary
-    off = replay.replay(path, tmp_path / "free", outages="30:15:30",
+    on = run.replay(path, tmp_path / "nhc", outages="30:15:30").summary
+    off = run.replay(path, tmp_path / "free", outages="30:15:30",
                         overrides={"nonholonomic_constraint": False}).summary
     d_on, d_off = on["scoring"]["horizontal_m"]["rms"], off["scoring"]["horizontal_m"]["rms"]
     print(f"\ncar: drift RMS with NHC {d_on:.2f} m, without {d_off:.2f} m; "
@@ -277,7 +280,7 @@ def test_walk_replays_loose_with_the_heading_searched(tmp_path, name):
     seven schedules shifted by -10..+10 s (benchmarks/bench_walk.py) the pooled RMS is 2.60 m (.pos),
     2.58 m (NAV-PVT), 2.80 m (as logged). Asserted: 0.7 x the peer's 4.6 m, and the goal outside the
     outages, 0.05 m (the peer: 0.036 m)."""
-    res = replay.replay(WALK.parent / name, tmp_path / "walk").summary
+    res = run.replay(WALK.parent / name, tmp_path / "walk").summary
     h = res["scoring"]["horizontal_m"]
     outside = res["scoring"]["outside"]["rms_h_m"]
     found = res["heading_search"]
@@ -313,7 +316,7 @@ def test_walk_forward_drift_meets_the_goal_over_shifted_schedules(tmp_path):
     does (-10..+10 s): per schedule 4.58, 3.08, 0.62, 2.29, 2.46, 0.97, 2.03 m."""
     per_outage_m = []
     for shift_s in (-10, -6, -2, 0, 2, 6, 10):
-        res = replay.replay(WALK, tmp_path / f"walk_{shift_s}", outages=f"{25 + shift_s}:15:45:45").summary
+        res = run.replay(WALK, tmp_path / f"walk_{shift_s}", outages=f"{25 + shift_s}:15:45:45").summary
         per_outage_m += [o["max_h_m"] for o in res["scoring"]["per_outage"] if np.isfinite(o["max_h_m"])]
     pooled_m = float(np.sqrt(np.mean(np.square(per_outage_m))))
     print(f"\nwalk drift RMS over {len(per_outage_m)} outages of shifted schedules: {pooled_m:.2f} m")
@@ -325,7 +328,7 @@ def test_walk_forward_drift_meets_the_goal_over_shifted_schedules(tmp_path):
 
 @pytest.fixture(scope="module")
 def facts_walk(tmp_path_factory):
-    return replay.replay(WALK.parent / "walk_0827_facts.toml", tmp_path_factory.mktemp("facts"))
+    return run.replay(WALK.parent / "walk_0827_facts.toml", tmp_path_factory.mktemp("facts"))
 
 
 @pytest.mark.xfail(strict=True, reason="issue 35's goal for a data set of facts only is 2.3 m on 25:15:45:45; "
@@ -339,7 +342,7 @@ def test_walk_from_its_publishers_facts_is_near_the_tuned_copy(facts_walk, tmp_p
     """What the data set leaves out, replay takes from the data: no calibration of a consumer unit, no
     standalone receiver's correlated metres for RTK fixes, the velocity lag measured. Within 10 % of the
     hand-tuned copy's drift on the same schedule."""
-    tuned = replay.replay(WALK, tmp_path / "tuned").summary["scoring"]["horizontal_m"]["rms"]
+    tuned = run.replay(WALK, tmp_path / "tuned").summary["scoring"]["horizontal_m"]["rms"]
     facts = facts_walk.summary["scoring"]["horizontal_m"]["rms"]
     print(f"\nfacts {facts:.2f} m, tuned {tuned:.2f} m")
     assert facts <= 1.1 * tuned

@@ -6,7 +6,11 @@ unknown-heading start included. Truth from the simulator."""
 import numpy as np
 import pytest
 
-from gpsins import _core, evaluate, filter as flt, sim, solution
+from gpsins import _core, evaluate, sim
+from gpsins.nav import runs as flt
+from gpsins.replay import solution
+from gpsins.nav import config as nav_config
+from gpsins.sim import scenario
 from gpsins.sim.scenario import first_seconds, parse, with_imu_rate
 
 START = {"gps_week": 1590, "gps_tow_s": 419400.0, "lat_deg": 59.37, "lon_deg": 17.95, "height_m": 30.0,
@@ -71,7 +75,7 @@ def test_a_slow_walk_takes_its_heading_from_an_accurate_course(rate_hz, seed):
     filter reset onto GNSS 1-3 times. A measured velocity at 0.05 m/s x HDOP gives the
     course to about 3 deg at 1.3 m/s: the heading is set within seconds of setting off
     (at 40 s), within 3 sigma of the truth."""
-    s = sim.simulate(first_seconds(with_imu_rate(sim.load("walk"), rate_hz), 190.0), seed=seed)
+    s = sim.simulate(first_seconds(with_imu_rate(scenario.load("walk"), rate_hz), 190.0), seed=seed)
     sol = flt.run(sim.imu_table(s), sim.fix_table(s), "default", covariance=True)
     set_at = [e["t"] for e in sol.event_list() if e["kind"] == "heading_set"]
     assert len(set_at) == 1 and 40.0 < set_at[0] < 45.0
@@ -90,11 +94,11 @@ def test_a_slow_walk_takes_its_heading_from_an_accurate_course(rate_hz, seed):
 
 @pytest.fixture(scope="module")
 def default_drive():
-    return sim.simulate(sim.load("default"), seed=0)
+    return sim.simulate(scenario.load("default"), seed=0)
 
 
 def run_default(s, imu, **over):
-    cfg = flt.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), **over})
+    cfg = nav_config.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), **over})
     return flt.run(imu, sim.fix_table(s), cfg, covariance=True)
 
 
@@ -118,7 +122,7 @@ def test_a_fix_at_saturated_dop_is_not_used(default_drive):
     k = np.flatnonzero((fixes[:, 0] > 150.0) & (fixes[:, 9] == 2) & (fixes[:, 7] < 3.0))[0]  # a good 3D fix
     fixes[k, 1:4] += 300.0 / np.sqrt(3.0)
     fixes[k, 7:9] = 99.9
-    cfg = flt.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), "fix_max_dop": 20.0})
+    cfg = nav_config.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), "fix_max_dop": 20.0})
     sol = flt.run(sim.imu_table(s), fixes, cfg)
     clean = flt.run(sim.imu_table(s), np.delete(fixes, k, axis=0), cfg)  # without that fix
     assert sol.counters["fixes_dop_masked"] == clean.counters["fixes_dop_masked"] + 1
@@ -139,7 +143,7 @@ def test_a_fix_at_saturated_dop_sets_no_heading(default_drive):
     looked at. Masked, it is as if absent."""
     s = default_drive
     fixes = sim.fix_table(s)
-    cfg = flt.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), "fix_max_dop": 20.0,
+    cfg = nav_config.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), "fix_max_dop": 20.0,
                                  "heading_max_course_sigma_deg": 0.0})  # a vehicle's course only
     first = [e["t"] for e in flt.run(sim.imu_table(s), fixes, cfg).event_list() if e["kind"] == "heading_set"][0]
     k = int(np.argmin(np.abs(fixes[:, 0] - first)))
@@ -232,14 +236,14 @@ def test_nees_over_the_whole_default_drive_is_inside_its_band(over):
     """From the first output on, standing with the heading unknown and moving off included;
     also with the paths the default drive does not take (was 68 from t = 0; 27.7 with fix
     velocities)."""
-    sc = sim.load("default")
+    sc = scenario.load("default")
     runs, rms = [], []
     for seed in range(4):
         s = sim.simulate(sc, seed=seed)
         fixes = sim.fix_table(s)
         if "lever_arm_body_m" in over:
             fixes = with_lever_arm(s, fixes, over["lever_arm_body_m"])
-        cfg = flt.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), **over})
+        cfg = nav_config.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), **over})
         sol = flt.run(sim.imu_table(s), fixes, cfg, covariance=True)
         err = evaluate.nav_errors(sol, truth_of(s))
         runs.append(evaluate.nees(err.e9, sol.covariance[:, :9, :9]))
@@ -259,9 +263,9 @@ def test_nees_over_the_whole_default_drive_is_inside_its_band(over):
 
 
 def test_a_lever_arm_left_out_is_seen():
-    s = sim.simulate(sim.load("default"), seed=1)
+    s = sim.simulate(scenario.load("default"), seed=1)
     fixes = with_lever_arm(s, sim.fix_table(s), LEVER)
-    base = flt.load_config(None, sim.imu_noise_truth(s.scenario.imu))
+    base = nav_config.load_config(None, sim.imu_noise_truth(s.scenario.imu))
     down = {}
     for name, cfg in (("with", {**base, "lever_arm_body_m": LEVER}), ("without", base)):
         sol = flt.run(sim.imu_table(s), fixes, cfg, covariance=True)
@@ -276,22 +280,22 @@ def test_nominal_step_comes_from_the_stamps_not_the_configured_rate():
     s = sim.simulate(stop_and_go(200, stops=1), seed=1)
     imu = sim.imu_table(s)
     ok = flt.run(imu, sim.fix_table(s), "default")
-    wrong = flt.run(imu, sim.fix_table(s), flt.load_config(None, {"imu_rate_hz": 64.0 * 1.3}))
+    wrong = flt.run(imu, sim.fix_table(s), nav_config.load_config(None, {"imu_rate_hz": 64.0 * 1.3}))
     assert wrong.counters["imu_gaps_bridged"] == 0
     assert np.allclose(wrong.r_ecef[-1], ok.r_ecef[-1], atol=1e-6)
-    f = flt.streaming(flt.load_config(None, {"imu_rate_hz": 50.0}))
+    f = flt.streaming(nav_config.load_config(None, {"imu_rate_hz": 50.0}))
     for row in imu[:50]:
         f.push_imu(row[0], row[1:4], row[4:7])
     assert f.nominal_step_s == pytest.approx(np.median(np.diff(imu[:50, 0])), rel=1e-9)
 
 
 def test_the_report_divergence_test_is_selectable():
-    cfg = flt.core_config(flt.load_config(None, {"update_check": "attitude_correction",
+    cfg = nav_config.core_config(nav_config.load_config(None, {"update_check": "attitude_correction",
                                                  "max_attitude_correction_deg": 2.0}))
     assert str(cfg.update_check).endswith("attitude_correction")
     assert cfg.max_attitude_correction_rad == pytest.approx(np.radians(2.0))
-    with pytest.raises(flt.ConfigError, match="update_check"):
-        flt.core_config(flt.load_config(None, {"update_check": "sometimes"}))
+    with pytest.raises(nav_config.ConfigError, match="update_check"):
+        nav_config.core_config(nav_config.load_config(None, {"update_check": "sometimes"}))
 
 
 def test_a_refused_zero_velocity_update_ends_the_standstill():
@@ -300,8 +304,8 @@ def test_a_refused_zero_velocity_update_ends_the_standstill():
     (The built-in stop_and_go, seed 1, 380 s: without the rule the detector went on standing
     at up to 1.4 m/s, and 95 zero-velocity updates in a row were refused.) The at-rest specific
     force test now keeps that standstill from beginning; a wide at-rest shift lets it begin here."""
-    s = sim.simulate(sim.load("stop_and_go"), seed=1)
-    cfg = flt.load_config("default", {"standstill_accel_shift_mps2": 10.0})
+    s = sim.simulate(scenario.load("stop_and_go"), seed=1)
+    cfg = nav_config.load_config("default", {"standstill_accel_shift_mps2": 10.0})
     imu, fixes = sim.imu_table(s), sim.fix_table(s)
     end = imu[0, 0] + 380.0
     sol = flt.run(imu[imu[:, 0] < end], fixes[fixes[:, 0] < end], cfg)
@@ -320,7 +324,7 @@ def test_no_standstill_begins_while_braking_after_a_gnss_outage():
     the deceleration. (The built-in stop_and_go, seed 1: after an 8 s fix outage the filter's
     speed had drifted to zero while the car braked at 0.9 m/s; a standstill began there, then the
     fixes were rejected until a GNSS reset.)"""
-    s = sim.simulate(sim.load("stop_and_go"), seed=1)
+    s = sim.simulate(scenario.load("stop_and_go"), seed=1)
     imu, fixes = sim.imu_table(s), sim.fix_table(s)
     end = imu[0, 0] + 400.0
     sol = flt.run(imu[imu[:, 0] < end], fixes[fixes[:, 0] < end], "default")

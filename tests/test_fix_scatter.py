@@ -3,7 +3,7 @@ error is a known first-order Gauss-Markov process per north/east/down axis."""
 
 import numpy as np
 
-from gpsins import fix_scatter
+from gpsins.nav import fix_scatter
 from gpsins.sim import earth
 
 

@@ -5,7 +5,7 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from corpora import bp_frames, faulted_stream, ss2_frames
-from gpsins import logs
+from gpsins.session import logs
 from gpsins_logger import bp3010
 from gpsins_logger import superstar2 as ss2
 from gpsins_logger.framing import FrameFinder

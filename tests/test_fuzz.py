@@ -14,10 +14,12 @@ import pytest
 
 from corpora import (STAMP_T0, Corpus, FuzzTally, bp_frames, fuzz_finder_case, fuzz_reader_case, mutate, record_file,
                      ss2_frames)
-from gpsins import dump, logs
+from gpsins.session import dump, logs
 from gpsins.cli import main as cli_main
-from gpsins.readers import ReaderError, imu_csv, kfgins, rinex, rtklib_pos, rtklib_tag, ubx
-from gpsins.readers.common import UNIX_TO_GPS_S, Fixes, Navigation
+from gpsins.formats.common import ReaderError
+from gpsins.formats import imu_csv, kfgins, rinex, rtklib_pos, rtklib_tag, ubx
+from gpsins.formats.gpstime import UNIX_TO_GPS_S
+from gpsins.formats.common import Fixes, Navigation
 from gpsins_logger import superstar2 as ss2
 
 CORPORA = [Corpus("superstar2", ss2_frames(6.0), ss2.HEADER_LEN, 0.05), Corpus("bp3010", bp_frames(300), 1, 1 / 64)]

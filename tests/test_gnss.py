@@ -6,8 +6,10 @@ import re
 import numpy as np
 import pytest
 
-from gpsins import _core, cli, spp
-from gpsins.readers import rinex
+from gpsins import _core, cli
+from gpsins.gnss import spp
+from gpsins.formats import rinex
+from gpsins.formats import gpstime
 from gpsins.sim import ephemeris as sim_eph
 
 g = _core.gnss
@@ -41,7 +43,7 @@ def half_unit(text: str) -> float:
 
 def test_satellite_positions_clocks_and_signal_models_match_rtklib(shared_data, nav0759):
     store = nav0759.store()
-    t = rinex.gps_seconds(2005, 4, 2, 0, 0, 0.0)
+    t = gpstime.gps_seconds(2005, 4, 2, 0, 0, 0.0)
     llh = _core.ecef_to_geodetic(STATION)
     sats, geo = vectors(shared_data)
     assert len(sats) == len(geo) == 8

@@ -5,8 +5,11 @@ simulator's truth, which the reference's errors are independent of."""
 import numpy as np
 import pytest
 
-from gpsins import _core, filter as flt, replay, results, sim
-from gpsins.reference import FILE_NAME
+from gpsins import _core, sim
+from gpsins.nav import runs as flt
+from gpsins.replay import run, results
+from gpsins.sim import scenario
+from gpsins.formats.reference import FILE_NAME
 from gpsins.sim.session import write_session
 
 REFERENCE_YAW_SIGMA_DEG = 0.004 / 1.5 * 180 / np.pi  # the report's Table 4.4 for a 1.5 m baseline: 0.15 deg
@@ -15,7 +18,7 @@ REFERENCE_YAW_SIGMA_DEG = 0.004 / 1.5 * 180 / np.pi  # the report's Table 4.4 fo
 @pytest.fixture(scope="module")
 def session(tmp_path_factory):
     d = tmp_path_factory.mktemp("heading") / "session"
-    write_session(sim.simulate(sim.load("default"), seed=1), d)
+    write_session(sim.simulate(scenario.load("default"), seed=1), d)
     return d
 
 
@@ -26,9 +29,9 @@ def _yaw_rms_deg(z) -> float:
 
 @pytest.mark.parametrize("mode", ["loose", "tight"])
 def test_heading_aiding_gives_the_reference_heading_from_the_start(session, tmp_path, mode):
-    inp = replay.load_inputs(session, modes=(mode,))
-    free = replay.run_mode(inp, tmp_path / "free", mode=mode)
-    aided = replay.run_mode(inp, tmp_path / "aided", mode=mode, aid_heading=True)
+    inp = run.load_inputs(session, modes=(mode,))
+    free = run.run_mode(inp, tmp_path / "free", mode=mode)
+    aided = run.run_mode(inp, tmp_path / "aided", mode=mode, aid_heading=True)
     zf, za = results.load(tmp_path / "free"), results.load(tmp_path / "aided")
     # The car stands for its first 31 s: without aiding the heading comes from the course once it moves.
     first_free = next(e["t"] for e in free.summary["events"] if e["kind"] == "heading_set") - zf["t"][0]
@@ -38,7 +41,7 @@ def test_heading_aiding_gives_the_reference_heading_from_the_start(session, tmp_
     assert _yaw_rms_deg(za) < 3 * REFERENCE_YAW_SIGMA_DEG
     assert _yaw_rms_deg(za) < 0.3 * _yaw_rms_deg(zf)
     assert aided.summary["update_kinds"]["baseline_attitude"] == aided.summary["heading_aiding"]["epochs"] - \
-        int(np.sum(replay.heading_aiding(replay._reference_system(session), inp.week)[:, 0] < za["t"][0]))
+        int(np.sum(run.heading_aiding(run._reference_system(session), inp.week)[:, 0] < za["t"][0]))
     assert aided.summary["counters"]["diverged"] is False
 
 
@@ -49,7 +52,7 @@ def test_heading_aiding_needs_a_reference(session, tmp_path):
         if f.name != FILE_NAME:
             (bare / f.name).symlink_to(f)
     with pytest.raises(ValueError, match="no dual-antenna reference"):
-        replay.replay(bare, tmp_path / "out", aid_heading=True)
+        run.replay(bare, tmp_path / "out", aid_heading=True)
 
 
 def test_streaming_attitude_input_is_checked():

@@ -168,8 +168,8 @@ def test_allan_cli_writes_json_plots_and_filter_files(tmp_path, capsys, monkeypa
     import tomllib
     noise = tomllib.loads((tmp_path / "out" / "imu_noise.toml").read_text())["imu_noise"]
     assert noise["gyro_arw_rad_per_sqrt_s"][0] == pytest.approx(gx["fit"]["N"])
-    from gpsins import filter as flt
-    c = flt.core_config(flt.load_config(None, {"imu_noise": noise}))
+    from gpsins.nav import config as nav_config
+    c = nav_config.core_config(nav_config.load_config(None, {"imu_noise": noise}))
     assert c.gyro_arw_rad_per_sqrt_s[1] == pytest.approx(gy["fit"]["N"])
     assert "gyroscope_noise_density" in (tmp_path / "out" / "imu.yaml").read_text()
 

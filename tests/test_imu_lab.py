@@ -11,6 +11,7 @@ from gpsins import cli
 from gpsins.imu import allan, lab, noise_fit, records
 from gpsins.sim import imu as sim_imu
 from gpsins.sim import lab as sim_lab
+from gpsins.devices import lab as lab_mod
 
 
 @pytest.fixture(scope="module")
@@ -112,11 +113,11 @@ def test_noise_terms_within_their_confidence_bands(lab_day):
 
 def test_outputs_are_a_preset_the_filter_accepts_kalibr_yaml_and_one_report(lab_day):
     _, res, out = lab_day
-    from gpsins import filter as flt
+    from gpsins.nav import config as nav_config
 
     preset = tomllib.loads((out / "imu_preset.toml").read_text())
-    cfg = flt.load_config(out / "imu_preset.toml")
-    core = flt.core_config(cfg)
+    cfg = nav_config.load_config(out / "imu_preset.toml")
+    core = nav_config.core_config(cfg)
     assert core.gyro_scale_factor_cal[2] == pytest.approx(res["rate_table"]["axes"]["z"]["scale_factor"])
     assert preset["imu_noise"]["gyro_arw_rad_per_sqrt_s"][0] == pytest.approx(res["noise"]["gyro_x"]["fit"]["N"])
     assert "gyroscope_noise_density" in (out / "imu.yaml").read_text()
@@ -138,9 +139,10 @@ def test_outputs_are_a_preset_the_filter_accepts_kalibr_yaml_and_one_report(lab_
 
 def test_motion_warning_fires_on_a_moving_record_and_not_on_a_static_one(tmp_path, capsys):
     from gpsins import sim
+    from gpsins.sim import scenario
     from gpsins.sim.session import write_session
 
-    s = sim.simulate(sim.load("default"), seed=0)
+    s = sim.simulate(scenario.load("default"), seed=0)
     write_session(s, tmp_path / "drive")
     assert cli.main(["allan", str(tmp_path / "drive"), "--json", str(tmp_path / "a.json")]) == 0
     captured = capsys.readouterr()
@@ -272,11 +274,11 @@ def test_a_real_handheld_walk_gets_the_motion_warning_and_no_noise_terms(shared_
 
 
 def test_a_lab_recording_goes_through_the_emulator_and_the_logger(tmp_path):
-    from gpsins import logs
+    from gpsins.session import logs
 
     day = sim_lab.simulate_lab_day(sim_lab.LabDayConfig.quick(position_s=4.0, drift_s=20.0,
                                                               table_rates_rad_per_s=(2.0,)), seed=2)
-    plan = sim_lab.record_through_logger(day, tmp_path / "pty", speed=4.0, sessions=["updown_x"])
+    plan = lab_mod.record_through_logger(day, tmp_path / "pty", speed=4.0, sessions=["updown_x"])
     sim_lab.write_lab_day(day, tmp_path / "direct")
     got = logs.read_session(tmp_path / "pty" / "updown_x")
     assert got.sidecar["sensors"]["imu"]["device"] == "bp3010"

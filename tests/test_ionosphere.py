@@ -8,10 +8,12 @@ import numpy as np
 import pymap3d as pm
 import pytest
 
-from gpsins import dataset, ionosphere, replay, spp
+from gpsins.dataset import load
+from gpsins.gnss import ionosphere, spp
+from gpsins.replay import run as replay
 from gpsins.evaluate import c_en
-from gpsins.readers import rinex, rtklib_pos, ubx
-from gpsins.readers.common import Navigation, Pseudoranges
+from gpsins.formats import rinex, rtklib_pos, ubx
+from gpsins.formats.common import Navigation, Pseudoranges
 
 WALK = Path(__file__).parent / "data" / "walk_0827"
 C = 299792458.0
@@ -135,9 +137,9 @@ def test_dataset_ionosphere_key(tmp_path):
         (tmp_path / name).symlink_to(WALK / name)
     path = tmp_path / "d.toml"
     path.write_text(text % "dual-frequency")
-    ds = dataset.load(path)
+    ds = load.load(path)
     assert ds.ionosphere == "dual-frequency" and any("dual-frequency" in k for k in ds.skipped)
-    plain = dataset.load(WALK / "walk_0827_ubx.toml")
+    plain = load.load(WALK / "walk_0827_ubx.toml")
     assert plain.ionosphere == "broadcast" and len(ds.pseudoranges) < len(plain.pseudoranges)
     inp = replay.load_inputs(path, modes=("tight",))
     # The filter must not add Klobuchar's delay to ranges that come without theirs.
@@ -146,8 +148,8 @@ def test_dataset_ionosphere_key(tmp_path):
     fixes_only = (WALK / "walk_0827.toml").read_text().replace('format = "rtklib-pos"',
                                                                 'format = "rtklib-pos"\nionosphere = "dual-frequency"')
     (tmp_path / "f.toml").write_text(fixes_only)
-    with pytest.raises(dataset.DatasetError, match="only pseudoranges"):
-        dataset.load(tmp_path / "f.toml")
+    with pytest.raises(load.DatasetError, match="only pseudoranges"):
+        load.load(tmp_path / "f.toml")
     path.write_text(text % "nequick")
-    with pytest.raises(dataset.DatasetError, match=r"\[gnss\] ionosphere"):
-        dataset.load(path)
+    with pytest.raises(load.DatasetError, match=r"\[gnss\] ionosphere"):
+        load.load(path)

@@ -11,7 +11,12 @@ import numpy as np
 import pynmea2
 import pytest
 
-from gpsins import live, mainjob, measurements, replay, results, sim
+from gpsins.live import service
+from gpsins import mainjob, sim
+from gpsins.session import measurements
+from gpsins.replay import run as replay, results
+from gpsins.live import outputs
+from gpsins.live import follower
 
 from drives import START, stand_and_drive
 
@@ -54,7 +59,7 @@ def followed(tmp_path_factory):
     port_box = {}
 
     def follow():
-        port_box["status"] = live.run(session, root / "live", interval_s=0.05, nmea_port=0, http_port=0, max_s=120,
+        port_box["status"] = service.run(session, root / "live", interval_s=0.05, nmea_port=0, http_port=0, max_s=120,
                                       on_round=rounds.append, on_start=port_box.update, **lat)
 
     # What the rounds cost: the whole-session decoder and the clock fit, counted while live follows.
@@ -118,7 +123,7 @@ class PagePoller(threading.Thread):
 def test_live_follows_the_drive_and_ends_with_the_session(followed):
     s, session, out, rounds, _, _, _ = followed
     assert len(rounds) >= 10  # one a round while the drive was served (about 19 s at 4x)
-    e = live.read_epochs(out / "live.f64")
+    e = outputs.read_epochs(out / "live.f64")
     assert np.all(np.diff(e["t"]) > 0)
     assert e["t"][-1] > START["gps_tow_s"] + s.scenario.duration_s - 1.0
     assert (out / "live.pos").stat().st_size > 0 and not any(p.name.startswith("live") for p in session.iterdir())
@@ -127,15 +132,15 @@ def test_live_follows_the_drive_and_ends_with_the_session(followed):
 def test_one_round_over_a_finished_session_is_the_replay(followed, tmp_path):
     """Everything on disk in one round: the same alignment and chunks as the replay, bit for bit."""
     _, session, _, _, _, lat, _ = followed
-    live.run(session, tmp_path / "one", **lat)
-    z, e = results.load(replay.replay(session, tmp_path / "replay", **lat).out), live.read_epochs(
+    service.run(session, tmp_path / "one", **lat)
+    z, e = results.load(replay.replay(session, tmp_path / "replay", **lat).out), outputs.read_epochs(
         tmp_path / "one" / "live.f64")
     assert np.array_equal(e["t"], z["t"]) and np.array_equal(e["r_ecef"], z["r_ecef"])
 
 
 def _live_against_replay(followed, tmp_path):
     _, session, out, _, _, lat, _ = followed
-    z, e = results.load(replay.replay(session, tmp_path / "replay", **lat).out), live.read_epochs(out / "live.f64")
+    z, e = results.load(replay.replay(session, tmp_path / "replay", **lat).out), outputs.read_epochs(out / "live.f64")
     assert len(e["t"]) == len(z["t"])  # the same IMU samples, each timed by its own round's clock map
     return np.abs(e["t"] - z["t"]), np.linalg.norm(e["r_ecef"] - z["r_ecef"], axis=1)
 
@@ -170,7 +175,7 @@ def test_nmea_sentences_parse_and_match_the_solution(followed):
     rmc = [pynmea2.parse(x, check=True) for x in lines if x.startswith("$GPRMC")]
     gst = [pynmea2.parse(x, check=True) for x in lines if x.startswith("$GPGST")]
     assert len(gga) == len(rmc) == len(gst) > 1000
-    e = live.read_epochs(out / "live.f64")
+    e = outputs.read_epochs(out / "live.f64")
     from gpsins import _core
 
     llh = _core.ecef_to_geodetic(e["r_ecef"])
@@ -201,7 +206,7 @@ def test_the_status_page_shows_the_status_stream(followed):
         assert st == by_t[st["t"]]
     nis = page.statuses[-1]["nis_per_dof"]
     assert "fix_3d" in nis and nis["fix_3d"]["band"][0] < 1.0 < nis["fix_3d"]["band"][1]
-    e = live.read_epochs(out / "live.f64")
+    e = outputs.read_epochs(out / "live.f64")
     from gpsins import _core, evaluate
 
     llh0 = _core.ecef_to_geodetic(e["r_ecef"][:1])
@@ -220,7 +225,7 @@ def test_follow_root_moves_to_the_session_the_logger_starts_next(followed, tmp_p
     root = tmp_path / "sessions"
     shutil.copytree(session, root / "a")
     done = {}
-    th = threading.Thread(target=lambda: done.update(got=live.run_root(root, tmp_path / "out", max_s=20,
+    th = threading.Thread(target=lambda: done.update(got=service.run_root(root, tmp_path / "out", max_s=20,
                                                                        interval_s=0.2, **lat)), daemon=True)
     th.start()
     deadline = time.monotonic() + 15
@@ -232,7 +237,7 @@ def test_follow_root_moves_to_the_session_the_logger_starts_next(followed, tmp_p
     (root / "b" / "session.json").write_text(json.dumps(side))
     th.join(30)
     assert [p.name for p in done["got"]] == ["a", "b"]
-    a, b = (live.read_epochs(tmp_path / "out" / n / "live.f64") for n in ("a", "b"))
+    a, b = (outputs.read_epochs(tmp_path / "out" / n / "live.f64") for n in ("a", "b"))
     assert len(a["t"]) == len(b["t"]) > 1000
 
 
@@ -243,14 +248,14 @@ def test_the_status_page_renders_in_a_real_browser(followed):
     import shutil
     import subprocess
 
-    from gpsins.live_page import StatusPage
+    from gpsins.live.page import StatusPage
     from gpsins import evaluate
 
     browser = shutil.which("chromium")
     assert browser, "chromium is not installed (.ci/setup installs it)"
     _, _, out, _, _, _, _ = followed
     st = json.loads((out / "status.jsonl").read_text().splitlines()[-1])
-    e = live.read_epochs(out / "live.f64")
+    e = outputs.read_epochs(out / "live.f64")
     page = StatusPage(0)
     try:
         lat, lon = np.radians(st["llh_deg_m"][:2])
@@ -275,7 +280,7 @@ def test_rounds_decode_only_what_is_new(followed):
     assert calls["decode_session"] == 0
     assert len(rounds) >= 50  # a round per fix (1 Hz, 75 s)
     # The fits at the rate live.REFIT_S sets (a few more at the start, before GPS time is known).
-    assert 0 < calls["align"] <= s.scenario.duration_s / live.REFIT_S + 10
+    assert 0 < calls["align"] <= s.scenario.duration_s / follower.REFIT_S + 10
 
 
 @pytest.fixture(scope="module")
@@ -288,7 +293,7 @@ def rough(tmp_path_factory):
     import json
     import signal
 
-    from gpsins import live_stream
+    from gpsins.session import growing
     from gpsins.sim.messages import SimSource
     from ptyrig import run_rig, unplug, wait_until
 
@@ -298,10 +303,10 @@ def rough(tmp_path_factory):
     session = root / "session"
     box: dict = {}
     stop = threading.Event()
-    stream = live_stream.SessionStream(session)
+    stream = growing.SessionStream(session)
 
     def follow():
-        box["status"] = live.run(session, root / "live", interval_s=0.05, max_s=120, **lat)
+        box["status"] = service.run(session, root / "live", interval_s=0.05, max_s=120, **lat)
 
     def read_along():
         while not stop.is_set():
@@ -327,7 +332,7 @@ def rough(tmp_path_factory):
 
     th = threading.Thread(target=follow, daemon=True)
     reader = threading.Thread(target=read_along, daemon=True)
-    inline, live.INLINE_FIT_S = live.INLINE_FIT_S, 0.0
+    inline, follower.INLINE_FIT_S = follower.INLINE_FIT_S, 0.0
     try:
         th.start()
         reader.start()
@@ -335,7 +340,7 @@ def rough(tmp_path_factory):
                       session_dir=session)
         th.join(60)
     finally:
-        live.INLINE_FIT_S = inline
+        follower.INLINE_FIT_S = inline
     stop.set()
     reader.join(10)
     stream.read()
@@ -373,7 +378,7 @@ def test_live_survives_rotation_unplug_and_junk_and_times_as_replay_does(rough, 
 
     _, session, out, _, lat, _, box, _ = rough
     assert box["status"], "live ended without a round"
-    z, e = results.load(replay.replay(session, tmp_path / "replay", **lat).out), live.read_epochs(out / "live.f64")
+    z, e = results.load(replay.replay(session, tmp_path / "replay", **lat).out), outputs.read_epochs(out / "live.f64")
     assert len(e["t"]) == len(z["t"])
     dt = np.abs(e["t"] - z["t"])
     dr = np.linalg.norm(e["r_ecef"] - z["r_ecef"], axis=1)

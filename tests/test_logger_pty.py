@@ -8,8 +8,8 @@ import sys
 import numpy as np
 import pytest
 
-from gpsins import logs
-from gpsins.emulate import Faults
+from gpsins.session import logs
+from gpsins.devices.emulate import Faults
 from gpsins_logger import superstar2 as ss2
 from ptyrig import faulted_bytes, file_size, run_rig, sent_ok, unplug
 

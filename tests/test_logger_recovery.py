@@ -22,9 +22,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gpsins import dump, logs
-from gpsins.emulate import Emulators, UbloxEmulators
-from gpsins.sources import StaticSource
+from gpsins.session import dump, logs
+from gpsins.devices.emulate import Emulators, UbloxEmulators
+from gpsins.devices.sources import StaticSource
 from gpsins_logger import bp3010, ubx
 from gpsins_logger.recorder import SensorInfo, Session
 from ptyrig import sent_ok, write_config
@@ -209,7 +209,7 @@ START = {"gps_week": 1590, "gps_tow_s": 419400.0, "lat_deg": 59.37, "lon_deg": 1
 def _ublox_source(seconds: float):
     from gpsins import sim
     from gpsins.sim.scenario import parse
-    from gpsins.sources import UbloxSimSource
+    from gpsins.sim.ublox import UbloxSimSource
 
     sc = parse({"name": "stand", "start": START, "segment": [{"label": "stand", "duration_s": seconds,
                                                                "speed_mps": 0}]})

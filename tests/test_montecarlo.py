@@ -17,8 +17,11 @@ import pytest
 from scipy.stats import chi2
 
 import gpsins
-from gpsins import cli, evaluate, results, sim
-from gpsins.montecarlo import Plan, aggregate, open_client, run_plan, tasks
+from gpsins import cli, evaluate
+from gpsins.replay import results
+from gpsins.sim import scenario
+from gpsins.montecarlo.runner import Plan, open_client, run_plan
+from gpsins.montecarlo import aggregate, tasks
 
 SHORT = """name = "short"
 description = "45 s: standing, pulling away, a turn, faster"
@@ -238,7 +241,7 @@ def test_the_remote_run_has_a_row_per_seed_and_mode_with_finite_values(remote_ru
 
 def test_the_remote_runs_equal_the_same_seeds_run_in_this_process(remote_run, short_scenario, tmp_path):
     _, out = remote_run
-    sc = sim.load(short_scenario)
+    sc = scenario.load(short_scenario)
     rows = {(int(r["seed"]), r["mode"]): r for r in _table(out / "runs.csv")}
     for seed in SEEDS:
         simulated = tasks.simulate_task(sc, seed, str(tmp_path / f"s{seed}" / "session"))
@@ -286,7 +289,7 @@ def test_the_aggregate_nees_is_the_run_average_of_each_runs_nees_on_the_grid(rem
 
 
 def test_a_sweep_on_a_local_cluster_reaches_the_filter(short_scenario, tmp_path):
-    sc = sim.load(short_scenario)
+    sc = scenario.load(short_scenario)
     plan = Plan(scenario=sc, seeds=[1, 2], out=tmp_path / "sweep", sweep_key="fix_uere_m",
                 sweep_values=["1.0", "10.0"], sweep_texts=["1.0", "10.0"], keep="results")
     with open_client(workers=1) as client:
@@ -314,7 +317,7 @@ def test_a_run_that_fails_is_a_row_with_its_error(tmp_path, capsys):
     failed = tasks.replay_task({"seed": 7, "session": str(missing), "simulate_s": 0.5},
                                {"mode": "loose", "out": str(tmp_path / "r")}, 1.0)
     assert failed["error"].startswith("replay: ") and str(missing) in failed["error"]
-    plan = Plan(scenario=sim.load("default"), seeds=[7], out=tmp_path / "mc")
+    plan = Plan(scenario=scenario.load("default"), seeds=[7], out=tmp_path / "mc")
     plan.out.mkdir()
     agg, files = runner.write_outputs(plan, [failed], 1.0, 1)
     (row,) = _table(plan.out / "runs.csv")
@@ -341,7 +344,7 @@ def test_bad_command_lines_fail_in_one_line(short_scenario, tmp_path, capsys):
 def test_montecarlo_takes_a_plug_in_estimator(short_scenario, tmp_path, capsys):
     """The built-in filter as a plug-in over two seeds: the same errors per seed as the native runs."""
     runs = {}
-    for name, extra in (("native", []), ("plugin", ["--estimator", "gpsins.estimator:builtin"])):
+    for name, extra in (("native", []), ("plugin", ["--estimator", "gpsins.nav.estimator:builtin"])):
         out = tmp_path / name
         assert cli.main(["montecarlo", str(short_scenario), "--seeds", "2", "--workers", "1", "--out", str(out),
                          "--quiet", *extra]) == 0

@@ -7,12 +7,15 @@ reduce them to."""
 import numpy as np
 import pytest
 
-from gpsins import evaluate, filter as flt, sim
+from gpsins import evaluate, sim
+from gpsins.nav import runs as flt
+from gpsins.nav import config as nav_config
+from gpsins.sim import scenario
 
 
 @pytest.fixture(scope="module")
 def drive():
-    return sim.simulate(sim.load("default"), seed=0)
+    return sim.simulate(scenario.load("default"), seed=0)
 
 
 def truth_of(s):
@@ -21,7 +24,7 @@ def truth_of(s):
 
 
 def config(s, **over):
-    return flt.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), **over})
+    return nav_config.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), **over})
 
 
 def horizontal_error(s, sol) -> np.ndarray:
@@ -61,7 +64,7 @@ def test_an_over_confident_filter_is_pulled_back_instead_of_locked_out(drive):
     noise = sim.imu_noise_truth(s.scenario.imu)
     quiet = {k: (np.asarray(v) / 10.0).tolist() for k, v in noise["imu_noise"].items()}
     imu, fixes = sim.imu_table(s), rtk_fixes(s)
-    base = flt.load_config(None, {**noise, "imu_noise": quiet, "use_fix_velocity": True,
+    base = nav_config.load_config(None, {**noise, "imu_noise": quiet, "use_fix_velocity": True,
                                   "fix_error_gm_sigma_m": [0.0, 0.0, 0.0], "gyro_misalignment_sigma_rad": 0.0})
     hard = flt.run(imu, fixes, {**base, "robust_after_rejections": 0})
     robust = flt.run(imu, fixes, base)

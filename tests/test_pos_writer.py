@@ -5,8 +5,8 @@ import datetime as dt
 
 import numpy as np
 
-from gpsins.readers import rtklib_pos
-from gpsins.solution import PosWriter
+from gpsins.formats import rtklib_pos
+from gpsins.replay.solution import PosWriter
 
 # RTKLIB's solution line (outpos with time format yyyy/mm/dd hh:mm:ss.sss, degrees), written here
 # independently of the writer under test.

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from corpora import STAMP_T0, Corpus, bp_frames, faulted_stream, mutate, record_file, ss2_frames
-from gpsins import logs, measurements, sim
+from gpsins.session import logs, measurements
+from gpsins import sim
 from gpsins.sim.scenario import parse
 from gpsins.sim.session import write_session
 from gpsins_logger import bp3010, ubx

@@ -7,10 +7,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gpsins import _core, spp
+from gpsins import _core
+from gpsins.gnss import spp
 from gpsins.evaluate import c_en
-from gpsins.readers import ReaderError, imu_csv, kfgins, rinex, rtklib_pos, ubx
-from gpsins.readers.common import UNIX_TO_GPS_S, gps_seconds
+from gpsins.formats.common import ReaderError
+from gpsins.formats import imu_csv, kfgins, rinex, rtklib_pos, ubx
+from gpsins.formats import common
+from gpsins.formats import gpstime
+from gpsins.formats.gpstime import UNIX_TO_GPS_S, gps_seconds
 
 WALK = Path(__file__).parent / "data" / "walk_0827"
 UBX_FILE = WALK / "gnss_1730.ubx"
@@ -222,7 +226,7 @@ def test_sfrbx_ephemerides_give_spp_within_metres_of_the_rtk_reference(walk_ubx)
 
 
 def test_crc24q_gives_its_published_check_value():
-    from gpsins.readers.galileo_inav import crc24q
+    from gpsins.formats.galileo_inav import crc24q
     assert crc24q(b"123456789") == 0xCDE703  # the CRC catalogue's check value of CRC-24Q (CRC-24/LTE-A)
     assert crc24q(b"") == 0
 
@@ -394,7 +398,7 @@ def _fmt_d(x: float) -> str:
     return f"{x:19.12E}".replace("E", "D")
 
 
-def write_rinex3_nav(path: Path, nav: rinex.Navigation) -> None:
+def write_rinex3_nav(path: Path, nav: common.Navigation) -> None:
     lines = [f"{'3.04':>9}{'':11}{'N: GNSS NAV DATA':<20}{'G: GPS':<20}RINEX VERSION / TYPE",
              "GPSA " + "".join(f"{x:12.4E}" for x in nav.alpha) + " " * 7 + "IONOSPHERIC CORR",
              "GPSB " + "".join(f"{x:12.4E}" for x in nav.beta) + " " * 7 + "IONOSPHERIC CORR",
@@ -403,7 +407,7 @@ def write_rinex3_nav(path: Path, nav: rinex.Navigation) -> None:
     lines += ["R01 2005 04 02 00 15 00" + _fmt_d(1e-5) * 3] + ["    " + _fmt_d(0.0) * 4] * 3
     ura_m = rinex.URA_TABLE_M
     for e in nav.ephemerides:
-        toc = rinex.GPS_EPOCH.timestamp() + e.week * 604800 + e.toc_s
+        toc = gpstime.GPS_EPOCH.timestamp() + e.week * 604800 + e.toc_s
         import datetime as dt
         c = dt.datetime.fromtimestamp(toc, dt.timezone.utc)
         lines.append(f"G{e.prn:02d} {c.year:4d} {c.month:02d} {c.day:02d} {c.hour:02d} {c.minute:02d} {c.second:02d}"
@@ -435,7 +439,7 @@ def write_rinex3_obs(path: Path, obs: rinex.ObsFile) -> None:
     lines.append(f"{'':60}END OF HEADER")
     import datetime as dt
     for t, prns, values in obs.epochs:
-        c = rinex.GPS_EPOCH + dt.timedelta(seconds=t)
+        c = gpstime.GPS_EPOCH + dt.timedelta(seconds=t)
         sec = c.second + c.microsecond * 1e-6
         lines.append(f"> {c.year:4d} {c.month:02d} {c.day:02d} {c.hour:02d} {c.minute:02d}{sec:11.7f}  0{len(prns) + 1:3d}")
         for prn, v in zip(prns, values):

@@ -12,9 +12,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gpsins import cli, dataset, replay, spp
-from gpsins import results as results_mod
-from gpsins.readers import rtklib_pos
+from gpsins import cli
+from gpsins.dataset import load
+from gpsins.replay import run as replay
+from gpsins.gnss import spp
+from gpsins.replay import results as results_mod
+from gpsins.formats import rtklib_pos
 from gpsins.sim import earth, scenario, simulate
 from gpsins.sim import dataset_writer as dw
 
@@ -157,7 +160,7 @@ def test_tight_walk_with_galileo_beats_gps_alone_and_ignores_the_galileo_clock(w
     """The walk's UBX stream has complete ephemerides for four GPS and seven Galileo satellites in its 134 s.
     Galileo's pseudoranges enter as differences within each epoch, so the receiver's Galileo time offset
     drops out: a kilometre added to all of them changes nothing, and they must sharpen the tight solution."""
-    from gpsins.readers import ubx
+    from gpsins.formats import ubx
 
     res_both, d_both = walk_runs[("walk_0827_ubx.toml", "tight")]
     s_both = json.loads((d_both / "run.json").read_text())
@@ -256,18 +259,18 @@ def test_tight_walk_yaw_follows_the_loose_run_within_their_sigmas(walk_runs):
 
 
 def test_fix_sigmas_floors_defaults_and_zeros():
-    from gpsins.readers.common import Fixes
+    from gpsins.formats.common import Fixes
 
     n = 6
     f = Fixes(np.arange(n, dtype=float), np.zeros((n, 3)),
               np.array([[0.0, 0.0, 0.0], [0.03, 0.04, 0.05], [np.nan] * 3, [0.0, 0.0, 0.0], [0.2, 0.2, 0.3],
                         [np.nan] * 3]), np.array([1, 1, 1, 2, 5, 5]), np.zeros(n, int))
-    h, v = dataset.fix_sigmas(f)
+    h, v = load.fix_sigmas(f)
     np.testing.assert_allclose(h, [0.02, np.sqrt((0.03 ** 2 + 0.04 ** 2) / 2), 0.05, 0.15, 1.5, 3.0])
     np.testing.assert_allclose(v, [0.03, 0.05, 0.1, 0.3, 3.0, 6.0])
-    h2, _ = dataset.fix_sigmas(f, {"fix": (0.005, 0.01)})
+    h2, _ = load.fix_sigmas(f, {"fix": (0.005, 0.01)})
     assert h2[0] == 0.005
-    tab = dataset.fix_table(f, 0.0, 3.0)
+    tab = load.fix_table(f, 0.0, 3.0)
     assert np.all(tab[:, 7] > 0) and np.all(tab[:, 8] > 0) and np.all(tab[:, 9] == 2)
     np.testing.assert_allclose(3.0 * tab[:, 7] / np.sqrt(2), h)
 
@@ -478,7 +481,7 @@ def test_zero_standard_deviations_do_not_break_anything(sim_set, tmp_path):
     (path.parent / "receiver_zero.pos").write_text("\n".join(rows) + "\n")
     s, inside3, rms_h = _run_variant(sim_set, tmp_path, "zero", zero)
     cfg = tomllib.loads((tmp_path / "zero" / "config.toml").read_text())
-    assert cfg["fix_velocity_sigma_mps"] == dataset.VELOCITY_SIGMA_FLOOR_MPS
+    assert cfg["fix_velocity_sigma_mps"] == load.VELOCITY_SIGMA_FLOOR_MPS
     assert np.isfinite(s["scoring"]["horizontal_m"]["rms"]) and rms_h < 2.0
     assert s["counters"]["fixes_accepted"] > 0.9 * s["counters"]["fixes"]
 

@@ -11,11 +11,14 @@ import numpy as np
 import pytest
 from gpsins_logger import superstar2 as ss2
 
-from gpsins import cli, logs, measurements, replay, sim, timing
-from gpsins import results as results_mod
+from gpsins import cli, sim, timing
+from gpsins.session import logs, measurements
+from gpsins.replay import run as replay
+from gpsins.replay import results as results_mod
 from gpsins.sim import messages
 from gpsins.sim.scenario import parse
-from gpsins.sim.session import STAMP, load_truth, realtime, write_session
+from gpsins.sim.session import STAMP, realtime, write_session
+from gpsins.formats.truth import load_truth
 
 from test_timing import GPS_LAT, IMU_LAT, SEGMENTS, START
 

@@ -19,8 +19,9 @@ from matplotlib.colors import to_rgba
 from scipy.stats import chi2
 
 from figcheck import check_figure, mode_points
-from gpsins import replay, report, report_figures, sim
-from gpsins import results as results_mod
+from gpsins.replay import run
+from gpsins import report, report_figures, sim
+from gpsins.replay import results as results_mod
 from gpsins.sim.messages import MEASUREMENT_DELAY_S
 from gpsins.sim.scenario import parse
 from gpsins.sim.session import write_session
@@ -39,7 +40,7 @@ def runs(tmp_path_factory):
     root = tmp_path_factory.mktemp("report")
     s = sim.simulate(parse({"name": "short", "start": START, "segment": DRIVE}), seed=11)
     session = write_session(s, root / "session")
-    outs = [replay.replay(session, root / mode, mode=mode, gps_latency_s=MEASUREMENT_DELAY_S).out
+    outs = [run.replay(session, root / mode, mode=mode, gps_latency_s=MEASUREMENT_DELAY_S).out
             for mode in ("loose", "tight")]
     page = report.make_report(outs, root / "report")
     return root, session, outs, page
@@ -81,7 +82,7 @@ def walk(tmp_path_factory):
     """A data set (no truth, no segments, no 2D fixes, outages scored against its RTK reference), its
     replay smoothed as well: results directory and report page."""
     root = tmp_path_factory.mktemp("walk")
-    out = replay.replay(WALK, root / "loose", mode="loose", smooth=True).out
+    out = run.replay(WALK, root / "loose", mode="loose", smooth=True).out
     with _many_figures():
         return out, report.make_report([out], root / "report")
 

@@ -15,7 +15,9 @@ preset's description says the same.
 import numpy as np
 import pytest
 
-from gpsins import replay, results, sim
+from gpsins.replay import run, results
+from gpsins import sim
+from gpsins.sim import scenario
 from gpsins.sim.session import write_session
 
 REPORT = {"loose": {"enu_m": (20.0, 10.0, 22.0), "pitch_deg": 0.5, "yaw_deg": 5.0},
@@ -30,10 +32,10 @@ def runs(tmp_path_factory):
     out = {"loose": [], "tight": []}
     for seed in SEEDS:
         root = tmp_path_factory.mktemp(f"report2005_{seed}")
-        write_session(sim.simulate(sim.load("default"), seed=seed), root / "session")
-        inp = replay.load_inputs(root / "session", modes=("loose", "tight"), config="report2005")
+        write_session(sim.simulate(scenario.load("default"), seed=seed), root / "session")
+        inp = run.load_inputs(root / "session", modes=("loose", "tight"), config="report2005")
         for mode in out:
-            replay.run_mode(inp, root / mode, mode=mode)
+            run.run_mode(inp, root / mode, mode=mode)
             out[mode].append(results.load(root / mode))
     return out
 

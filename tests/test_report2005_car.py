@@ -21,7 +21,9 @@ docs/report2005.md explains why each is missed.
 import numpy as np
 import pytest
 
-from gpsins import replay, report, sim
+from gpsins.replay import run
+from gpsins import report, sim
+from gpsins.sim import scenario
 from gpsins.sim.session import write_session
 
 SEEDS = range(5)
@@ -54,10 +56,10 @@ def runs(tmp_path_factory):
     out = {"loose": [], "tight": []}
     for seed in SEEDS:
         root = tmp_path_factory.mktemp(f"{SCENARIO}_{seed}")
-        write_session(sim.simulate(sim.load(SCENARIO), seed=seed), root / "session")
-        inp = replay.load_inputs(root / "session", modes=("loose", "tight"), config="report2005")
+        write_session(sim.simulate(scenario.load(SCENARIO), seed=seed), root / "session")
+        inp = run.load_inputs(root / "session", modes=("loose", "tight"), config="report2005")
         for mode in out:
-            replay.run_mode(inp, root / mode, mode=mode)
+            run.run_mode(inp, root / mode, mode=mode)
             out[mode].append(report.load(root / mode))
     return out
 
@@ -102,10 +104,10 @@ def test_the_segment_table_counts_each_fix_where_it_was_measured(tmp_path):
     (tens of ns) before it, with the satellites of the segment before. The table counted it in the segment that
     starts there (A-B "4-8" where the fixes measured in A-B have 4); each segment's range must be that of the
     simulator's own fixes whose true time falls in it."""
-    s = sim.simulate(sim.load("default"), seed=0)
+    s = sim.simulate(scenario.load("default"), seed=0)
     write_session(s, tmp_path / "session")
-    inp = replay.load_inputs(tmp_path / "session", modes=("loose",))
-    replay.run_mode(inp, tmp_path / "loose", mode="loose")
+    inp = run.load_inputs(tmp_path / "session", modes=("loose",))
+    run.run_mode(inp, tmp_path / "loose", mode="loose")
     rows = {row["segment"]: (row["sats_min"], row["sats_max"]) for row in report.segment_table(
         report.load(tmp_path / "loose"))}
     t = np.array([f.t for f in s.gnss.fixes])

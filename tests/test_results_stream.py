@@ -9,15 +9,20 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from gpsins import filter as flt, replay, results, sim
-from gpsins.readers.common import GPS_EPOCH, gpst_text
+from gpsins.nav import runs as flt
+from gpsins.replay import run as replay, results
+from gpsins import sim
+from gpsins.nav import config as nav_config
+from gpsins.nav import inputs as nav_inputs
+from gpsins.sim import scenario
+from gpsins.formats.gpstime import GPS_EPOCH, gpst_text
 from gpsins.sim.session import write_session
 
 
 @pytest.fixture(scope="module")
 def session(tmp_path_factory):
     d = tmp_path_factory.mktemp("stream") / "session"
-    write_session(sim.simulate(sim.load("default"), seed=3), d)
+    write_session(sim.simulate(scenario.load("default"), seed=3), d)
     return d
 
 
@@ -27,7 +32,7 @@ def tight_inputs(session):
 
 
 def _whole_and_chunked(inp, chunk_rows, output_every=2, overlap=True):
-    cfg = flt.load_config(None, {"mode": "tight"})
+    cfg = nav_config.load_config(None, {"mode": "tight"})
     kw = dict(pseudoranges=inp.pseudoranges, ephemerides=inp.ephemerides, klobuchar=inp.klobuchar,
               gps_time_offset_s=inp.week * 604800.0)
     whole = flt.run(inp.imu, inp.fixes, cfg, mode="tight", covariance=True, smooth=True, output_every=output_every,
@@ -142,7 +147,7 @@ def test_smoothed_covariance_is_a_covariance(tight_inputs):
 
 def test_imu_columns_index_like_the_table():
     rng = np.random.default_rng(2)
-    c = flt.ImuColumns(np.arange(9.0), rng.normal(size=(9, 3)), rng.normal(size=(9, 3)))
+    c = nav_inputs.ImuColumns(np.arange(9.0), rng.normal(size=(9, 3)), rng.normal(size=(9, 3)))
     t = np.column_stack([c.t, c.dtheta, c.dv])
     for ix in (slice(2, 5), slice(None, None, 3), (0, 0), (-1, 0), (slice(None), 0), (4, slice(1, 4)),
                (slice(1, 7), slice(0, 2))):

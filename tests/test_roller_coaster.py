@@ -6,7 +6,9 @@ import numpy as np
 import pytest
 
 from gpsins import sim
+from gpsins.sim import scenario
 from gpsins.sim import scenario as scn
+from gpsins.sim import ride
 from gpsins.sim import trajectory
 from gpsins.sim.session import imu_frames
 from gpsins_logger import bp3010
@@ -30,7 +32,7 @@ def lap_sim():
 def test_roller_coaster_matches_the_report():
     """Section 6.1: 480 m of track, pitch to 50 deg, roll to 81 deg, about 60 km/h, 3-4 g,
     11 laps of about 60 s after a 5-minute initialisation; the frame about 100 m x 40 m."""
-    sc = sim.load("roller-coaster")
+    sc = scenario.load("roller-coaster")
     tr = sc.track
     assert 450 <= tr.period <= 500
     labels = [s.label for s in sc.segments]
@@ -162,7 +164,8 @@ def test_loose_and_tight_filters_ride_three_laps_without_diverging():
     numpy): integrating the IMU with them must not lose what GNSS alone gives. Figures for the full 11 laps
     are in the issue's report."""
     from gpsins import evaluate
-    from gpsins import filter as flt
+    from gpsins.nav import runs as flt
+    from gpsins.nav import config as nav_config
 
     data, source = scn._read("roller-coaster")
     data["track"].update(laps=3, rest_before_s=60.0, rest_after_s=10.0)
@@ -173,7 +176,7 @@ def test_loose_and_tight_filters_ride_three_laps_without_diverging():
     fixes = sim.fix_table(s)
     fix_err_m = np.linalg.norm(fixes[:, 1:4] - tr.position_at(fixes[:, 0]), axis=1)
     for mode, extra in (("loose", {}), ("tight", tight)):
-        cfg = flt.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), "mode": mode})
+        cfg = nav_config.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), "mode": mode})
         sol = flt.run(sim.imu_table(s), fixes, cfg, **extra)
         assert not sol.counters["diverged"], mode
         assert sol.t[-1] > s.scenario.duration_s - 1.0
@@ -217,8 +220,10 @@ def test_gnss_errors_measured_at_the_station_make_both_filters_consistent(statio
     velocity and position alike over-confident), at 0.3 m/s 8.3."""
     from scipy.stats import chi2
 
-    from gpsins import evaluate, fix_scatter
-    from gpsins import filter as flt
+    from gpsins import evaluate
+    from gpsins.nav import fix_scatter
+    from gpsins.nav import runs as flt
+    from gpsins.nav import config as nav_config
 
     s = station_ride
     tr = s.truth
@@ -235,7 +240,7 @@ def test_gnss_errors_measured_at_the_station_make_both_filters_consistent(statio
     lo, hi = chi2.ppf([0.025, 0.975], 9 * n_independent) / n_independent
     nees = {}
     for name, over in (("preset", {}), ("measured", fix_scatter.filter_overrides(est, mode))):
-        cfg = flt.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), "mode": mode, "doppler_sigma_mps": 0.0,
+        cfg = nav_config.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), "mode": mode, "doppler_sigma_mps": 0.0,
                                      **over})
         sol = flt.run(sim.imu_table(s), fixes, cfg, covariance=True, **extra)
         assert not sol.counters["diverged"], (mode, name)
@@ -255,7 +260,7 @@ def test_gnss_errors_measured_at_the_station_make_both_filters_consistent(statio
 
 def _riding(pitch_deg=0.3, roll_deg=0.2):
     sc = _segments_scenario("")
-    sc.ride = scn.RideModel(pitch_deg=pitch_deg, roll_deg=roll_deg, band_hz=(1.0, 2.0), reference_speed_mps=8.0)
+    sc.ride = ride.RideModel(pitch_deg=pitch_deg, roll_deg=roll_deg, band_hz=(1.0, 2.0), reference_speed_mps=8.0)
     return sc
 
 

@@ -7,9 +7,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gpsins import dataset, timing
-from gpsins.readers import ReaderError, imu_csv, rtklib_tag
-from gpsins.readers.common import UNIX_TO_GPS_S
+from gpsins.dataset import load
+from gpsins import timing
+from gpsins.formats.common import ReaderError
+from gpsins.formats import imu_csv, rtklib_tag
+from gpsins.formats.gpstime import UNIX_TO_GPS_S
 
 WALK = Path(__file__).parent / "data" / "walk_0827"
 COLUMNS = ["ax", "ay", "az", "gx", "gy", "gz", "counter"]
@@ -104,11 +106,11 @@ def test_damaged_tags_and_streams_are_named(tmp_path):
 
 
 def test_raw_walk_data_set_reads_the_counter_times():
-    ds = dataset.load(WALK / "walk_0827_raw.toml")
+    ds = load.load(WALK / "walk_0827_raw.toml")
     a = ds.imu.alignment
     assert a["tag"] == "imu_1730.csv.tag" and abs(a["counter_rate_ppm"]) < 100.0
     assert len(ds.imu) == 20454 and any("ppm" in n for n in ds.notes)  # 20455 rate samples, 20454 increments
-    sf = dataset.load(WALK / "walk_0827.toml").imu
+    sf = load.load(WALK / "walk_0827.toml").imu
     # Not low-pass filtered: the publisher's filter cut the vertical specific force at about 7.6 Hz (body z is
     # the IMU's -z), so sample to sample the raw one moves about twice as much (0.21 against 0.09 m/s^2).
     jitter = [np.std(np.diff(x.dv_mps / np.diff(x.t_abs, prepend=x.t_abs[0] - 0.006)[:, None], axis=0), axis=0)

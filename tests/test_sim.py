@@ -9,10 +9,13 @@ import allantools
 import numpy as np
 import pytest
 
-from gpsins import logs, sim
+from gpsins.session import logs
+from gpsins import sim
+from gpsins.sim import scenario
 from gpsins.sim import atmosphere, earth, ephemeris, gnss, imu, trajectory
 from gpsins.sim.scenario import ImuModel, ScenarioError, parse, with_imu_rate
-from gpsins.sim.session import load_truth, write_session
+from gpsins.formats.truth import load_truth
+from gpsins.sim.session import write_session
 from gpsins_logger import superstar2 as ss2
 from simcheck import increment_errors, reintegration_errors
 
@@ -26,7 +29,7 @@ TABLE_6_1 = {"Start-A": (8, 8), "A-B": (4, 4), "B-C": (4, 6), "C-D": (4, 6), "D-
 
 @pytest.fixture(scope="module")
 def default_sim():
-    return sim.simulate(sim.load("default"), seed=0)
+    return sim.simulate(scenario.load("default"), seed=0)
 
 
 @pytest.fixture(scope="module", params=[64, 200])
@@ -34,7 +37,7 @@ def rate_sim(request, default_sim):
     """The default drive at the BP3010's 64 Hz and at 200 Hz (a rate that does not divide 1024)."""
     if request.param == 64:
         return default_sim
-    return sim.simulate(with_imu_rate(sim.load("default"), request.param), seed=0)
+    return sim.simulate(with_imu_rate(scenario.load("default"), request.param), seed=0)
 
 
 def test_truth_reintegrated_by_a_simple_strapdown_stays_within_millimetres(rate_sim):
@@ -124,7 +127,7 @@ def test_satellite_counts_follow_table_6_1(default_sim):
 def test_table_6_1_dips_happen(seed, default_sim):
     """Where Table 6.1 shows 2 or 3 satellites, the count reaches that (not just stays within
     one of the range), for more than one seed; the receiver has no 3-D fix at 2."""
-    s = default_sim if seed == 0 else sim.simulate(sim.load("default"), seed=seed)
+    s = default_sim if seed == 0 else sim.simulate(scenario.load("default"), seed=seed)
     t, n, modes = _satellite_counts(s)
     dips = 0
     for label, t0, t1 in s.scenario.segment_times():
@@ -218,11 +221,11 @@ def test_scenario_errors_name_the_key(tmp_path):
         parse({"segment": [{"label": "a", "duration_s": 1.0}],
                "obstruction": [{"segment": "b", "azimuth_deg": [0, 1], "below_elevation_deg": 5}]})
     with pytest.raises(ScenarioError, match="built-in scenarios: default"):
-        sim.load(tmp_path / "missing.toml")
+        scenario.load(tmp_path / "missing.toml")
 
 
 def test_smoothstep_profiles_are_continuous():
-    sc = sim.load("default")
+    sc = scenario.load("default")
     coarse = trajectory.profiles(sc, np.linspace(0.0, sc.duration_s, 100001))
     fine = trajectory.profiles(sc, np.linspace(0.0, sc.duration_s, 200001))
     # A jump would not shrink with the step; a continuous function's largest step halves.
@@ -237,7 +240,7 @@ def test_simulated_drive_through_ptys_and_the_real_logger(tmp_path):
     from ptyrig import run_rig, sent_ok
 
     from gpsins.sim.messages import SimSource
-    from gpsins.sources import SessionSource
+    from gpsins.devices.sources import SessionSource
 
     sc = parse({"segment": [{"label": "stand", "duration_s": 2.0},
                             {"label": "go", "duration_s": 2.0, "speed_mps": 3, "turn_deg": 20}]})

@@ -5,11 +5,13 @@ increments composed back into the truth)."""
 import numpy as np
 import pytest
 
-from gpsins import replay, sim
+from gpsins.replay import run
+from gpsins import sim
+from gpsins.sim import scenario
 from gpsins.sim import Simulator, gnss, trajectory
 from gpsins.sim.scenario import parse, with_imu_rate
 from gpsins.sim.session import simulate_session, write_session
-from gpsins.truthfile import load_truth, open_truth
+from gpsins.formats.truth import load_truth, open_truth
 from simcheck import increment_errors, reintegration_errors
 
 START = {"lat_deg": 59.37, "lon_deg": 17.95, "height_m": 30.0, "heading_deg": 10.0}
@@ -89,7 +91,7 @@ def _join(blocks):
 
 
 def test_joined_blocks_pass_the_physics_checks():
-    sc = sim.load("default")
+    sc = scenario.load("default")
     sc.segments = sc.segments[:9]  # standing, pulling away, the first turns and hills: 106 s
     blocks = list(Simulator(sc, 0).blocks(16.0))
     assert len(blocks) >= 6
@@ -125,7 +127,7 @@ def test_truth_file_opens_memory_mapped_and_the_replay_reads_it(sessions):
     for k, v in loaded.items():
         if k != "model":
             np.testing.assert_array_equal(np.asarray(mapped[k]), v, err_msg=k)
-    found = replay.load_session_truth(d[24.0], 0.0)
+    found = run.load_session_truth(d[24.0], 0.0)
     assert found is not None
     truth, extra = found
     assert np.array_equal(truth.t, loaded["tow_s"] + int(loaded["gps_week"]) * 604800.0)

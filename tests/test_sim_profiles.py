@@ -5,7 +5,9 @@ to the truth, and sessions the readers and the time alignment take as they are."
 import numpy as np
 import pytest
 
-from gpsins import measurements, sim, timing
+from gpsins.session import measurements
+from gpsins import sim, timing
+from gpsins.sim import scenario
 from gpsins.sim import earth, messages, trajectory
 from gpsins.sim.scenario import ScenarioError, builtin_names, first_seconds, parse, with_imu_rate
 from gpsins.sim.session import write_session
@@ -42,7 +44,7 @@ def test_the_profiles_are_built_in():
 
 
 def test_walk_is_pedestrian():
-    sc = sim.load("walk")
+    sc = scenario.load("walk")
     tr, speed, acc = kinematics(sc)
     assert speed.max() <= 1.5 + 1e-9 and acc.max() < 1.5
     moving = speed > STOPPED_MPS
@@ -61,7 +63,7 @@ def test_walk_is_pedestrian():
 
 
 def test_stop_and_go_has_many_short_stops():
-    sc = sim.load("stop_and_go")
+    sc = scenario.load("stop_and_go")
     tr, speed, acc = kinematics(sc)
     assert speed.max() <= 10.0 + 1e-9 and acc.max() < 3.0
     s = stops(tr.t, speed)
@@ -74,7 +76,7 @@ def test_stop_and_go_has_many_short_stops():
 
 
 def test_urban_highway_is_an_hour_of_city_and_motorway():
-    sc = sim.load("urban_highway")
+    sc = scenario.load("urban_highway")
     assert sc.duration_s == 3600.0
     tr, speed, acc = kinematics(sc)
     dt = 1.0 / GRID_HZ
@@ -90,7 +92,7 @@ def test_urban_highway_is_an_hour_of_city_and_motorway():
 
 
 def test_long_repeats_the_default_drive_twelve_times():
-    base, sc = sim.load("default"), sim.load("long")
+    base, sc = scenario.load("default"), scenario.load("long")
     drive = base.segments[1:-1]  # A-B .. W-X
     span = sum(s.duration_s for s in drive)
     assert sc.duration_s == base.duration_s + 11 * span and 43 * 60 <= sc.duration_s <= 44 * 60
@@ -120,7 +122,7 @@ def test_base_and_repeat_keys(tmp_path):
                                      'below_elevation_deg = 30\n', encoding="utf-8")
     (tmp_path / "b.toml").write_text('base = "a.toml"\n[imu.terms]\nwhite_noise = false\n'
                                      '[[repeat]]\nfirst = "x"\nlast = "y"\ncount = 3\n', encoding="utf-8")
-    sc = sim.load(tmp_path / "b.toml")
+    sc = scenario.load(tmp_path / "b.toml")
     assert sc.name == "b" and sc.imu.rate_hz == 32 and not sc.imu.terms["white_noise"] and sc.imu.terms["scale_factor"]
     assert [s.label for s in sc.segments] == ["s", "x", "y", "x #2", "y #2", "x #3", "y #3"]
     assert [(o.t0_s, o.t1_s) for o in sc.obstructions] == [(5.0, 6.0), (9.0, 10.0), (13.0, 14.0)]
@@ -137,7 +139,7 @@ def test_base_and_repeat_keys(tmp_path):
 
 
 def test_imu_rate_option_checks_the_line():
-    sc = sim.load("default")
+    sc = scenario.load("default")
     with pytest.raises(ScenarioError, match="imu_baud = 38400 cannot carry 400 Hz"):
         parse({"segment": [{"label": "a", "duration_s": 1.0}], "imu": {"rate_hz": 400}}, "x.toml")
     with pytest.raises(ScenarioError, match="rate_hz must be a positive integer"):
@@ -150,7 +152,7 @@ def test_imu_rate_option_checks_the_line():
 
 def _short(name, seconds, rate):
     """The first `seconds` of a built-in profile at an IMU rate."""
-    return first_seconds(with_imu_rate(sim.load(name), rate), seconds)
+    return first_seconds(with_imu_rate(scenario.load(name), rate), seconds)
 
 
 @pytest.mark.parametrize("rate", [50, 200, 400])

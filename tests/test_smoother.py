@@ -4,8 +4,11 @@ textbook RTS, its error-state bookkeeping, and smoothed against forward on simul
 import numpy as np
 import pytest
 
-from gpsins import _core, evaluate, filter as flt, sim
-from gpsins import results as results_mod
+from gpsins import _core, evaluate, sim
+from gpsins.nav import runs as flt
+from gpsins.nav import config as nav_config
+from gpsins.sim import scenario
+from gpsins.replay import results as results_mod
 
 # Bytes the smoother's tape holds, from the layout rts.hpp and the README document (not from the code's
 # own counters): every record is its payload of doubles plus one trailer double (its kind and length).
@@ -119,7 +122,7 @@ def truth_of(s):
 
 
 def run(s, fixes=None, **over):
-    cfg = flt.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), **over})
+    cfg = nav_config.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), **over})
     return flt.run(sim.imu_table(s), sim.fix_table(s) if fixes is None else fixes, cfg, covariance=True, smooth=True)
 
 
@@ -137,7 +140,7 @@ def _subset(sol, m):
 
 @pytest.fixture(scope="module")
 def default_drive():
-    s = sim.simulate(sim.load("default"), seed=0)
+    s = sim.simulate(scenario.load("default"), seed=0)
     return s, run(s)
 
 
@@ -240,8 +243,8 @@ def test_tape_size_per_epoch_as_documented(default_drive):
 
 
 def test_spilled_tape_gives_the_same_smoothed_run():
-    s = sim.simulate(sim.load("default"), seed=1)
-    cfg = flt.load_config(None, sim.imu_noise_truth(s.scenario.imu))
+    s = sim.simulate(scenario.load("default"), seed=1)
+    cfg = nav_config.load_config(None, sim.imu_noise_truth(s.scenario.imu))
     imu, fixes = sim.imu_table(s)[:6000], sim.fix_table(s)
     a = flt.run(imu, fixes, cfg, covariance=True, smooth=True)
     b = flt.run(imu, fixes, cfg, covariance=True, smooth=True, smooth_chunk_mb=0.25)
@@ -257,7 +260,7 @@ def test_spilled_tape_gives_the_same_smoothed_run():
 def test_15_s_outage_smoothed_drift_at_most_a_fifth_of_forward(start_s):
     # Without the satellites' orbit and clock errors: their slow bias in the fixes (the smoothed error
     # with every fix is 2.2 m there with it, 0.9 m without) is no drift, and would hide a fifth of it.
-    sc = sim.load("default")
+    sc = scenario.load("default")
     sc.gnss.sis_error_m = 0.0
     s = sim.simulate(sc, seed=0)
     tr = truth_of(s)
@@ -280,7 +283,7 @@ def test_large_injected_corrections_are_smoothed_in_the_same_error_definition():
     injects large attitude corrections. The smoothed attitude at the start is then right to the
     accuracy the rest of the run allows (the smoothed yaw of the same run started at the true
     heading), inside its own 3 sigma."""
-    s = sim.simulate(sim.load("default"), seed=2)
+    s = sim.simulate(scenario.load("default"), seed=2)
     tr = truth_of(s)
     true_yaw = float(np.degrees(_core.euler_from_body_to_ecef(tr.q_eb[:1], _core.ecef_to_geodetic(tr.r_ecef[:1]))[0, 0]))
     fwd = run(s, initial_yaw_deg=true_yaw + 20.0, attitude_sigma_deg=[1.0, 1.0, 25.0])
@@ -308,7 +311,7 @@ def test_large_injected_corrections_are_smoothed_in_the_same_error_definition():
 def test_replay_smooth_writes_smoothed_results_next_to_the_forward_ones(tmp_path):
     from pathlib import Path
 
-    from gpsins import replay
+    from gpsins.replay import run as replay
     toml = Path(__file__).parent / "data" / "walk_0827" / "walk_0827_ubx.toml"
     res = replay.replay(toml, tmp_path / "r", outages="25:15:45:45", smooth=True)
     z = results_mod.load(tmp_path / "r")
@@ -331,11 +334,11 @@ def test_replay_smooth_writes_smoothed_results_next_to_the_forward_ones(tmp_path
 
 def test_tight_smoothed_clock_and_position():
     from gpsins.sim import ephemeris as sim_eph
-    s = sim.simulate(sim.load("default"), seed=0)
+    s = sim.simulate(scenario.load("default"), seed=0)
     ephs = [_core.gnss.decode_subframes(sim_eph.encode_subframes(e), e.prn, s.scenario.start.gps_week)
             for e in s.gnss.ephemerides.values()]
     offset = s.scenario.start.gps_week * 604800.0 + s.scenario.start.gps_tow_s
-    cfg = flt.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), "mode": "tight"})
+    cfg = nav_config.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), "mode": "tight"})
     fwd = flt.run(sim.imu_table(s), sim.fix_table(s), cfg, covariance=True, smooth=True,
                   pseudoranges=sim.pseudorange_table(s), ephemerides=ephs,
                   klobuchar=(s.gnss.ion_alpha, s.gnss.ion_beta), gps_time_offset_s=offset)
@@ -358,7 +361,7 @@ def test_tight_smoothed_clock_and_position():
 def test_smoothed_height_stays_on_the_walks_rtk_fixes(tmp_path):
     from pathlib import Path
 
-    from gpsins import replay
+    from gpsins.replay import run as replay
     toml = Path(__file__).parent / "data" / "walk_0827" / "walk_0827.toml"
     res = replay.replay(toml, tmp_path / "r", outages="1000:1:1000", smooth=True)  # no outage inside the walk
     fwd, sm = res.summary["scoring"]["outside"], res.summary["smoothed"]["scoring"]["outside"]

@@ -5,7 +5,10 @@ navigating with two or three satellites."""
 import numpy as np
 import pytest
 
-from gpsins import _core, evaluate, filter as flt, sim
+from gpsins import _core, evaluate, sim
+from gpsins.nav import runs as flt
+from gpsins.nav import config as nav_config
+from gpsins.sim import scenario
 from gpsins.sim import ephemeris as sim_eph
 from gpsins.sim.scenario import parse
 
@@ -27,7 +30,7 @@ def both(s, modes=("loose", "tight"), **over):
     offset = s.scenario.start.gps_week * 604800.0 + s.scenario.start.gps_tow_s
     out = {}
     for mode in modes:
-        cfg = flt.load_config(None, {**noise, "mode": mode, **over})
+        cfg = nav_config.load_config(None, {**noise, "mode": mode, **over})
         extra = dict(pseudoranges=sim.pseudorange_table(s), ephemerides=ephs,
                      klobuchar=(s.gnss.ion_alpha, s.gnss.ion_beta), gps_time_offset_s=offset) if mode == "tight" else {}
         out[mode] = flt.run(sim.imu_table(s), sim.fix_table(s), cfg, covariance=True, **extra)
@@ -40,7 +43,7 @@ def truth_of(s):
 
 @pytest.fixture(scope="module")
 def default_runs():
-    s = sim.simulate(sim.load("default"), seed=0)
+    s = sim.simulate(scenario.load("default"), seed=0)
     return s, both(s)
 
 
@@ -150,8 +153,8 @@ def test_streaming_tight_equals_batch():
     s = sim.simulate(parse({**FEW, "segment": FEW["segment"][:2], "obstruction": []}), seed=2)
     sols = both(s)
     noise = sim.imu_noise_truth(s.scenario.imu)
-    cfg = flt.load_config(None, {**noise, "mode": "tight"})
-    core = flt.core_config(cfg)
+    cfg = nav_config.load_config(None, {**noise, "mode": "tight"})
+    core = nav_config.core_config(cfg)
     core.gps_time_offset_s = s.scenario.start.gps_week * 604800.0 + s.scenario.start.gps_tow_s
     f = _core.InsFilter(core, "tight")
     for e in s.gnss.ephemerides.values():
@@ -216,7 +219,7 @@ def test_tight_time_offset_state_stays_consistent_though_pseudoranges_barely_see
     the truth, learnt (sigma well below the prior), and costing nothing."""
     from gpsins.sim.scenario import first_seconds
 
-    s = sim.simulate(first_seconds(sim.load("default"), 150.0), seed=2)
+    s = sim.simulate(first_seconds(scenario.load("default"), 150.0), seed=2)
     noise = sim.imu_noise_truth(s.scenario.imu)
     ephs = [_core.gnss.decode_subframes(sim_eph.encode_subframes(e), e.prn, s.scenario.start.gps_week)
             for e in s.gnss.ephemerides.values()]
@@ -227,7 +230,7 @@ def test_tight_time_offset_state_stays_consistent_though_pseudoranges_barely_see
     tr = truth_of(s)
     out = {}
     for on in (False, True):
-        cfg = flt.load_config(None, {**noise, "mode": "tight", "estimate_time_offset": on})
+        cfg = nav_config.load_config(None, {**noise, "mode": "tight", "estimate_time_offset": on})
         sol = flt.run(imu, sim.fix_table(s), cfg, covariance=True, **extra)
         e = evaluate.nav_errors(sol, tr)
         k = sol.heading_known & (sol.t > sol.t[np.flatnonzero(sol.heading_known)[0]] + 5.0)
@@ -248,12 +251,12 @@ def test_signal_in_space_states_keep_tight_with_doppler_consistent():
     per satellite it stays one error (median 3.1, 3 expected)."""
     nees = {True: [], False: []}
     for seed in range(6):
-        sc = sim.load("default")
+        sc = scenario.load("default")
         sc.gnss.sis_error_m = 2.0  # constant part and the slow swing's amplitude: 2 sqrt(1.5) m RMS
         s = sim.simulate(sc, seed=seed)
         tr = s.truth
         for states in (True, False):
-            cfg = flt.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), "mode": "tight",
+            cfg = nav_config.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), "mode": "tight",
                                          "pseudorange_sis_sigma_m": 2.0 * np.sqrt(1.5),
                                          "pseudorange_sis_states": states})
             sol = flt.run(sim.imu_table(s), sim.fix_table(s), cfg, covariance=True, **sim.tight_inputs(s))

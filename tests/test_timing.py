@@ -5,7 +5,8 @@ dropped frames and realtime clock steps."""
 import numpy as np
 import pytest
 
-from gpsins import measurements, sim, timing
+from gpsins.session import measurements
+from gpsins import sim, timing
 from gpsins.sim import messages
 from gpsins.sim.scenario import parse
 from gpsins.sim.session import realtime, write_session

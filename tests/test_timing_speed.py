@@ -5,7 +5,10 @@ sampling instants."""
 import numpy as np
 import pytest
 
-from gpsins import emulate, mainjob, measurements, replay, sim, timing
+from gpsins.devices import emulate
+from gpsins import mainjob, sim, timing
+from gpsins.session import measurements
+from gpsins.replay import run
 from gpsins.sim.scenario import parse
 
 START = {"gps_week": 1590, "gps_tow_s": 419400.0, "lat_deg": 59.37, "lon_deg": 17.95, "height_m": 30.0,
@@ -51,7 +54,7 @@ def test_robust_alignment_of_a_drive_served_faster_than_real_time(tmp_path, monk
     s, em, dec = served(tmp_path, monkeypatch, speed)
     truth = true_imu_tow(s, em, dec)
     # The latencies the main job replays with.
-    lat = {"imu_latency_s": replay.DEFAULT_IMU_LATENCY_S, **mainjob.replay_latencies("superstar2", speed)}
+    lat = {"imu_latency_s": run.DEFAULT_IMU_LATENCY_S, **mainjob.replay_latencies("superstar2", speed)}
     worst = {}
     for method in timing.METHODS:
         al = timing.align(dec.gps.tow, dec.gps.stamps, dec.gps.week, dec.imu.stamps, dec.imu.counter,

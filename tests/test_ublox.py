@@ -16,12 +16,15 @@ import pytest
 from pyubx2 import NMEA_PROTOCOL, UBX_PROTOCOL, UBXReader
 from pyubx2.ubxtypes_configdb import UBX_CONFIG_DATABASE
 
-from gpsins import logs, mainjob, measurements_ubx, replay, sim, timing
-from gpsins.emulate import Faults, UbloxEmulators
+from gpsins.session import logs, measurements_ubx
+from gpsins import mainjob, sim, timing
+from gpsins.replay import run
+from gpsins.devices.emulate import Faults, UbloxEmulators
 from gpsins.sim import ublox as sim_ublox
 from gpsins.sim.scenario import parse
-from gpsins.sim.session import write_truth
-from gpsins.sources import UbloxSimSource, UbxCaptureSource
+from gpsins.formats.truth import write_truth
+from gpsins.sim.ublox import UbloxSimSource
+from gpsins.devices.sources import UbxCaptureSource
 from gpsins_logger import config as logger_config
 from gpsins_logger import ubx
 from gpsins_logger.framing import FrameFinder
@@ -340,7 +343,7 @@ def test_simulated_drive_replays_loose_and_tight_inside_3_sigma(tmp_path, imu):
     if imu == "bp3010":
         lat = mainjob.replay_latencies("superstar2", speed) | {"gps_latency_s": lat["gps_latency_s"]}
     for mode in ("loose", "tight"):
-        res = replay.replay(session.directory, tmp_path / mode, mode=mode, **lat)
+        res = run.replay(session.directory, tmp_path / mode, mode=mode, **lat)
         sm = res.summary
         # Every IMU sample sent is replayed, without gaps. The receiver sends ESF-RAW only once the
         # logger has set it up (and the BP3010 once asked for its rate): a loaded host starts later.
@@ -442,7 +445,7 @@ def test_session_without_rawx_replays_loose_on_nav_pvt_time(tmp_path):
     s = _sim(DRIVE)
     d = _write_session(tmp_path / "session", s, {"NAV-PVT", "ESF-RAW"})
     write_truth(s, tmp_path / "truth.npz")
-    res = replay.replay(d, tmp_path / "loose", mode="loose", gps_latency_s=sim_ublox.FIX_DELAY_S,
+    res = run.replay(d, tmp_path / "loose", mode="loose", gps_latency_s=sim_ublox.FIX_DELAY_S,
                         imu_latency_s=sim_ublox.ESF_DELAY_S)
     sm = res.summary
     assert any("no RXM-RAWX" in k for k in sm["skipped"])

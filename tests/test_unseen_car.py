@@ -13,7 +13,8 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from gpsins import replay, sim
+from gpsins.replay import run
+from gpsins import sim
 from gpsins.sim import dataset_writer
 
 pytest.importorskip("scipy")
@@ -40,7 +41,7 @@ def car(tmp_path_factory):
     for name, over in {"nhc": None, "no nhc": {"nonholonomic_constraint": False},
                        "gate off": {"gate_probability": 0.0},
                        "mounting stated": {"body_to_vehicle_ypr_deg": [5.4, -6.8, 0.0]}}.items():
-        runs[name] = replay.replay(path, work / name.replace(" ", "_"), overrides=over, outages=OUTAGES)
+        runs[name] = run.replay(path, work / name.replace(" ", "_"), overrides=over, outages=OUTAGES)
     return runs
 
 

@@ -15,12 +15,10 @@ import sys
 from pathlib import Path
 
 from . import __version__
+from .errors import CommandError
+
 
 EXIT_USAGE = 2
-
-
-class CommandError(ValueError):
-    """A failure the user can fix: its message is the one line after ``gpsins CMD:``."""
 
 
 def _session_dir(path: str) -> str:
@@ -40,7 +38,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 
 def _cmd_dump(args: argparse.Namespace) -> int:
-    from . import dump
+    from .session import dump
 
     if not args.raw:
         _session_dir(args.path)
@@ -54,38 +52,39 @@ def _cmd_sim(args: argparse.Namespace) -> int:
 
 
 def _cmd_emulate(args: argparse.Namespace) -> int:
-    from .sim import cli as sim_cli
+    from .devices import cli as devices_cli
 
     if getattr(args, "device", "superstar2") == "ublox":
-        from . import emulate
+        from .devices import emulate
 
         return emulate.run_ublox(args)
-    return sim_cli.run_emulate(args)
+    return devices_cli.run_emulate(args)
 
 
 def _cmd_replay(args: argparse.Namespace) -> int:
-    from . import filter as flt, replay
+    from .replay import run
+    from .nav import config as nav_config
 
     if args.set and "help" in args.set:
-        if replay.is_dataset(args.session) and Path(args.session).is_file():
+        if run.is_dataset(args.session) and Path(args.session).is_file():
             # The values a replay of this data set starts from: its [filter] table (or --config) and
             # what it takes from its data; the noise fit, where on, scales the noise at the run.
-            inp = replay.load_inputs(args.session, config=args.config, force=True)
-            print(flt.describe_keys(inp.base_config, inp.data_config,
+            inp = run.load_inputs(args.session, config=args.config, force=True)
+            print(nav_config.describe_keys(inp.base_config, inp.data_config,
                                     f"values for {args.session}: its [filter] table and, from its data, "
                                     f"{', '.join(sorted(inp.data_config)) or 'nothing'}"))
         else:
-            print(flt.describe_keys(args.config))
+            print(nav_config.describe_keys(args.config))
         return 0
-    overrides = flt.parse_overrides(args.set or [])
-    flt.load_config(args.config, overrides)  # a bad key or value fails here, before any decoding
-    if replay.is_dataset(args.session):
+    overrides = nav_config.parse_overrides(args.set or [])
+    nav_config.load_config(args.config, overrides)  # a bad key or value fails here, before any decoding
+    if run.is_dataset(args.session):
         if not Path(args.session).is_file():
             raise CommandError(f"{args.session}: no such data-set file")
     else:
         _session_dir(args.session)
     if args.outages:
-        from . import outages
+        from .evaluate import outages
 
         outages.parse(args.outages)
     if args.reference and not Path(args.reference).is_file():
@@ -95,7 +94,7 @@ def _cmd_replay(args: argparse.Namespace) -> int:
 
     memory.map_large_arrays()  # a day-long replay: freed whole-run arrays go back to the system
     modes = ["loose", "tight"] if args.mode == "both" else [args.mode]
-    stretches = replay.load_stretches(args.session, modes=modes, config=args.config, overrides=overrides,
+    stretches = run.load_stretches(args.session, modes=modes, config=args.config, overrides=overrides,
                                       timing_method=args.timing, gps_latency_s=args.gps_latency,
                                       imu_latency_s=args.imu_latency, truth=not args.no_truth, nav=args.nav,
                                       force=args.force)
@@ -104,15 +103,17 @@ def _cmd_replay(args: argparse.Namespace) -> int:
               f"{len(stretches)} stretches, each replayed on its own")
     for j, inp in enumerate(stretches):
         for i, mode in enumerate(modes):
-            _replay_one(args, inp, Path(args.out) / replay.stretch_dir(j, len(stretches)) /
+            _replay_one(args, inp, Path(args.out) / run.stretch_dir(j, len(stretches)) /
                         (mode if len(modes) > 1 else ""), mode, overrides, last_use=i == len(modes) - 1)
     return 0
 
 
 def _replay_one(args: argparse.Namespace, inp, out: Path, mode: str, overrides: dict, last_use: bool) -> None:
-    from . import memory, noise_from_data, replay, report
+    from . import memory, report
+    from .nav import noise_from_data
+    from .replay import run
 
-    res = replay.run_mode(inp, out, mode=mode, overrides=overrides, outages=args.outages,
+    res = run.run_mode(inp, out, mode=mode, overrides=overrides, outages=args.outages,
                           reference=args.reference, reference_q=args.reference_q, point=args.point,
                           smooth=args.smooth, covariance_every=args.covariance_every,
                           aid_heading=args.aid_heading, last_use=last_use, estimator=args.estimator)
@@ -143,7 +144,7 @@ def _replay_one(args: argparse.Namespace, inp, out: Path, mode: str, overrides: 
 
 
 def _cmd_dataset_init(args: argparse.Namespace) -> int:
-    from . import dataset_init
+    from .dataset import init
 
     out = Path(args.out)
     for f in (args.imu_file, args.gnss_file):
@@ -151,13 +152,13 @@ def _cmd_dataset_init(args: argparse.Namespace) -> int:
             raise CommandError(f"{f}: no such file")
     if out.exists() and not args.force:
         raise CommandError(f"{out}: exists; --force replaces it")
-    out.write_text(dataset_init.template(args.imu_file, args.gnss_file, out.parent), encoding="utf-8")
+    out.write_text(init.template(args.imu_file, args.gnss_file, out.parent), encoding="utf-8")
     print(f"{out}: written; set the lines marked SET, check those marked GUESSED, then `gpsins check {out}`")
     return 0
 
 
 def _cmd_batch(args: argparse.Namespace) -> int:
-    from . import batch
+    from .montecarlo import batch
     from .montecarlo.runner import open_client
 
     if len(args.config) > 2 or (len(args.config) == 2 and args.estimator):
@@ -178,9 +179,10 @@ def _cmd_batch(args: argparse.Namespace) -> int:
 
 
 def _cmd_live(args: argparse.Namespace) -> int:
-    from . import filter as flt, live
+    from .live import service
+    from .nav import config as nav_config
 
-    overrides = flt.parse_overrides(args.set or [])
+    overrides = nav_config.parse_overrides(args.set or [])
 
     def started(info):
         if info["nmea_port"] is not None:
@@ -204,14 +206,15 @@ def _cmd_live(args: argparse.Namespace) -> int:
 
     gc.freeze()  # the process's own: what the imports made is never scanned again by the collector (pauses)
     if args.follow_root:
-        live.run_root(args.session, args.out, **options)
+        service.run_root(args.session, args.out, **options)
     else:
-        live.run(args.session, args.out, **options)
+        service.run(args.session, args.out, **options)
     return 0
 
 
 def _cmd_score(args: argparse.Namespace) -> int:
-    from . import report, score
+    from . import report
+    from .replay import score
 
     if not Path(args.solution).is_file():
         raise CommandError(f"{args.solution}: no such solution file")
@@ -228,11 +231,11 @@ def _cmd_score(args: argparse.Namespace) -> int:
 
 
 def _cmd_check(args: argparse.Namespace) -> int:
-    from . import dataset, doctor
+    from .dataset import load, doctor
 
     if not Path(args.dataset).is_file():
         raise CommandError(f"{args.dataset}: no such data-set file")
-    diagnosis = doctor.diagnose(dataset.load(args.dataset), ["loose", "tight"] if args.mode == "both" else
+    diagnosis = doctor.diagnose(load.load(args.dataset), ["loose", "tight"] if args.mode == "both" else
                                 [args.mode])
     for f in diagnosis.findings:
         print(f.line())
@@ -242,7 +245,7 @@ def _cmd_check(args: argparse.Namespace) -> int:
 def _cmd_report(args: argparse.Namespace) -> int:
     from . import report
 
-    from . import results
+    from .replay import results
 
     given = [report.named(a) for a in args.results]
     out = args.out or Path(given[0][1]) / "report"
@@ -279,7 +282,7 @@ def _cmd_lab(args: argparse.Namespace) -> int:
 
 
 def _cmd_spp(args: argparse.Namespace) -> int:
-    from . import spp
+    from .gnss import spp
 
     if args.session:
         _session_dir(args.session)
@@ -387,7 +390,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--force", action="store_true",
                    help="replay a data set even where the data-set doctor finds the data at odds with it")
     p.add_argument("--estimator", metavar="MODULE:NAME",
-                   help="run this plug-in estimator in the built-in filter's place (gpsins.estimator documents "
+                   help="run this plug-in estimator in the built-in filter's place (gpsins.nav.estimator documents "
                         "what it gets and returns), scored the same way")
     p.add_argument("--nav", help="RINEX 2 navigation file: ephemerides and Klobuchar when the log lacks them")
     p.add_argument("--config", help="filter configuration: TOML file or preset name (default, report2005)")
@@ -571,7 +574,7 @@ def _message(e: BaseException, args: argparse.Namespace) -> str:
 
 
 def _is_config_error(e: BaseException) -> bool:
-    from .filter import ConfigError
+    from .nav.config import ConfigError
 
     return isinstance(e, ConfigError)
 

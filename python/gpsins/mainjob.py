@@ -15,11 +15,13 @@ from pathlib import Path
 
 import numpy as np
 
-from . import dump, logs, sim
-from .emulate import Emulators, UbloxEmulators
+from .session import dump, logs
+from . import sim
+from .sim import scenario
+from .devices.emulate import Emulators, UbloxEmulators
 from .sim import ublox as sim_ublox
 from .sim.messages import MEASUREMENT_DELAY_S, SimSource
-from .sources import UbloxSimSource
+from .sim.ublox import UbloxSimSource
 
 MODES = ("loose", "tight")
 
@@ -68,7 +70,7 @@ def record_drive(simulation: sim.Simulation, out: Path, speed: float = 1.0, devi
     try:
         line = proc.stdout.readline().strip()
         if line != str(session):
-            from .cli import CommandError
+            from .errors import CommandError
 
             why = " ".join((line + " " + (proc.stderr.read() if proc.poll() is not None else "")).split())
             raise CommandError(f"{cfg}: the logger daemon did not start ({why or 'no output'})")
@@ -85,7 +87,7 @@ def record_drive(simulation: sim.Simulation, out: Path, speed: float = 1.0, devi
         proc.send_signal(signal.SIGINT)
         _, err = proc.communicate(timeout=30)
         if proc.returncode != 0:
-            from .cli import CommandError
+            from .errors import CommandError
 
             raise CommandError(f"{cfg}: the logger daemon exited with {proc.returncode}: {' '.join(err.split())}")
     finally:
@@ -99,7 +101,7 @@ def record_drive(simulation: sim.Simulation, out: Path, speed: float = 1.0, devi
 def replay_latencies(device: str, speed: float) -> dict:
     """The emulated devices' delays from the measurement to its first byte (shrunk on a faster
     than real-time drive), plus the logger's."""
-    from . import replay
+    from .replay import run as replay
 
     if device == "ublox":
         return {"gps_latency_s": sim_ublox.MEASUREMENT_DELAY_S / speed + replay.DEFAULT_IMU_LATENCY_S,
@@ -112,7 +114,8 @@ def _live_beside(simulation: sim.Simulation, session: Path, out: Path, device: s
     latest round's error against the simulator's truth as text for the progress line."""
     import threading
 
-    from . import evaluate, live
+    from . import evaluate
+    from .live import service
 
     shown: dict = {}
     tow0 = simulation.scenario.start.gps_tow_s
@@ -129,14 +132,14 @@ def _live_beside(simulation: sim.Simulation, session: Path, out: Path, device: s
                          f"V {abs(ned[2]):5.2f} m")
 
     limit = simulation.scenario.duration_s / speed + 120.0
-    threading.Thread(target=live.run, args=(session, out), name="gpsins-live", daemon=True,
+    threading.Thread(target=service.run, args=(session, out), name="gpsins-live", daemon=True,
                      kwargs=dict(interval_s=1.0, max_s=limit, on_round=on_round,
                                  **replay_latencies(device, speed))).start()
     return shown
 
 
 def run(args: argparse.Namespace) -> int:
-    from .cli import CommandError
+    from .errors import CommandError
 
     if not 0 < args.speed <= MAX_SPEED:
         raise CommandError(f"--speed {args.speed:g}: the emulated drive runs 0 to {MAX_SPEED:g} times real time "
@@ -149,10 +152,10 @@ def run(args: argparse.Namespace) -> int:
     while session.exists():
         k += 1
         session = out / f"session-{k}"
-    sc = sim.load(args.scenario)
+    sc = scenario.load(args.scenario)
     print(f"1. simulating {sc.name}: {sc.description} (seed {args.seed})")
     simulation = sim.simulate(sc, args.seed)
-    from .sim.session import write_truth
+    from .formats.truth import write_truth
 
     write_truth(simulation, out / "truth.npz")
     print(f"2. serving it on emulated serial devices at {args.speed:g}x real time, recording with the logger daemon "
@@ -171,7 +174,8 @@ def run(args: argparse.Namespace) -> int:
         offered = len(list(SimSource(simulation).gps_messages()))
         print(f"3. recorded {got.sensors['gps'].count} GPS frames (the receiver offered {offered}, sending what the "
               f"logger requested) and {got.sensors['imu'].count} IMU frames of {len(simulation.imu_t)}")
-    from . import replay, report
+    from .replay import run as replay
+    from . import report
 
     results = []
     # The emulated receiver sends ID 23 its measurement delay after the epoch; on a

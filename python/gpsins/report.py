@@ -24,7 +24,10 @@ from pathlib import Path
 
 import numpy as np
 
-from . import _core, evaluate, noise_from_data, results
+from . import _core, evaluate
+from .nav import noise_from_data
+from .replay import results
+from .formats.gpstime import SECONDS_PER_WEEK
 
 # Replay imports this module for its outage table: the figures (matplotlib) are imported where drawn.
 
@@ -35,7 +38,6 @@ MODE_COLORS = {"loose": "tab:blue", "tight": "tab:orange", "ins": "tab:red"}
 OTHER_COLORS = ("tab:purple", "tab:brown", "tab:pink", "tab:olive", "tab:gray", "k", "tab:green", "y", "m", "c")
 RECEIVER_COLOR = "tab:green"
 AXIS_STYLES = ("-", "--", ":")
-SECONDS_PER_WEEK = 604800.0
 
 
 @dataclass
@@ -182,7 +184,7 @@ def fix_true_times(r: Result) -> np.ndarray:
     p = next((q for q in ((s / "truth.npz", s.parent / "truth.npz") if s is not None else ()) if q.exists()), None)
     if p is None or not len(f_t):
         return f_t
-    from .truthfile import open_truth  # memory-mapped: only the receiver epochs' rows are read
+    from .formats.truth import open_truth  # memory-mapped: only the receiver epochs' rows are read
 
     z = open_truth(p)
     if "clock_bias_s" not in z or not len(z["gnss_t"]):
@@ -283,7 +285,7 @@ def sky_data(r: Result, step_s: float = 10.0) -> SkyData | None:
         return None
     from collections import Counter
 
-    from . import logs, measurements
+    from .session import logs, measurements
 
     try:
         session = logs.read_session(s)

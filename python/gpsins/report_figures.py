@@ -14,9 +14,9 @@ from typing import NamedTuple
 import numpy as np
 
 from . import _core, evaluate, lazy
-from .report import (AXIS_STYLES, KIND_FIX2, KIND_FIX3, KIND_NAMES, KIND_PR, KIND_RR, RECEIVER_COLOR,
-                     SECONDS_PER_WEEK, Result, SkyData, _truth_file, receiver_errors, sky_data, time_origin,
-                     time_origin_text, true_residual_biases, truth_ecef)
+from .report import (AXIS_STYLES, KIND_FIX2, KIND_FIX3, KIND_NAMES, KIND_PR, KIND_RR, RECEIVER_COLOR, SECONDS_PER_WEEK,
+                     Result, SkyData, _truth_file, receiver_errors, sky_data, time_origin, time_origin_text,
+                     true_residual_biases, truth_ecef)
 
 plt = lazy.module("matplotlib.pyplot", before=lazy.agg_backend)
 Line2D = lazy.name("matplotlib.lines", "Line2D", before=lazy.agg_backend)

@@ -15,7 +15,7 @@ from .records import AXES
 
 def _error(message: str) -> Exception:
     """A failure the user can fix, printed by the CLI as one line with exit status 2."""
-    from ..cli import CommandError
+    from ..errors import CommandError
 
     return CommandError(message)
 
@@ -162,7 +162,7 @@ def run_allan(args) -> int:
                                  "fitted_from_tau_s": None if moved else f.fitted_from_tau_s,
                                  "units": units(name),
                                  "slope_readouts": None if moved else f.slope_readouts}
-        from ..results import json_text
+        from ..replay.results import json_text
 
         Path(args.json).write_text(json_text(doc, indent=1) + "\n", encoding="utf-8")
     if out:
@@ -275,7 +275,7 @@ update_rate: {rate:g}
 
 
 def _table(path: str, columns: int) -> np.ndarray:
-    from ..cli import CommandError
+    from ..errors import CommandError
 
     try:
         with warnings.catch_warnings():
@@ -338,11 +338,13 @@ def _updown_session(args, lat: float) -> int:
 def run_lab(args) -> int:
     """`gpsins lab PLAN --out DIR`, or `gpsins lab --simulate --out DIR`: a simulated lab day first."""
     from . import lab
+    from . import records as records_mod
 
     out = Path(args.out)
     plan = args.plan
     if args.simulate:
         from ..sim import lab as sim_lab
+        from ..devices import lab as lab_mod
 
         cfg = sim_lab.LabDayConfig.quick() if args.quick else sim_lab.LabDayConfig()
         day_dir = out / "lab_day"
@@ -350,7 +352,7 @@ def run_lab(args) -> int:
             raise _error(f"{day_dir} exists; give a new --out")
         day = sim_lab.simulate_lab_day(cfg, args.seed)
         if args.speed:
-            plan = sim_lab.record_through_logger(day, day_dir, speed=args.speed)
+            plan = lab_mod.record_through_logger(day, day_dir, speed=args.speed)
         else:
             plan = sim_lab.write_lab_day(day, day_dir)
         how = f"recorded through the emulators and the logger at {args.speed:g}x" if args.speed else "written"
@@ -359,7 +361,7 @@ def run_lab(args) -> int:
         raise _error("give a lab plan (PLAN.toml) or --simulate")
     try:
         res = lab.run(plan, out / "report" if args.simulate else out)
-    except (lab.PlanError, lab.RecordError) as e:
+    except (lab.PlanError, records_mod.RecordError) as e:
         raise _error(str(e)) from None
     for w in res["warnings"]:
         print(f"gpsins lab: warning: {w}", file=sys.stderr)

@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import results
+from ..replay import results
 from . import allan, calibration, noise_fit, psd, records
 from .records import AXES, RecordError
 

@@ -46,6 +46,8 @@ import numpy as np
 from scipy.optimize import least_squares, nnls
 from scipy.special import digamma, polygamma
 
+from ..nav.config import GM_PEAK_PER_SIGMA
+
 TERMS = ("Q", "N", "B", "K", "R")
 MIN_EDF = 10.0  # slope read-outs use only taus with this many equivalent degrees of freedom
 TRIM_SIGMA = 5.0  # a shortest tau missed by more than this many sigmas of its log AVAR is left out
@@ -220,7 +222,7 @@ def fit_term_curve(tau: np.ndarray, f: NoiseFit, term: str) -> np.ndarray | None
 
 
 GM_PEAK_TAU_PER_T = 1.89  # the Gauss-Markov ADEV peaks at tau = 1.89 T
-GM_PEAK_PER_SIGMA = 0.617  # ... at 0.617 of the stationary sigma q_c sqrt(T/2) (= 0.437 q_c sqrt(T))
+# ... at GM_PEAK_PER_SIGMA = 0.617 of the stationary sigma q_c sqrt(T/2) (= 0.437 q_c sqrt(T))
 GM_PEAK_PER_QC_SQRT_T = 0.437
 
 

@@ -84,7 +84,7 @@ def load(source: str | Path, rate_hz: float | None = None, columns=None, start_s
     if not p.exists():
         raise RecordError(f"{p}: no such file or directory; give a session directory or a CSV/NPY of rates")
     if p.is_dir():
-        from .. import logs
+        from ..session import logs
 
         try:
             session = logs.read_session(p)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from ..cli import CommandError as UsageError
+from ..errors import CommandError as UsageError
 
 
 def split_values(text: str) -> list[str]:
@@ -39,13 +39,15 @@ def seeds_of(n: int, first: int) -> list[int]:
 
 def plan_from_args(args, sweep_key: str | None, sweep_texts: list[str]):
     """The checked plan: scenario loaded, configuration and every swept value validated as --set does."""
-    from .. import filter as flt, outages, sim
+    from ..evaluate import outages
+    from ..sim import scenario
+    from ..nav import config as nav_config
     from .runner import Plan
 
-    sc = sim.load(args.scenario)
+    sc = scenario.load(args.scenario)
     modes = ["loose", "tight"] if args.mode == "both" else [args.mode]
-    overrides = flt.parse_overrides(args.set or [])
-    flt.load_config(args.config, overrides)
+    overrides = nav_config.parse_overrides(args.set or [])
+    nav_config.load_config(args.config, overrides)
     if sweep_key:
         if not sweep_texts:
             raise UsageError("--values: give at least one value")
@@ -53,13 +55,13 @@ def plan_from_args(args, sweep_key: str | None, sweep_texts: list[str]):
             raise UsageError(f"--values {','.join(sweep_texts)}: a value is given twice")
         for v in sweep_texts:
             try:
-                flt.load_config(args.config, flt._merge(overrides, flt.parse_overrides([f"{sweep_key}={v}"])))
-            except flt.ConfigError as e:
+                nav_config.load_config(args.config, nav_config._merge(overrides, nav_config.parse_overrides([f"{sweep_key}={v}"])))
+            except nav_config.ConfigError as e:
                 raise UsageError(f"swept value {sweep_key}={v}: {str(e).replace('--set ', '')}") from None
     if args.outages:
         outages.parse(args.outages)
     if args.estimator:
-        from .. import estimator
+        from ..nav import estimator
 
         estimator.load(args.estimator)  # a spec that cannot load fails here, not in every task
     if args.scheduler and args.workers:

@@ -17,7 +17,7 @@ import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .. import results
+from ..replay import results
 from . import tasks
 
 TABLE = "runs.csv"
@@ -49,7 +49,7 @@ class Plan:
     def overrides_for(self, value) -> dict:
         if self.sweep_key is None:
             return dict(self.overrides)
-        from ..filter import _merge, parse_overrides
+        from ..nav.config import _merge, parse_overrides
 
         return _merge(self.overrides, parse_overrides([f"{self.sweep_key}={value}"]))
 
@@ -104,7 +104,7 @@ def open_client(scheduler: str | None = None, workers: int | None = None):
 
 def _warm() -> str:
     """Import what the tasks need, once per worker process, before the first task is timed."""
-    from .. import replay, sim  # noqa: F401
+    from .. import sim  # noqa: F401
     from ..sim import session  # noqa: F401
 
     return tasks._where()

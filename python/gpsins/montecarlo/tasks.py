@@ -32,7 +32,7 @@ def _run_series(out_dir: Path) -> dict:
     Keys: t, nees9, heading_known, err_ned_m, sigma_ned_m, seg_labels, seg_t,
     upd_t, upd_kind, upd_dof, upd_nis, upd_accepted.
     """
-    from .. import results
+    from ..replay import results
 
     names = ("t", "nees9", "heading_known", "err_ned_m", "sigma_ned_m", "seg_labels", "seg_t",
              "upd_t", "upd_kind", "upd_dof", "upd_nis", "upd_accepted")
@@ -74,7 +74,7 @@ def replay_task(simulated: dict, run: dict, grid_s: float) -> dict:
     head = {"seed": simulated["seed"], "mode": run["mode"], "value": run.get("value"), "out": run["out"]}
     if "error" in simulated:
         return {**head, "error": simulated["error"]}
-    from .. import replay
+    from ..replay import run as replay
 
     t0, c0 = time.perf_counter(), time.process_time()
     try:
@@ -125,7 +125,7 @@ def summarise(out_dir: Path, run_json: dict, grid_s: float) -> dict:
     """A replay's compact summary: figures from run.json, per-segment and per-outage errors, NIS per
     update kind, and on the common grid (``grid_s`` from the scenario's start) the 9-state NEES, the
     horizontal and vertical errors and sigmas, and the NIS sums per kind and cell."""
-    from ..filter import UPDATE_KINDS
+    from ..nav.runs import UPDATE_KINDS
 
     s = _run_series(out_dir)
     t0 = float(s["seg_t"][0, 0])  # the scenario's start on the replay's time base

@@ -15,12 +15,13 @@ from pathlib import Path
 
 import numpy as np
 
+from ..formats.gpstime import SECONDS_PER_WEEK
+
 MU = 3.986005e14  # IS-GPS-200 Earth gravitational parameter, m^3/s^2
 OMEGA_E = 7.2921151467e-5  # IS-GPS-200 Earth rotation rate, rad/s
 F_REL = -4.442807633e-10  # relativistic clock constant, s/sqrt(m)
 GPS_PI = 3.1415926535898  # the value IS-GPS-200 uses to convert semicircles
 C = 299792458.0
-WEEK_S = 604800.0
 
 
 class EphemerisError(ValueError):
@@ -63,13 +64,13 @@ class Ephemeris:
     @property
     def t_oe(self) -> float:
         """toe as continuous GPS seconds."""
-        return self.week * WEEK_S + self.toe
+        return self.week * SECONDS_PER_WEEK + self.toe
 
     @property
     def t_oc(self) -> float:
         # toc is in the same week as toe up to a week crossing between them
-        t = self.week * WEEK_S + self.toc
-        return t + WEEK_S * round((self.t_oe - t) / WEEK_S)
+        t = self.week * SECONDS_PER_WEEK + self.toc
+        return t + SECONDS_PER_WEEK * round((self.t_oe - t) / SECONDS_PER_WEEK)
 
 
 def _num(s: str) -> float:
@@ -124,7 +125,7 @@ def read_rinex2_nav(path: str | Path) -> NavFile:
             raise EphemerisError(f"{path}: line {k + 2 + r}: {e}") from None
         week = int(v[21])
         toe = v[11]
-        ephs.append(Ephemeris(prn=prn, week=week, toc=t - week * WEEK_S, af0=v[0], af1=v[1], af2=v[2],
+        ephs.append(Ephemeris(prn=prn, week=week, toc=t - week * SECONDS_PER_WEEK, af0=v[0], af1=v[1], af2=v[2],
                               iode=int(v[3]), crs=v[4], delta_n=v[5], m0=v[6], cuc=v[7], e=v[8], cus=v[9],
                               sqrt_a=v[10], toe=toe, cic=v[12], omega0=v[13], cis=v[14], i0=v[15], crc=v[16],
                               omega=v[17], omega_dot=v[18], idot=v[19], l2_codes=int(v[20]), l2p_flag=int(v[22]),

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..formats.gpstime import SECONDS_PER_WEEK
 from . import atmosphere, earth, ephemeris
 from .draws import Stream
 from .processes import gauss_markov
@@ -153,8 +154,8 @@ class Receiver:
         self.ion_alpha, self.ion_beta = nav.ion_alpha, nav.ion_beta
         self.dt = 1.0 / model.measurement_rate_hz
         self.m = int(np.floor(sc.duration_s * model.measurement_rate_hz)) + 1
-        self.t_start = sc.start.gps_week * ephemeris.WEEK_S + sc.start.gps_tow_s
-        self.week = sc.start.gps_week + int(sc.start.gps_tow_s // ephemeris.WEEK_S)
+        self.t_start = sc.start.gps_week * SECONDS_PER_WEEK + sc.start.gps_tow_s
+        self.week = sc.start.gps_week + int(sc.start.gps_tow_s // SECONDS_PER_WEEK)
         # Every healthy broadcast ephemeris per satellite: each epoch uses the one with the nearest toe (within
         # the 2-hour validity, as ephemeris.select), so a day-long drive goes through the day's uploads.
         self.ephs: dict[int, list[ephemeris.Ephemeris]] = {}
@@ -290,7 +291,7 @@ class Receiver:
         nan = ~tracked
         for a in (pr, carrier, cn0):
             a[nan] = np.nan
-        out = GnssSim(t, tow_rx % ephemeris.WEEK_S, self.week, clock, tracked, visible, pr, carrier, cn0, lock,
+        out = GnssSim(t, tow_rx % SECONDS_PER_WEEK, self.week, clock, tracked, visible, pr, carrier, cn0, lock,
                       el, az, iono, trop, mp, sat_pos, sat_clk, in_use, self.ion_alpha, self.ion_beta, k0=k0,
                       eph_toe=eph_toe, eph_table=table)
         out.fixes = self._fixes(out, tr)

@@ -29,6 +29,7 @@ from gpsins_logger import bp3010
 from . import earth, imu
 from .scenario import ImuModel
 
+
 AXES = "xyz"
 GPS_UNIX_OFFSET_S = 315964800.0
 # A BP3010 record in a session file: sync, system-time stamp, 6 counts, status, counter, checksum.
@@ -108,9 +109,6 @@ def _noise(m: ImuModel) -> dict:
     from . import imu_noise_truth
 
     return imu_noise_truth(m)["imu_noise"]
-
-
-# --- attitude of each session, as C_nb at given times -------------------------------------------------
 
 def _axis_up(i: int) -> np.ndarray:
     """C_nb with body axis i up, axis i+1 north (so axis i+2 west)."""
@@ -232,9 +230,6 @@ def simulate_lab_day(cfg: LabDayConfig | None = None, seed: int = 0) -> LabDay:
     table_body = dtheta_ideal / dt - earth_body
     return LabDay(cfg, seed, rate, t[1:], dth, dvv, errors, sessions, earth_body, table_body)
 
-
-# --- writing ------------------------------------------------------------------------------------------
-
 def encode_records(dtheta: np.ndarray, dv: np.ndarray, stamps: np.ndarray, rate_hz: int,
                    counter0: int = 1) -> bytes:
     """BP3010 frames with their stamps as the logger writes them (vectorised ImuSample.encode)."""
@@ -322,80 +317,3 @@ def plan_text(day: LabDay, names: list[str] | None = None) -> str:
     if any(s.kind == "drift" for s in chosen):
         lines += ["[drift]", 'session = "drift"', f"heading_deg = {cfg.drift_heading_deg!r}", ""]
     return "\n".join(lines)
-
-
-# --- through the pty emulators and the logger, like a real lab day -----------------------------------
-
-class LabSessionSource:
-    """One recording of the lab day as a message source for the pty emulators (IMU only: a lab
-    recording has no receiver)."""
-
-    def __init__(self, day: LabDay, session: Session):
-        self.day, self.session = day, session
-        self.duration_s = (session.i1 - session.i0) / day.rate_hz
-
-    def gps_messages(self):
-        return iter(())
-
-    def imu_samples(self, rate_hz: int, t0: float = 0.0):
-        from ..sources import TimedSample
-        from .messages import combine_increments
-
-        s, base = self.session, self.day.rate_hz
-        m = max(1, int(round(base / rate_hz)))
-        dth, dv = self.day.dtheta[s.i0:s.i1], self.day.dv[s.i0:s.i1]
-        t = (np.arange(len(dth)) + 1.0) / base
-        if m > 1:
-            dth, dv = combine_increments(dth, dv, m)
-            t = t[m - 1::m][:len(dth)]
-        for k in np.flatnonzero(t >= t0 - 1e-9):
-            yield TimedSample(float(t[k]), bp3010.ImuSample(tuple(map(float, dth[k])), tuple(map(float, dv[k]))))
-
-
-def record_through_logger(day: LabDay, directory: str | Path, speed: float = 1.0, timeout_s: float = 60.0,
-                          sessions: list[str] | None = None) -> Path:
-    """Serve each recording on a pty (the BP3010 emulator) and record it with the logger daemon
-    (a subprocess), as a lab day would be recorded; then the truth and the plan. speed > 1 plays
-    the day faster than real time. Returns the plan's path."""
-    import signal
-    import subprocess
-    import sys
-    import tempfile
-    import time
-
-    from ..emulate import Emulators
-
-    directory = Path(directory)
-    directory.mkdir(parents=True, exist_ok=False)
-    chosen = [s for s in day.sessions if sessions is None or s.name in sessions]
-    with tempfile.TemporaryDirectory(prefix="gpsins-lab-") as tmp:
-        tmp = Path(tmp)
-        for s in chosen:
-            devdir = tmp / f"dev-{s.name}"
-            source = LabSessionSource(day, s)
-            em = Emulators(devdir, source, speed=speed)
-            cfg = tmp / f"logger-{s.name}.toml"
-            cfg.write_text(f'[session]\nroot = "{tmp / "sessions"}"\nfsync_interval_s = 0.5\n'
-                           f'[gps]\nport = "{devdir / "gps"}"\n[imu]\nport = "{devdir / "imu"}"\n'
-                           f"rate_hz = {day.rate_hz}\n", encoding="utf-8")
-            proc = subprocess.Popen([sys.executable, "-m", "gpsins_logger.daemon", "--config", str(cfg),
-                                     "--session-dir", str(directory / s.name)], stdout=subprocess.PIPE,
-                                    stderr=subprocess.PIPE, text=True)
-            try:
-                proc.stdout.readline()  # the daemon prints its session directory once it is recording
-                em.start()
-                if not em.wait(source.duration_s / speed + timeout_s):
-                    raise RuntimeError(f"lab session {s.name}: the emulator did not finish")
-                time.sleep(0.3)  # the last frames through the pty
-                proc.send_signal(signal.SIGINT)
-                proc.communicate(timeout=20)
-            finally:
-                if proc.poll() is None:
-                    proc.kill()
-                    proc.wait()
-                em.stop()
-    (directory / "truth.json").write_text(json.dumps(_truth_doc(day), indent=1, default=list) + "\n",
-                                          encoding="utf-8")
-    plan = directory / "lab_plan.toml"
-    plan.write_text(plan_text(day, [s.name for s in chosen]), encoding="utf-8")
-    return plan

@@ -13,7 +13,7 @@ from scipy.spatial.transform import Rotation
 from gpsins_logger import bp3010
 from gpsins_logger import superstar2 as ss2
 
-from ..sources import TimedMessage, TimedSample
+from ..formats.messages import TimedMessage, TimedSample
 from . import ephemeris
 from .gnss import GnssSim
 
@@ -137,14 +137,19 @@ class SimSource:
         return iter(self._messages)
 
     def imu_samples(self, rate_hz: int, t0: float = 0.0) -> Iterator[TimedSample]:
-        base = self.sim.imu_rate_hz
-        if base % rate_hz:
-            raise ValueError(f"the simulation's IMU samples at {base} Hz: it cannot be served at {rate_hz} Hz "
-                             f"(the rate must divide {base})")
-        m = base // rate_hz
-        dth, dv = self.sim.imu_dtheta, self.sim.imu_dv
-        t = self.sim.imu_t[m - 1::m]
-        if m > 1:
-            dth, dv = combine_increments(dth, dv, m)
-        for k in np.flatnonzero(t >= t0 - 1e-9):
-            yield TimedSample(float(t[k]), bp3010.ImuSample(tuple(map(float, dth[k])), tuple(map(float, dv[k]))))
+        return imu_samples(self.sim, rate_hz, t0)
+
+
+def imu_samples(sim, rate_hz: int, t0: float = 0.0) -> Iterator[TimedSample]:
+    """A simulation's IMU samples from t0 at rate_hz (which must divide the simulated rate)."""
+    base = sim.imu_rate_hz
+    if base % rate_hz:
+        raise ValueError(f"the simulation's IMU samples at {base} Hz: it cannot be served at {rate_hz} Hz "
+                         f"(the rate must divide {base})")
+    m = base // rate_hz
+    dth, dv = sim.imu_dtheta, sim.imu_dv
+    t = sim.imu_t[m - 1::m]
+    if m > 1:
+        dth, dv = combine_increments(dth, dv, m)
+    for k in np.flatnonzero(t >= t0 - 1e-9):
+        yield TimedSample(float(t[k]), bp3010.ImuSample(tuple(map(float, dth[k])), tuple(map(float, dv[k]))))

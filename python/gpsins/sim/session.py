@@ -30,11 +30,11 @@ import numpy as np
 from gpsins_logger import bp3010
 from gpsins_logger import superstar2 as ss2
 
-from .. import reference as reference_file
+from ..formats import reference as reference_file
 from . import DEFAULT_BLOCK_S, Simulation, Simulator, reference
 from .draws import Stream
 from .messages import GpsMessages
-from ..truthfile import TruthWriter, load_truth, write_truth
+from ..formats.truth import TruthWriter, load_truth, write_truth
 
 __all__ = ["SessionWriter", "simulate_session", "write_session", "write_reference", "write_truth", "load_truth",
            "realtime", "imu_frames", "imu_records"]

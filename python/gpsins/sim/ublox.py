@@ -21,13 +21,15 @@ from __future__ import annotations
 
 import math
 import struct
+from typing import Iterator
 
 import numpy as np
 
 from gpsins_logger import ubx
 
-from ..sources import TimedMessage
+from ..formats.messages import TimedMessage, TimedSample
 from . import ephemeris
+from .messages import imu_samples
 
 UERE_M = 3.0
 MEASUREMENT_DELAY_S = 0.020
@@ -233,3 +235,19 @@ def esf_messages(sim) -> list[TimedMessage]:
             out.append(TimedMessage(float(sim.imu_t[b - 1]) + ESF_DELAY_S, "ESF-RAW",
                                     esf_raw(rates[a:b], accel[a:b], tags[a:b])))
     return out
+
+
+class UbloxSimSource:
+    """A simulation as a u-blox receiver's messages (``messages`` above) for the pty emulators; the
+    IMU samples stay available for a BP3010 on another port."""
+
+    def __init__(self, simulation, sensors: bool = True):
+        self.sim = simulation
+        self.duration_s = float(simulation.scenario.duration_s)
+        self._messages = messages(simulation, sensors)
+
+    def gps_messages(self) -> Iterator[TimedMessage]:
+        return iter(self._messages)
+
+    def imu_samples(self, rate_hz: int, t0: float = 0.0) -> Iterator[TimedSample]:
+        return imu_samples(self.sim, rate_hz, t0)

@@ -1,0 +1,325 @@
+"""The follower of a growing session: each round reads what the record files gained, times the new IMU
+samples, and feeds the streaming filter (see ``live.service``).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .. import timing
+from ..nav import runs as flt
+from ..session import growing, logs, measurements, measurements_ubx
+from ..nav import config as nav_config
+from ..nav import inputs as nav_inputs
+from .outputs import DEFAULT_LEAP_S
+
+
+FIX_WAIT_S = 2.5  # measurements this long past the last fix: no fix is coming for them (an outage)
+REFIT_S = 0.25  # the whole clock fit again after this much new IMU data (s) ...
+# ... or this share of the session, whichever is more: a fit costs time in proportion to the session, so
+# the fits of a long one cost a constant share of a core
+REFIT_SHARE = 0.02
+INLINE_FIT_S = 0.005  # a due fit that took less than this last time is made before feeding, not after
+
+
+class Follower:
+    """The streaming filter over a growing session; ``poll()`` feeds what is new and returns the
+    solution of the new epochs (or None)."""
+
+    def __init__(self, session: str | Path, *, mode: str = "loose", config=None, overrides: dict | None = None,
+                 gps_latency_s: float = 0.0, imu_latency_s: float = 0.0, hold_s: float = 0.0):
+        from ..replay.run import DEFAULT_GPS_LATENCY_S, DEFAULT_IMU_LATENCY_S
+
+        if mode not in ("loose", "tight"):
+            raise ValueError(f"--mode {mode!r}: loose or tight")
+        self.session, self.mode = Path(session), mode
+        self.cfg = nav_config.load_config(config, {**(overrides or {}), "mode": mode})
+        if flt.needs_heading_search(self.cfg):
+            raise ValueError("live: a hand-held platform's heading search needs the whole recording; give "
+                             "initial_yaw_deg")
+        self.gps_latency_s = gps_latency_s or DEFAULT_GPS_LATENCY_S
+        self.imu_latency_s = imu_latency_s or DEFAULT_IMU_LATENCY_S
+        self.filter = None
+        self.week: int | None = None
+        self.leap_s = DEFAULT_LEAP_S
+        self.t_fed = self.fix_fed = self.pr_fed = -math.inf
+        self.n_imu = self.n_fix = self.n_pr = 0
+        self.ephemerides_seen: set = set()
+        self.warnings: list[str] = []
+        self.counters: dict = {}
+        self.scale_factors = False
+        # IMU samples held back this long behind the newest GPS time: their clock map then has GPS
+        # blocks on both sides and changes little in later rounds (the price: that much later).
+        self.hold_s = hold_s
+        # A Superstar II session is read incrementally (live_stream); a u-blox one whole each round.
+        self.stream: growing.SessionStream | None = growing.SessionStream(self.session)
+        self.raw_fed = -1  # the last IMU record (index among all read) fed or passed over
+        self._fit: dict | None = None
+        self._refit_now = False
+        self._eph_done = 0
+        self.refits = 0
+        self.fed = False  # the last poll fed samples
+        self._fit_cost_s = 0.0  # what the last clock fit took (s)
+        self._failed_at = -math.inf  # valid IMU samples when a fit last failed
+        self._worker: threading.Thread | None = None  # a clock fit running beside the rounds
+        self._worker_result: dict | None = None
+        self._sidecar = _Sidecar(self.session)
+
+    def poll(self, final: bool = False) -> flt.Solution | None:
+        """Feed what is new; ``final``: the session is complete, feed everything held back."""
+        self.fed = False
+        if self.stream is None:
+            return self._poll_whole(final)
+        try:
+            got = self.stream.read(imu=final)
+        except growing.NotSuperstar:
+            self.stream = None
+            return self._poll_whole(final)
+        except (logs.LogError, FileNotFoundError):
+            return None
+        gps, imu = self.stream.gps, self.stream.imu
+        if imu is None or gps.week is None or gps.newest() is None:
+            return None
+        self._collect()
+        if not (got["gps"] or final or self._fit is None or self._refit_now):
+            return None  # IMU samples alone: they wait for their fix (or the blocks of an outage)
+        if self._fit is None or self._refit_now:
+            n = int(imu.valid.a.sum())
+            if not final and n - self._failed_at < REFIT_S * imu.rate_hz:
+                return None  # the last try failed: the next when more has come
+            if not self._refit():
+                self._failed_at = n
+                return None  # not enough on disk yet to know GPS time
+        if self.week is None:
+            self.week = int(gps.week)
+        elif gps.week != self.week:
+            return None  # another stretch (a receiver restart): replay it on its own
+        self.leap_s = gps.leap_s if gps.leap_s is not None else self.leap_s
+        self.maintain()  # a cheap fit (a short session) now: the samples about to be fed get the freshest
+        idx = np.flatnonzero(imu.valid.a[self.raw_fed + 1:]) + self.raw_fed + 1  # valid records not yet fed
+        t = self._times(idx)
+        if self._refit_now:  # a gap the counter cannot count: the whole fit, now
+            if not self._refit():
+                self._failed_at = int(imu.valid.a.sum())
+                return None
+            t = self._times(idx)
+        newest = gps.newest()
+        fixes = gps.fixes.a
+        last_fix = float(fixes[-1, 0]) if len(fixes) else -math.inf
+        limit = last_fix if newest - last_fix < FIX_WAIT_S else newest
+        upto = np.inf if final else min(newest - self.hold_s, limit)
+        take = np.isfinite(t) & (t <= upto)
+        if not take.any():
+            return None
+        last = int(np.flatnonzero(take)[-1])
+        idx, t = idx[:last + 1], t[:last + 1]
+        self.raw_fed = int(idx[-1])
+        keep = np.isfinite(t) & (t > self.t_fed + 0.5 / imu.rate_hz)  # in time order after what was fed
+        idx, t = idx[keep], t[keep]
+        if not len(idx):
+            return None
+        rows = np.column_stack([t, imu.dtheta.a[idx] * imu.lsb[0], imu.dv.a[idx] * imu.lsb[1]])
+        prs = gps.pseudoranges(self.pr_fed, float(t[-1])) if self.mode == "tight" else None
+        iono = (gps.iono.alpha, gps.iono.beta) if gps.iono else None
+        ephemerides = []
+        if self.mode == "tight":
+            from .. import _core
+
+            for _, w in gps.ephemerides[self._eph_done:]:
+                try:
+                    ephemerides.append(_core.gnss.decode_subframes(w.subframes, w.prn, self.week))
+                except ValueError:
+                    pass
+            self._eph_done = len(gps.ephemerides)
+        return self._feed(rows, fixes, prs, iono, ephemerides)
+
+    def finished(self) -> bool:
+        """The logger has marked the session stopped (its sidecar says so)."""
+        return self._sidecar()
+
+    def maintain(self) -> None:
+        """The whole clock fit again when it is due (after a round's outputs, off the NMEA's path): when
+        the valid IMU samples grew by REFIT_S of data or REFIT_SHARE of the session since the last fit;
+        between fits, new samples are timed by extending the last fit's IMU clock along the counter. A fit
+        that took over INLINE_FIT_S last time (a long session: 0.14 s at an hour) runs in a thread on a
+        snapshot of the columns, and the rounds go on with the last fit until it is in."""
+        if self.stream is None or not self._due() or self._worker is not None:
+            return
+        if self._fit_cost_s < INLINE_FIT_S:
+            self._refit()
+            return
+        inputs = self._fit_inputs()
+
+        def work():
+            t0 = time.perf_counter()
+            self._worker_result = self._compute_fit(*inputs)
+            self._fit_cost_s = time.perf_counter() - t0
+
+        self._worker = threading.Thread(target=work, name="gpsins-live-fit", daemon=True)
+        self._worker.start()
+
+    def _collect(self) -> None:
+        """A fit the thread finished: in use from now on (unless a newer one came meanwhile)."""
+        if self._worker is None or self._worker.is_alive():
+            return
+        self._worker.join()
+        fit, self._worker, self._worker_result = self._worker_result, None, None
+        if fit is not None and (self._fit is None or fit["count"] > self._fit["count"]):
+            self._install(fit)
+
+    def _due(self) -> bool:
+        if self._fit is None or self.stream.imu is None:
+            return False
+        n = int(self.stream.imu.valid.a.sum())
+        return n - self._fit["count"] >= max(REFIT_S * self.stream.imu.rate_hz, REFIT_SHARE * n)
+
+    def _refit(self) -> bool:
+        t0 = time.perf_counter()
+        fit = self._compute_fit(*self._fit_inputs())
+        self._fit_cost_s = time.perf_counter() - t0
+        if fit is None:
+            return False
+        self._install(fit)
+        return True
+
+    def _fit_inputs(self) -> tuple:
+        """What a fit takes, copied (a fit in a thread reads no column the rounds extend)."""
+        gps, imu = self.stream.gps, self.stream.imu
+        g = gps.good_blocks()
+        kept = np.flatnonzero(imu.valid.a)
+        return (gps.tow.a[g], gps.stamps.a[g], int(gps.week), kept, imu.stamps.a[kept], imu.counter.a[kept],
+                imu.rate_hz)
+
+    def _compute_fit(self, tow, gps_stamps, week, kept, imu_stamps, counter, rate_hz) -> dict | None:
+        try:
+            al = timing.align(tow, gps_stamps, week, imu_stamps, counter, rate_hz, gps_latency_s=self.gps_latency_s,
+                              imu_latency_s=self.imu_latency_s)
+        except timing.AlignmentError:
+            return None
+        span = float(imu_stamps[-1] - imu_stamps[0])
+        return {"idx": kept, "t": al.imu_t, "n": al.imu_index.astype(np.int64), "p": float(al.imu_period_s),
+                "count": len(kept), "gps_per_system_s": (float(al.imu_t[-1] - al.imu_t[0]) / span) if span > 0
+                else 1.0, "warnings": list(al.warnings)}
+
+    def _install(self, fit: dict) -> None:
+        self._fit = fit
+        self.refits += 1
+        self._refit_now = False
+        self.warnings = fit["warnings"]
+
+    def _times(self, idx: np.ndarray) -> np.ndarray:
+        """GPS times of valid IMU records (raw indices): the last fit's, and past it the fit's IMU clock
+        extended along the frame counter (t = t_last + P (n - n_last)). A step the counter may have
+        wrapped over (the stamps disagree by over half a counter period) or a gap that starts a new
+        piece of the IMU clock (``timing.PIECE_GAP_S``) asks for the whole fit (``_refit_now``)."""
+        fit, imu = self._fit, self.stream.imu
+        fi = fit["idx"]
+        t = np.full(len(idx), np.nan)
+        inside = idx <= fi[-1]
+        if inside.any():
+            pos = np.minimum(np.searchsorted(fi, idx[inside]), len(fi) - 1)
+            t[inside] = np.where(fi[pos] == idx[inside], fit["t"][pos], np.nan)
+        ext = idx[~inside]
+        if len(ext):
+            chain = np.concatenate([[fi[-1]], ext])
+            step = np.diff(imu.counter.a[chain].astype(np.int64)) % 256
+            step[step == 0] = 256
+            n = np.cumsum(step)
+            t[~inside] = fit["t"][-1] + fit["p"] * n
+            seen = np.diff(imu.stamps.a[chain]) * fit["gps_per_system_s"] / fit["p"]
+            if np.any(step * fit["p"] >= timing.PIECE_GAP_S) or np.any(np.abs(seen - step) > 128):
+                self._refit_now = True
+        return t
+
+    def _feed(self, rows: np.ndarray, fixes: np.ndarray, prs, iono, ephemerides) -> flt.Solution | None:
+        t_end = float(rows[-1, 0])
+        fx = fixes[(fixes[:, 0] > self.fix_fed) & (fixes[:, 0] <= t_end)]
+        if self.filter is None:
+            setup = flt._setup(rows[:0], fixes[:0], self.cfg, self.mode, [], iono,
+                               self.week * measurements.SECONDS_PER_WEEK)
+            self.filter, self.scale_factors = setup.core_filter, setup.scale_factors
+        for e in ephemerides:
+            key = (e.prn, e.week, e.iode, e.toe_s)
+            if key not in self.ephemerides_seen:
+                self.ephemerides_seen.add(key)
+                self.filter.add_ephemeris(e)
+        out = self.filter.run(rows, np.ascontiguousarray(fx), prs, 1, True, False, 256.0, False, self.n_imu,
+                              self.n_fix, self.n_pr, None, 0)
+        self.n_imu, self.n_fix = self.n_imu + len(rows), self.n_fix + len(fx)
+        self.t_fed, self.fed = t_end, True
+        if len(fx):
+            self.fix_fed = float(fx[-1, 0])
+        if prs is not None and len(prs):
+            self.n_pr += len(prs)
+            self.pr_fed = float(prs[-1, 0])
+        self.counters = out["counters"]
+        sol = flt.Solution.from_batch(out, self.mode, self.scale_factors)
+        return sol if len(sol.t) else None
+
+    def _poll_whole(self, final: bool) -> flt.Solution | None:
+        """A u-blox session: everything on disk decoded and aligned again each round (the incremental
+        reader is the Superstar II's)."""
+        try:
+            dec = measurements_ubx.decode_session(self.session, nav_config.value(self.cfg, "fix_uere_m"))
+            al = timing.align(dec.gps.tow, dec.gps.stamps, dec.gps.week, dec.imu.stamps, dec.imu.counter,
+                              dec.imu.rate_hz, gps_latency_s=self.gps_latency_s, imu_latency_s=self.imu_latency_s)
+        except (logs.LogError, timing.AlignmentError, FileNotFoundError):
+            return None  # not enough on disk yet to know GPS time (or no session yet)
+        if self.week is None:
+            self.week = int(dec.gps.week)
+        elif dec.gps.week != self.week:
+            return None
+        self.leap_s = dec.gps.leap_s if dec.gps.leap_s is not None else self.leap_s
+        self.warnings = list(al.warnings)
+        imu = nav_inputs.ImuColumns(al.imu_t, dec.imu.dtheta, dec.imu.dv, dec.imu.lsb)
+        newest = float(dec.gps.tow[-1])
+        last_fix = float(dec.gps.fixes[-1, 0]) if len(dec.gps.fixes) else -math.inf
+        # A fix reaches the file a fraction of a second after its epoch's measurements: samples past
+        # the last fix wait for the next one (fed later it would be late for the filter, and the
+        # solution no longer the replay's), unless the receiver has gone on without fixes (an outage).
+        limit = last_fix if newest - last_fix < FIX_WAIT_S else newest
+        upto = np.inf if final else min(newest - self.hold_s, limit)
+        new = np.flatnonzero((al.imu_t > self.t_fed + 0.5 / dec.imu.rate_hz) & (al.imu_t <= upto))
+        if not len(new):
+            return None
+        rows = np.asarray(imu[int(new[0]):int(new[-1]) + 1], dtype=float)
+        prs = None
+        if self.mode == "tight":
+            p = dec.gps.pseudoranges
+            pt = np.asarray(p.t)
+            take = np.flatnonzero((pt > self.pr_fed) & (pt <= float(rows[-1, 0])))
+            prs = p[int(take[0]):int(take[-1]) + 1] if len(take) else np.zeros((0, 5))
+        iono = (dec.gps.iono.alpha, dec.gps.iono.beta) if dec.gps.iono else None
+        return self._feed(rows, dec.gps.fixes, prs, iono, dec.gps.decoded_ephemerides() if self.mode == "tight"
+                          else [])
+
+
+class _Sidecar:
+    """Whether the logger marked the session stopped, the sidecar read again only when it changed."""
+
+    def __init__(self, session: Path):
+        self.path, self._key, self.stopped = session / "session.json", None, False
+
+    def __call__(self) -> bool:
+        try:
+            st = self.path.stat()
+        except OSError:
+            return False
+        key = (st.st_mtime_ns, st.st_size, st.st_ino)
+        if key != self._key:
+            self._key, self.stopped = key, session_finished(self.path.parent)
+        return self.stopped
+
+
+def session_finished(session: Path) -> bool:
+    try:
+        side = json.loads((session / "session.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    return side.get("state") == "stopped"

@@ -1,0 +1,183 @@
+"""The filter's statistics from the recording itself: per-source innovation consistency, and a
+likelihood fit of the noise scales that makes it true.
+
+A data set declares its sensors' noise from a datasheet or an Allan analysis, and its fixes their
+formal sigmas. Both are often wrong on the vehicle: vibration, a warm-up, a gait or a mounting add
+motion noise the bench never saw, and an RTK engine's sigmas are formal. A filter built on them is
+over-confident, and its gate then refuses good fixes. ``fit_noise`` runs the filter over the
+recording's own GNSS (outages already removed, so nothing scored is seen) with the gate off and
+scales four variances, each by a factor found by maximum likelihood of the innovations (the sum
+over updates of NIS + ln det S, the Gaussian -2 log-likelihood up to a constant):
+
+- the IMU's white noise, gyro and accelerometer apart (their process noise densities, the
+  white part of the bias instability included);
+- the fixes' position and velocity covariances (their stated sigmas, or the UERE and velocity sigma).
+
+This is the innovation-based maximum-likelihood adaptive filter of Mehra (1970) reduced to a few
+scale factors, solved offline by Nelder-Mead in the logarithms of the factors. ``source_stats``
+gives what the report shows per source: NIS/dof mean and median over every update (accepted or
+not) and the lag-one autocorrelation of its normalised innovations.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from . import runs as flt
+from . import config as nav_config
+
+# Update kinds the fit scores (fix position 3D and 2D, fix velocity, the non-holonomic constraint).
+FIT_KINDS = (1, 2, 3, 7)
+# The factors are searched in ln space within these bounds (variance x 0.01 .. x 400).
+LOG_SCALE_BOUNDS = (math.log(0.01), math.log(400.0))
+SCALES = ("gyro_white", "accel_white", "fix_position", "fix_velocity", "fix_correlated")
+# The fixes' correlated error is fitted as a variance on top of their white one: per north, east, down
+# Gauss-Markov states with this correlation time (not fitted: two minutes of data cannot tell it), its
+# variance the factor times the median stated variance (so the factor's search starts at "as large as
+# the white part"); a declared model without it is the factor's lower bound.
+FIX_CORRELATED_TAU_S = 30.0
+MAX_EVALUATIONS = 80
+
+
+def source_stats(updates: dict) -> dict:
+    """Per update kind: count, NIS/dof mean and median over all updates, the share rejected or
+    down-weighted, and the lag-one autocorrelation of the normalised innovations (each axis's
+    innovation over its sigma, consecutive updates of that kind)."""
+    kind = np.asarray(updates["kind"])
+    out = {}
+    for k in np.unique(kind):
+        sel = kind == k
+        dof = np.asarray(updates["dof"])[sel].astype(float)
+        nis = np.asarray(updates["nis"])[sel]
+        ok = np.isfinite(nis) & (dof > 0)
+        per_dof = nis[ok] / dof[ok]
+        acc = np.asarray(updates["accepted"])[sel]
+        scaled = np.asarray(updates.get("r_scale", np.ones(sel.sum())))[sel] > 1.0
+        z = np.asarray(updates["innovation"])[sel] / np.asarray(updates["innovation_sigma"])[sel]
+        out[flt.UPDATE_KINDS.get(int(k), str(int(k)))] = {
+            "n": int(sel.sum()),
+            "nis_per_dof_mean": float(per_dof.mean()) if len(per_dof) else None,
+            "nis_per_dof_median": float(np.median(per_dof)) if len(per_dof) else None,
+            "rejected_fraction": float(np.mean(~acc)),
+            "downweighted": int(np.sum(scaled & acc)),
+            "lag1_autocorrelation": lag1_autocorrelation(z),
+        }
+    return out
+
+
+def summary_lines(run: dict) -> list[str]:
+    """What a run's summary (run.json) says of its statistics, a line each: per aiding source NIS/dof mean
+    and median over all its updates, the lag-one autocorrelation of its normalised innovations (about 0
+    when the model's noise is white and right), rejected and down-weighted; what was fitted."""
+    out = []
+    for name, s in (run.get("sources") or {}).items():
+        if s.get("nis_per_dof_mean") is None:
+            continue
+        rho = s.get("lag1_autocorrelation")
+        out.append(f"{name}: {s['n']} updates, NIS/dof mean {s['nis_per_dof_mean']:.2f} median "
+                   f"{s['nis_per_dof_median']:.2f}, lag-one autocorrelation "
+                   f"{'-' if rho is None else f'{rho:.2f}'}, {100 * s['rejected_fraction']:.1f} % rejected, "
+                   f"{s['downweighted']} down-weighted")
+    fit = run.get("noise_fit") or {}
+    if fit.get("factors"):
+        out.append("noise fitted from the recording (variance x): "
+                   + ", ".join(f"{k} {v:.2f}" for k, v in fit["factors"].items()))
+    m = run.get("mounting_fit")
+    if m:
+        out.append(f"mounting estimated: body to vehicle yaw {m['yaw_deg']:.2f} deg, pitch {m['pitch_deg']:.2f} deg "
+                   f"over {m['epochs']} epochs")
+    return out
+
+
+def lag1_autocorrelation(z: np.ndarray) -> float | None:
+    """Mean over columns of the lag-one autocorrelation of a sequence (rows in time); NaN columns
+    (a 1-dof kind's unused axes) are left out."""
+    vals = []
+    for col in np.atleast_2d(z.T):
+        c = col[np.isfinite(col)]
+        if len(c) < 3:
+            continue
+        c = c - c.mean()
+        den = float(np.dot(c, c))
+        if den > 0:
+            vals.append(float(np.dot(c[:-1], c[1:]) / den))
+    return float(np.mean(vals)) if vals else None
+
+
+def _minus_two_log_likelihood(updates: dict) -> float:
+    kind = np.asarray(updates["kind"])
+    sel = np.isin(kind, FIT_KINDS)
+    nis = np.asarray(updates["nis"])[sel]
+    logdet = np.asarray(updates["log_det_s"])[sel]
+    ok = np.isfinite(nis) & np.isfinite(logdet)
+    if not ok.any():
+        return math.inf
+    # Updates the run could not form (a guarded covariance) count as very unlikely, so that a
+    # scale that breaks the filter is never chosen.
+    return float(np.sum(nis[ok] + logdet[ok]) + 1e3 * np.sum(~ok))
+
+
+def scaled(cfg: dict, fixes: np.ndarray, factors: dict) -> tuple[dict, np.ndarray]:
+    """The configuration and fix table with the variances scaled by ``factors`` (names as SCALES)."""
+    core = nav_config.core_config(cfg)
+    g, a = math.sqrt(factors.get("gyro_white", 1.0)), math.sqrt(factors.get("accel_white", 1.0))
+    p, v = math.sqrt(factors.get("fix_position", 1.0)), math.sqrt(factors.get("fix_velocity", 1.0))
+    out = dict(cfg)
+    out.update(gyro_arw_rad_per_sqrt_s=(np.asarray(core.gyro_arw_rad_per_sqrt_s) * g).tolist(),
+               gyro_flicker_white_rad_per_sqrt_s=(np.asarray(core.gyro_flicker_white_rad_per_sqrt_s) * g).tolist(),
+               accel_vrw_mps_per_sqrt_s=(np.asarray(core.accel_vrw_mps_per_sqrt_s) * a).tolist(),
+               accel_flicker_white_mps_per_sqrt_s=(np.asarray(core.accel_flicker_white_mps_per_sqrt_s) * a).tolist(),
+               fix_uere_m=float(core.fix_uere_m) * p, fix_uere_2d_m=float(core.fix_uere_2d_m) * p,
+               fix_velocity_sigma_mps=float(core.fix_velocity_sigma_mps) * v)
+    f = np.array(fixes, float, copy=True)
+    stated = None
+    if f.shape[1] >= 16:
+        stated = np.nanmedian(np.where(f[:, 10:13] > 0, f[:, 10:13], np.nan), axis=0)
+        f[:, 10:13] *= p
+        f[:, 13:16] *= v
+    c_factor = factors.get("fix_correlated")
+    if c_factor is not None:
+        white = stated if stated is not None and np.isfinite(stated).all() else \
+            float(core.fix_uere_m) * np.nanmedian(f[:, 7:9], axis=0)[[0, 0, 1]]
+        out.update(fix_error_gm_sigma_m=(np.sqrt(c_factor) * np.asarray(white)).tolist(),
+                   fix_error_gm_tau_s=FIX_CORRELATED_TAU_S, fix_error_gm_dop_scaled=False,
+                   fix_error_fast_sigma_m=[0.0, 0.0, 0.0])
+    return out, f
+
+
+def fit_noise(imu, fixes: np.ndarray, cfg: dict, *, mode: str = "loose", scales=SCALES) -> dict:
+    """Fit the four variance factors (SCALES) by likelihood over the fixes given; returns
+    ``{"factors": {...}, "minus_two_log_likelihood": {"declared", "fitted"}, "evaluations"}``.
+    The runs have the gate off (every hypothesis scored on the same updates) and start at the
+    heading the declared model's run found, so a heading search is done once."""
+    from scipy.optimize import minimize
+
+    base = dict(cfg, gate_probability=0.0, gnss_reset_timeout_s=0.0)
+    if flt.needs_heading_search(base):
+        found = flt.search_heading(np.asarray(imu), fixes, base)
+        if found["yaw_deg"] is not None:
+            base = flt.starting_at_yaw(base, found["yaw_deg"], found["sigma_deg"])
+    cache: dict[tuple, float] = {}
+
+    def likelihood(factors: dict) -> float:
+        c, f = scaled(base, fixes, factors)
+        return _minus_two_log_likelihood(flt.run(imu, f, c, mode=mode, output_every=10 ** 9).updates)
+
+    def cost(x: np.ndarray) -> float:
+        key = tuple(np.round(x, 6))
+        if key not in cache:
+            cache[key] = likelihood(dict(zip(scales, np.exp(np.clip(x, *LOG_SCALE_BOUNDS)))))
+        return cache[key]
+
+    declared = likelihood({})
+    x0 = np.zeros(len(scales))
+    res = minimize(cost, x0, method="Nelder-Mead", bounds=[LOG_SCALE_BOUNDS] * len(scales),
+                   options={"maxfev": MAX_EVALUATIONS, "xatol": 0.05, "fatol": 0.5,
+                            "initial_simplex": np.vstack([x0, np.eye(len(scales)) * 1.5])})
+    factors = {k: float(v) for k, v in zip(scales, np.exp(res.x))} if res.fun < declared else {}
+    return {"factors": factors,
+            "minus_two_log_likelihood": {"declared": declared, "fitted": float(min(res.fun, declared))},
+            "evaluations": len(cache) + 1}
+
