@@ -20,7 +20,7 @@ import time
 
 import numpy as np
 
-from gpsins import timing
+from gpsins.timing import alignment
 
 
 def stalled(t: np.ndarray, start: np.ndarray, end: np.ndarray) -> np.ndarray:
@@ -53,7 +53,7 @@ def main(hours: float = 1.0, rate_hz: float = 400.0, speed: float = 1.0) -> None
         imu_stamps[early] -= rng.uniform(0.0002, 0.002, len(early))
 
     t0 = time.perf_counter()
-    al = timing.align(419400.0 + tow, system(gps_first), 1590, imu_stamps, (k + 1) & 0xFF, rate_hz)
+    al = alignment.align(419400.0 + tow, system(gps_first), 1590, imu_stamps, (k + 1) & 0xFF, rate_hz)
     wall = time.perf_counter() - t0
     err = al.imu_t - (419400.0 + t_imu)
     print(f"{hours:g} h at {rate_hz:g} Hz served at {speed:g}x: {len(k)} IMU frames, {len(tow)} ID 23, "

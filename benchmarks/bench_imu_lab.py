@@ -26,6 +26,7 @@ from gpsins.sim import scenario
 from gpsins.nav import runs as flt
 from gpsins.nav import config as nav_config
 from gpsins.imu import lab
+from gpsins.imu import lab_plan
 from gpsins.sim import lab as sim_lab
 
 
@@ -75,7 +76,7 @@ def main() -> None:
         for seed in range(args.seeds):
             day = sim_lab.simulate_lab_day(cfg, seed)
             plan = sim_lab.write_lab_day(day, Path(tmp) / f"day{seed}")
-            p = lab.load_plan(plan)
+            p = lab_plan.load_plan(plan)
             res = lab.run_plan(p)
             rows.append(parameters(day, res))
             presets.append(lab.calibration_table(res, p))

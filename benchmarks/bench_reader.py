@@ -71,6 +71,9 @@ def rss_mb() -> float:
 
 def run_case(case: str, path: Path, block_mb: float) -> dict:
     from gpsins.session import logs
+    from gpsins.session import stamps
+    from gpsins.session import scan as log_scan
+    from gpsins.session import layouts
 
     block = int(block_mb * 2**20)
     before = rss_mb()
@@ -82,8 +85,8 @@ def run_case(case: str, path: Path, block_mb: float) -> dict:
     elif case == "decoded":
         n = len(logs.imu_log(logs.read_record_file(path, "bp3010", block_bytes=block, imu_rate_hz=64)))
     elif case == "whole":
-        limits = logs.StampLimits()
-        s = logs.reject_bad_stamps(logs.scan(np.fromfile(path, np.uint8), logs.BP_RECORDS, str(path), limits), limits)
+        limits = stamps.StampLimits()
+        s = stamps.reject_bad_stamps(log_scan.scan(np.fromfile(path, np.uint8), layouts.BP_RECORDS, str(path), limits), limits)
         n = len(logs.imu_log(s))
     else:
         raise SystemExit(f"unknown case {case!r} (one of {', '.join(CASES)})")

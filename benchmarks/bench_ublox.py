@@ -27,7 +27,7 @@ import numpy as np
 from gpsins.session import logs
 from gpsins import mainjob, sim
 from gpsins.replay import run
-from gpsins.devices.emulate import UbloxEmulators
+from gpsins.devices.ublox import UbloxEmulators
 from gpsins.sim.scenario import parse
 from gpsins.formats.truth import write_truth
 from gpsins.sim.ublox import UbloxSimSource

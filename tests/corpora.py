@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from gpsins.devices.sources import StaticSource
+from gpsins_logger.recorder import CLOCK_STEP_THRESHOLD_S
 
 
 def ss2_frames(seconds: float = 20.0, seed: int = 0) -> list[bytes]:
@@ -154,15 +155,17 @@ class Corpus:
 
 
 def fuzz_reader_case(c: Corpus, rng: np.random.Generator) -> FuzzTally:
-    from gpsins.session import logs
+    from gpsins.session import stamps as stamps_mod
+    from gpsins.session import scan as log_scan
+    from gpsins.session import layouts
 
     t = FuzzTally(cases=1)
     data, origin, kinds = mutate(c.records_bytes, rng)
     ok = intact_records(c.recs, origin, len(c.records_bytes))
     t.intact = int(ok.sum())
-    limits = logs.StampLimits(STAMP_T0 - 2.0, STAMP_T0 + len(c.frames) * c.dt + 2.0, logs.CLOCK_STEP_THRESHOLD_S)
+    limits = stamps_mod.StampLimits(STAMP_T0 - 2.0, STAMP_T0 + len(c.frames) * c.dt + 2.0, CLOCK_STEP_THRESHOLD_S)
     try:
-        s = logs.reject_bad_stamps(logs.scan(data, logs.LAYOUTS[c.device], limits=limits), limits)
+        s = stamps_mod.reject_bad_stamps(log_scan.scan(data, layouts.LAYOUTS[c.device], limits=limits), limits)
         frames, stamps = s.frames(), s.stamps
         assert s.stats["records"] == s.count
     except Exception as e:  # noqa: BLE001 - the point is to catch anything
@@ -181,7 +184,7 @@ def fuzz_reader_case(c: Corpus, rng: np.random.Generator) -> FuzzTally:
             # A changed stamp the reader keeps lies within a neighbour's gap plus a clock step.
             err = min(abs(st - x) for x in c.stamps_of[f])
             t.worst_stamp_error_over_gap = max(t.worst_stamp_error_over_gap,
-                                               err / (c.dt + logs.CLOCK_STEP_THRESHOLD_S))
+                                               err / (c.dt + CLOCK_STEP_THRESHOLD_S))
     t.intact_lost = sum(1 for k in np.flatnonzero(ok) if c.recs[k] not in got)
     return t
 

@@ -3,7 +3,7 @@
 import numpy as np
 from matplotlib.colors import to_rgba
 
-from gpsins.report import MODE_COLORS
+from gpsins.report.data import MODE_COLORS
 
 
 def _finite_points(artist) -> int:

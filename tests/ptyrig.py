@@ -19,7 +19,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from gpsins.session import logs
-from gpsins.devices.emulate import Emulators, Faults
+from gpsins.devices.emulate import Emulators
+from gpsins.devices.pty import Faults
 from gpsins.devices.sources import StaticSource
 
 # How long any one condition may take before the test fails: far beyond what

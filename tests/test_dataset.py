@@ -10,6 +10,7 @@ import pytest
 
 from gpsins import _core
 from gpsins.dataset import load
+from gpsins.dataset import fixes as dataset_fixes
 from gpsins.evaluate import outages
 from gpsins.dataset.load import DatasetError
 from gpsins.formats import ubx
@@ -290,18 +291,18 @@ def test_velocity_lag_is_measured_from_the_fixes_positions():
     # gives, per the walk): half an epoch. The true values are set by construction, not by the estimator.
     now = _circling_fixes(lambda t, ned: np.column_stack([-1.5 * np.sin(0.3 * t), 1.5 * np.cos(0.3 * t), 0 * t]))
     mean = _circling_fixes(lambda t, ned: (ned(t) - ned(t - 0.25)) / 0.25)
-    a, b = load.velocity_lag(now), load.velocity_lag(mean)
+    a, b = dataset_fixes.velocity_lag(now), dataset_fixes.velocity_lag(mean)
     assert a["epochs"] == len(now) - 2 and a["interval_s"] == pytest.approx(0.25)  # all but the ends
     assert abs(a["lag_s"]) < 0.005 and b["lag_s"] == pytest.approx(0.125, abs=0.005)
     assert b["rms_mps"] < 0.01 < b["rms_mps_at_zero_lag"]
     # Standalone (Q 5) fixes cannot tell: no figure.
     mean.q[:] = 5
-    assert load.velocity_lag(mean) is None
+    assert dataset_fixes.velocity_lag(mean) is None
 
 
 def test_the_walk_velocity_lag_is_half_its_epoch():
     from gpsins.formats import rtklib_pos
-    m = load.velocity_lag(rtklib_pos.read(WALK / "gnss_1730_sf.pos"))
+    m = dataset_fixes.velocity_lag(rtklib_pos.read(WALK / "gnss_1730_sf.pos"))
     assert m["lag_s"] == pytest.approx(0.125, abs=0.01) and m["rms_mps"] < 0.5 * m["rms_mps_at_zero_lag"]
 
 
@@ -345,10 +346,10 @@ week = 1653
 def test_sigma_floor_table_reaches_the_fix_table(tmp_path):
     ds = load.load(_kfgins_set(tmp_path, "[gnss.sigma_floor_m]\nunknown = [0.1, 0.2]\n"))
     assert ds.sigma_floor_m == {"unknown": (0.1, 0.2)}
-    h, v = load.fix_sigmas(ds.fixes, ds.sigma_floor_m, ds.sigma_default_m)
+    h, v = dataset_fixes.fix_sigmas(ds.fixes, ds.sigma_floor_m, ds.sigma_default_m)
     np.testing.assert_allclose(h, [0.1, 0.5])  # a stated zero takes the floor; 0.5 is above it
     np.testing.assert_allclose(v, [0.2, 1.0])
-    assert load.velocity_sigma(ds.fixes) is None  # kf-gins fixes have no velocity
+    assert dataset_fixes.velocity_sigma(ds.fixes) is None  # kf-gins fixes have no velocity
 
 
 @pytest.mark.parametrize("extra, match", [

@@ -8,7 +8,9 @@ import matplotlib.pyplot as plt
 import numpy as np
 from figcheck import check_figure
 
-from gpsins import mainjob, report, sim
+from gpsins import mainjob, sim
+from gpsins.report import page as report_page
+from gpsins.report import figures as report_figures
 from gpsins.replay import run
 from gpsins.replay import results as results_mod
 from gpsins.sim.messages import MEASUREMENT_DELAY_S
@@ -40,10 +42,10 @@ def test_drive_through_ptys_logger_replay_and_report(tmp_path):
     assert summary["counters"]["pseudoranges_used"] > 0  # the tight run used the logged pseudoranges
     summary = json.loads((tmp_path / "loose" / "run.json").read_text())
     e = summary["errors"]
-    page = report.make_report(outs, tmp_path / "report")
+    page = report_page.make_report(outs, tmp_path / "report")
     # What a reader relies on: every panel shows data from each mode it names (figure
     # content is tested in detail, against recomputed numbers, in test_report.py).
-    figs = report.build_figures(outs)
+    figs = report_figures.build_figures(outs)
     for name, fig in figs.items():
         found = check_figure(name, fig)
         assert (tmp_path / "report" / name).exists()

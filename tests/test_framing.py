@@ -5,7 +5,8 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from corpora import bp_frames, faulted_stream, ss2_frames
-from gpsins.session import logs
+from gpsins.session import scan as log_scan
+from gpsins.session import layouts
 from gpsins_logger import bp3010
 from gpsins_logger import superstar2 as ss2
 from gpsins_logger.framing import FrameFinder
@@ -117,7 +118,7 @@ def test_numpy_scanner_agrees_with_the_streaming_finder_on_raw_superstar2(seed):
     data, _ = faulted_stream(SS2, rng, p_flip=0.1, p_garbage=0.1)
     data = data[:len(data) - int(rng.integers(0, 100))]  # cut the tail anywhere
     found, stats = find_all(ss2.FRAMING, data)
-    s = logs.scan(data, logs.SS2_RAW)
+    s = log_scan.scan(data, layouts.SS2_RAW)
     assert s.frames() == [f.data for f in found]
     assert s.stats["discarded_bytes"] == stats.discarded_bytes
     assert s.stats["truncated_tail_bytes"] == stats.tail_bytes

@@ -15,12 +15,16 @@ import pytest
 from corpora import (STAMP_T0, Corpus, FuzzTally, bp_frames, fuzz_finder_case, fuzz_reader_case, mutate, record_file,
                      ss2_frames)
 from gpsins.session import dump, logs
+from gpsins.session import stamps as stamps_mod
+from gpsins.session import scan as log_scan
+from gpsins.session import layouts
 from gpsins.cli import main as cli_main
 from gpsins.formats.common import ReaderError
 from gpsins.formats import imu_csv, kfgins, rinex, rtklib_pos, rtklib_tag, ubx
 from gpsins.formats.gpstime import UNIX_TO_GPS_S
 from gpsins.formats.common import Fixes, Navigation
 from gpsins_logger import superstar2 as ss2
+from gpsins_logger.recorder import CLOCK_STEP_THRESHOLD_S
 
 CORPORA = [Corpus("superstar2", ss2_frames(6.0), ss2.HEADER_LEN, 0.05), Corpus("bp3010", bp_frames(300), 1, 1 / 64)]
 CASES = 300  # per corpus and per reader: 4 x 300 = 1200 mutated files per run
@@ -51,18 +55,18 @@ def test_a_single_bit_flip_is_caught_or_harmless(corpus):
     """Every single-bit flip: the device checksum catches it, or it hit the stamp, which is then dropped or kept
     within a neighbour's gap plus a clock step of the truth. Nothing else is lost."""
     data = np.frombuffer(corpus.records_bytes, np.uint8)
-    limits = logs.StampLimits(STAMP_T0 - 2, STAMP_T0 + len(corpus.frames) * corpus.dt + 2)
+    limits = stamps_mod.StampLimits(STAMP_T0 - 2, STAMP_T0 + len(corpus.frames) * corpus.dt + 2)
     rng = np.random.default_rng(3)
     for bit in rng.choice(8 * len(data), 400, replace=False):
         d = data.copy()
         d[bit // 8] ^= np.uint8(1 << (bit % 8))
-        s = logs.reject_bad_stamps(logs.scan(d.tobytes(), logs.LAYOUTS[corpus.device], limits=limits), limits)
+        s = stamps_mod.reject_bad_stamps(log_scan.scan(d.tobytes(), layouts.LAYOUTS[corpus.device], limits=limits), limits)
         assert s.count >= len(corpus.recs) - 1
         for k in range(s.count):
             f = s.frame(k)
             assert f in corpus.frame_set
             err = min(abs(s.stamps[k] - x) for x in corpus.stamps_of[f])
-            assert err <= corpus.dt + logs.CLOCK_STEP_THRESHOLD_S
+            assert err <= corpus.dt + CLOCK_STEP_THRESHOLD_S
 
 
 def _session(tmp_path, stamps):
@@ -117,7 +121,7 @@ def test_a_file_holding_only_a_truncated_record(tmp_path):
     # What a short write at the start of a part leaves.
     data, recs = record_file(bp_frames(3), 1, 1 / 64)
     for n in range(1, len(recs[0])):
-        s = logs.scan(data[:n], logs.BP_RECORDS)
+        s = log_scan.scan(data[:n], layouts.BP_RECORDS)
         assert s.count == 0 and s.stats["truncated_tail_bytes"] + s.stats["discarded_bytes"] == n
     f = tmp_path / "gps-000.bin"
     f.write_bytes(bytes.fromhex("0117e8400000"))
@@ -140,7 +144,7 @@ def test_an_intact_record_after_a_false_incomplete_header_is_kept():
     data, recs = record_file(ss2_frames(2.0), ss2.HEADER_LEN, 0.05)
     false = bytes([ss2.SOH, 7, 7 ^ 0xFF, 250])
     cut = len(data) - len(recs[-1]) - len(recs[-2])
-    s = logs.scan(data[:cut] + false + data[cut:], logs.SS2_RECORDS)
+    s = log_scan.scan(data[:cut] + false + data[cut:], layouts.SS2_RECORDS)
     assert s.count == len(recs) and s.stats["discarded_bytes"] == 4 and s.stats["truncated_tail_bytes"] == 0
 
 

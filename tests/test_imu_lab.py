@@ -9,6 +9,8 @@ import pytest
 
 from gpsins import cli
 from gpsins.imu import allan, lab, noise_fit, records
+from gpsins.imu import lab_calibration
+from gpsins.imu import lab_plan
 from gpsins.sim import imu as sim_imu
 from gpsins.sim import lab as sim_lab
 from gpsins.devices import lab as lab_mod
@@ -251,14 +253,14 @@ def test_gauss_markov_bump_gives_its_time_constant_and_sigma():
 def test_plan_errors_name_the_file_and_key(tmp_path):
     p = tmp_path / "plan.toml"
     p.write_text('[site]\nlat_deg = 59.3\n[[rate_table]]\nsession = "a"\naxis = "x"\n')
-    with pytest.raises(lab.PlanError, match=r"plan.toml: \[\[rate_table\]\] 1: give rate_rad_per_s"):
-        lab.load_plan(p)
+    with pytest.raises(lab_plan.PlanError, match=r"plan.toml: \[\[rate_table\]\] 1: give rate_rad_per_s"):
+        lab_plan.load_plan(p)
     p.write_text('[site]\nlat_deg = 59.3\n[drift]\nsession = "a"\nheading = 3\n')
-    with pytest.raises(lab.PlanError, match="unknown key"):
-        lab.load_plan(p)
+    with pytest.raises(lab_plan.PlanError, match="unknown key"):
+        lab_plan.load_plan(p)
     p.write_text('[drift]\nsession = "nowhere"\n[site]\nlat_deg = 1.0\n')
     with pytest.raises(records.RecordError, match="nowhere"):
-        lab.run_plan(lab.load_plan(p))
+        lab.run_plan(lab_plan.load_plan(p))
 
 
 def test_a_real_handheld_walk_gets_the_motion_warning_and_no_noise_terms(shared_data, tmp_path, capsys):
@@ -288,7 +290,7 @@ def test_a_lab_recording_goes_through_the_emulator_and_the_logger(tmp_path):
     assert 0.5 * len(b) <= len(a) <= len(b)
     ca, cb = (np.hstack([x.dtheta_rad, x.dv_mps]) for x in (a, b))
     assert np.array_equal(ca, cb[len(b) - len(a):])
-    assert lab.load_plan(plan).updown == [{"session": "updown_x"}]
+    assert lab_plan.load_plan(plan).updown == [{"session": "updown_x"}]
 
 
 def test_the_example_plan_parses():
@@ -297,7 +299,7 @@ def test_the_example_plan_parses():
     text = resources.files("gpsins.imu").joinpath("lab_plan.example.toml").read_text()
     data = tomllib.loads(text)
     assert {e["session"] for e in data["updown"]} == {"updown_x", "updown_y", "updown_z"}
-    w, sig = lab._table_rate(data["rate_table"][1])
+    w, sig = lab_calibration._table_rate(data["rate_table"][1])
     assert w == pytest.approx(-0.5, rel=1e-3) and sig == pytest.approx(abs(w) * 0.2 / 125.7, rel=1e-9)
 
 
@@ -313,7 +315,7 @@ def test_non_overlapping_estimator_in_the_lab_noise_analysis():
     rng = np.random.default_rng(9)
     y = rng.normal(0, 1e-3 * 8, (64 * 600, 6)) + [0.01, 0.02, 0.0, 0.1, 0.2, -9.8]
     rec = records.Record("static", y, 64.0, records.AXES)
-    out = lab.noise_analysis(rec, {"estimator": "non-overlapping"})
+    out = lab_plan.noise_analysis(rec, {"estimator": "non-overlapping"})
     r = out["gyro_x"]["allan"]
     assert r.estimator == "non-overlapping" and out["gyro_x"]["fit"].value["N"] == pytest.approx(1e-3, rel=0.05)
     assert np.all(r.edf == 38400 // r.m - 1)

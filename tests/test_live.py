@@ -60,12 +60,12 @@ def followed(tmp_path_factory):
 
     def follow():
         port_box["status"] = service.run(session, root / "live", interval_s=0.05, nmea_port=0, http_port=0, max_s=120,
-                                      on_round=rounds.append, on_start=port_box.update, **lat)
+                                         on_round=rounds.append, on_start=port_box.update, **lat)
 
     # What the rounds cost: the whole-session decoder and the clock fit, counted while live follows.
-    from gpsins import timing
+    from gpsins.timing import alignment
 
-    real = {"decode_session": measurements.decode_session, "align": timing.align}
+    real = {"decode_session": measurements.decode_session, "align": alignment.align}
     followed_calls.update({k: 0 for k in real})
 
     def counting(name, module):
@@ -75,7 +75,7 @@ def followed(tmp_path_factory):
         setattr(module, name, call)
 
     counting("decode_session", measurements)
-    counting("align", timing)
+    counting("align", alignment)
 
     th = threading.Thread(target=follow, daemon=True)
     th.start()
@@ -88,7 +88,7 @@ def followed(tmp_path_factory):
     page.start()
     mainjob.record_drive(s, root, SPEED, session=session)
     th.join(60)
-    measurements.decode_session, timing.align = real["decode_session"], real["align"]
+    measurements.decode_session, alignment.align = real["decode_session"], real["align"]
     client.stop = page.stop = True
     client.join(5)
     page.join(5)
@@ -226,7 +226,7 @@ def test_follow_root_moves_to_the_session_the_logger_starts_next(followed, tmp_p
     shutil.copytree(session, root / "a")
     done = {}
     th = threading.Thread(target=lambda: done.update(got=service.run_root(root, tmp_path / "out", max_s=20,
-                                                                       interval_s=0.2, **lat)), daemon=True)
+                                                                          interval_s=0.2, **lat)), daemon=True)
     th.start()
     deadline = time.monotonic() + 15
     while not (tmp_path / "out" / "a" / "live.pos").exists() and time.monotonic() < deadline:

@@ -16,7 +16,7 @@ import pytest
 
 from corpora import bp_frames
 from gpsins.session import logs
-from gpsins.devices.emulate import PtyLink
+from gpsins.devices.pty import PtyLink
 from gpsins_logger.port import SensorThread
 from gpsins_logger.recorder import SensorInfo, Session
 from ptyrig import file_size, run_rig, sent_ok, unplug, wait_until, write_config

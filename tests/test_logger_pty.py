@@ -8,8 +8,8 @@ import sys
 import numpy as np
 import pytest
 
-from gpsins.session import logs
-from gpsins.devices.emulate import Faults
+from gpsins.session import layouts
+from gpsins.devices.pty import Faults
 from gpsins_logger import superstar2 as ss2
 from ptyrig import faulted_bytes, file_size, run_rig, sent_ok, unplug
 
@@ -28,7 +28,7 @@ def test_frames_arrive_byte_for_byte_at_nominal_rates(tmp_path):
     assert reqs[0].msg_id == ss2.ID_LINK_OPEN
     assert any(q.msg_id == 23 and q.raw_rate_hz == 10 for q in reqs)
     assert {q.msg_id for q in reqs if q.continuous and q.msg_id != 23} == {20, 21, 22, 49, 75, 113}
-    ids = logs.message_ids(r.session.sensors["gps"].scans[0])
+    ids = layouts.message_ids(r.session.sensors["gps"].scans[0])
     assert np.count_nonzero(ids == 23) >= 30  # 10 Hz
     # Stamps: first-byte times, increasing, at the IMU's rate.
     imu = r.session.imu()

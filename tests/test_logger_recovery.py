@@ -23,7 +23,8 @@ import numpy as np
 import pytest
 
 from gpsins.session import dump, logs
-from gpsins.devices.emulate import Emulators, UbloxEmulators
+from gpsins.devices.emulate import Emulators
+from gpsins.devices.ublox import UbloxEmulators
 from gpsins.devices.sources import StaticSource
 from gpsins_logger import bp3010, ubx
 from gpsins_logger.recorder import SensorInfo, Session

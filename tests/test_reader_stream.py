@@ -11,11 +11,16 @@ import pytest
 
 from corpora import STAMP_T0, Corpus, bp_frames, faulted_stream, mutate, record_file, ss2_frames
 from gpsins.session import logs, measurements
+from gpsins.session import layouts
+from gpsins.session import stamps as stamps_mod
+from gpsins.session import stream as log_stream
+from gpsins.session import scan as log_scan
 from gpsins import sim
 from gpsins.sim.scenario import parse
 from gpsins.sim.session import write_session
 from gpsins_logger import bp3010, ubx
 from gpsins_logger import superstar2 as ss2
+from gpsins_logger.recorder import CLOCK_STEP_THRESHOLD_S
 
 CORPORA = [Corpus("superstar2", ss2_frames(6.0), ss2.HEADER_LEN, 0.05), Corpus("bp3010", bp_frames(300), 1, 1 / 64)]
 # 64: records of every kind span several blocks; 97 and 1009 cut records at changing places; 1 << 16: one block.
@@ -23,7 +28,7 @@ BLOCKS = (64, 97, 1009, 1 << 16)
 CASES = 40  # mutated files per corpus
 
 
-def assert_same_scan(got: logs.Scan, want: logs.Scan) -> None:
+def assert_same_scan(got: layouts.Scan, want: layouts.Scan) -> None:
     backwards = ("stamps_backwards", "first_backwards_offset")  # read_record_file's own
     assert {k: v for k, v in got.stats.items() if k not in backwards} == want.stats
     np.testing.assert_array_equal(got.starts, want.starts)
@@ -32,28 +37,28 @@ def assert_same_scan(got: logs.Scan, want: logs.Scan) -> None:
     np.testing.assert_array_equal(got.frame_data, want.frame_data)
 
 
-def streamed(data: bytes, layout: logs.Layout, limits, block: int) -> logs.Scan:
-    return logs.scan_stream(io.BytesIO(data), layout, "<bytes>", limits, block)
+def streamed(data: bytes, layout: layouts.Layout, limits, block: int) -> layouts.Scan:
+    return log_stream.scan_stream(io.BytesIO(data), layout, "<bytes>", limits, block)
 
 
-def corpus_limits(c: Corpus) -> logs.StampLimits:
-    return logs.StampLimits(STAMP_T0 - 2.0, STAMP_T0 + len(c.frames) * c.dt + 2.0, logs.CLOCK_STEP_THRESHOLD_S)
+def corpus_limits(c: Corpus) -> stamps_mod.StampLimits:
+    return stamps_mod.StampLimits(STAMP_T0 - 2.0, STAMP_T0 + len(c.frames) * c.dt + 2.0, CLOCK_STEP_THRESHOLD_S)
 
 
 @pytest.mark.parametrize("corpus", CORPORA, ids=lambda c: c.device)
 def test_streaming_equals_whole_buffer_scan_on_mutated_record_files(corpus):
     rng = np.random.default_rng([17, len(corpus.frames)])
     limits = corpus_limits(corpus)
-    layout = logs.LAYOUTS[corpus.device]
+    layout = layouts.LAYOUTS[corpus.device]
     damaged = 0
     for case in range(CASES):
         data, _, _ = mutate(corpus.records_bytes, rng)
-        want = logs.scan(data, layout, limits=limits)
+        want = log_scan.scan(data, layout, limits=limits)
         damaged += bool(want.stats["discarded_bytes"] or want.stats["bad_stamps"] or want.stats["truncated_tail_bytes"])
         for block in BLOCKS:
             assert_same_scan(streamed(data, layout, limits, block), want)
         if case % 4 == 0:  # without session limits: random bytes pass as records with any stamp
-            assert_same_scan(streamed(data, layout, None, 97), logs.scan(data, layout))
+            assert_same_scan(streamed(data, layout, None, 97), log_scan.scan(data, layout))
     assert damaged > CASES // 2  # the corpus exercises the damage paths
 
 
@@ -62,17 +67,17 @@ def test_streaming_equals_whole_buffer_scan_on_ubx_records_and_raw_streams():
     frames = [ubx.encode_frame((2, 0x15), rng.integers(0, 256, int(rng.integers(0, 300)), dtype=np.uint8).tobytes())
               for _ in range(120)]
     records, _ = record_file(frames, ubx.HEADER_LEN, 0.1)
-    limits = logs.StampLimits(STAMP_T0 - 2, STAMP_T0 + 14)
+    limits = stamps_mod.StampLimits(STAMP_T0 - 2, STAMP_T0 + 14)
     for _ in range(12):
         data, _, _ = mutate(records, rng)
-        want = logs.scan(data, logs.UBX_RECORDS, limits=limits)
+        want = log_scan.scan(data, layouts.UBX_RECORDS, limits=limits)
         for block in BLOCKS:
-            assert_same_scan(streamed(data, logs.UBX_RECORDS, limits, block), want)
-    for layout, frames_ in ((logs.SS2_RAW, CORPORA[0].frames), (logs.UBX_RAW, frames)):
+            assert_same_scan(streamed(data, layouts.UBX_RECORDS, limits, block), want)
+    for layout, frames_ in ((layouts.SS2_RAW, CORPORA[0].frames), (layouts.UBX_RAW, frames)):
         for _ in range(6):
             data, _ = faulted_stream(frames_, rng, p_flip=0.1, p_garbage=0.1)
             data = data[:len(data) - int(rng.integers(0, 100))]
-            want = logs.scan(data, layout)
+            want = log_scan.scan(data, layout)
             for block in BLOCKS:
                 assert_same_scan(streamed(data, layout, None, block), want)
 
@@ -82,7 +87,7 @@ def test_every_block_size_finds_each_record_once():
     another place, and the reader still finds each record exactly once with nothing discarded."""
     data, recs = record_file(bp_frames(40), 1, 1 / 64)
     for block in range(1, 2 * len(recs[0]) + 1):
-        s = streamed(data, logs.BP_RECORDS, None, block)
+        s = streamed(data, layouts.BP_RECORDS, None, block)
         assert [s.record(k) for k in range(s.count)] == recs
         assert s.stats["discarded_bytes"] == 0 and s.stats["resyncs"] == 0
 
@@ -90,8 +95,8 @@ def test_every_block_size_finds_each_record_once():
 def test_short_and_empty_inputs():
     data, _ = record_file(ss2_frames(1.0), ss2.HEADER_LEN, 0.05)
     for n in (0, 1, 3, 4, 13, 40):
-        for layout in (logs.SS2_RECORDS, logs.BP_RECORDS, logs.UBX_RECORDS):
-            assert_same_scan(streamed(data[:n], layout, None, 5), logs.scan(data[:n], layout))
+        for layout in (layouts.SS2_RECORDS, layouts.BP_RECORDS, layouts.UBX_RECORDS):
+            assert_same_scan(streamed(data[:n], layout, None, 5), log_scan.scan(data[:n], layout))
 
 
 def _imu_file(tmp_path, n=3000):
@@ -115,10 +120,10 @@ def _imu_file(tmp_path, n=3000):
 
 def test_imu_decoded_while_reading_equals_the_frames_decoded_one_by_one(tmp_path):
     path, _ = _imu_file(tmp_path)
-    limits = logs.StampLimits(STAMP_T0, STAMP_T0 + 60)
+    limits = stamps_mod.StampLimits(STAMP_T0, STAMP_T0 + 60)
     framed = logs.read_record_file(path, "bp3010", limits)
     # The whole-buffer scan of the same bytes, then the stamp test: the same records and counts.
-    whole = logs.reject_bad_stamps(logs.scan(path.read_bytes(), logs.BP_RECORDS, str(path), limits), limits)
+    whole = stamps_mod.reject_bad_stamps(log_scan.scan(path.read_bytes(), layouts.BP_RECORDS, str(path), limits), limits)
     assert_same_scan(framed, whole)
     assert framed.stats["bad_stamps"] == 1 and framed.stats["truncated_tail_bytes"] == 17
     for block in (64, 1000):
@@ -139,7 +144,7 @@ def test_imu_decoded_while_reading_equals_the_frames_decoded_one_by_one(tmp_path
     from_frames = logs.imu_log(framed, 64)
     np.testing.assert_array_equal(from_frames.dtheta_rad, imu.dtheta_rad)
     np.testing.assert_array_equal(from_frames.dv_mps, imu.dv_mps)
-    with pytest.raises(logs.LogError, match="frames were not kept"):
+    with pytest.raises(layouts.LogError, match="frames were not kept"):
         lean.frames()
 
 

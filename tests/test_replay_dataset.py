@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from gpsins import cli
-from gpsins.dataset import load
+from gpsins.dataset import fixes as dataset_fixes
 from gpsins.replay import run as replay
 from gpsins.gnss import spp
 from gpsins.replay import results as results_mod
@@ -265,12 +265,12 @@ def test_fix_sigmas_floors_defaults_and_zeros():
     f = Fixes(np.arange(n, dtype=float), np.zeros((n, 3)),
               np.array([[0.0, 0.0, 0.0], [0.03, 0.04, 0.05], [np.nan] * 3, [0.0, 0.0, 0.0], [0.2, 0.2, 0.3],
                         [np.nan] * 3]), np.array([1, 1, 1, 2, 5, 5]), np.zeros(n, int))
-    h, v = load.fix_sigmas(f)
+    h, v = dataset_fixes.fix_sigmas(f)
     np.testing.assert_allclose(h, [0.02, np.sqrt((0.03 ** 2 + 0.04 ** 2) / 2), 0.05, 0.15, 1.5, 3.0])
     np.testing.assert_allclose(v, [0.03, 0.05, 0.1, 0.3, 3.0, 6.0])
-    h2, _ = load.fix_sigmas(f, {"fix": (0.005, 0.01)})
+    h2, _ = dataset_fixes.fix_sigmas(f, {"fix": (0.005, 0.01)})
     assert h2[0] == 0.005
-    tab = load.fix_table(f, 0.0, 3.0)
+    tab = dataset_fixes.fix_table(f, 0.0, 3.0)
     assert np.all(tab[:, 7] > 0) and np.all(tab[:, 8] > 0) and np.all(tab[:, 9] == 2)
     np.testing.assert_allclose(3.0 * tab[:, 7] / np.sqrt(2), h)
 
@@ -481,7 +481,7 @@ def test_zero_standard_deviations_do_not_break_anything(sim_set, tmp_path):
     (path.parent / "receiver_zero.pos").write_text("\n".join(rows) + "\n")
     s, inside3, rms_h = _run_variant(sim_set, tmp_path, "zero", zero)
     cfg = tomllib.loads((tmp_path / "zero" / "config.toml").read_text())
-    assert cfg["fix_velocity_sigma_mps"] == load.VELOCITY_SIGMA_FLOOR_MPS
+    assert cfg["fix_velocity_sigma_mps"] == dataset_fixes.VELOCITY_SIGMA_FLOOR_MPS
     assert np.isfinite(s["scoring"]["horizontal_m"]["rms"]) and rms_h < 2.0
     assert s["counters"]["fixes_accepted"] > 0.9 * s["counters"]["fixes"]
 
@@ -579,17 +579,18 @@ accel_scale_factor_cal = [0.0, 0.0, 0.0]
 def test_report_of_a_data_set_has_the_drift_figure_and_table(walk_runs, tmp_path):
     import matplotlib.pyplot as plt
 
-    from gpsins import report
+    from gpsins.report import page as report_page
+    from gpsins.report import figures as report_figures
 
     (_, d_loose), (_, d_tight) = walk_runs[("walk_0827_ubx.toml", "loose")], walk_runs[("walk_0827_ubx.toml", "tight")]
-    page = report.make_report([d_loose, d_tight], tmp_path / "rep")
+    page = report_page.make_report([d_loose, d_tight], tmp_path / "rep")
     assert (tmp_path / "rep" / "outage_drift.png").exists()
     text = page.read_text()
     assert "## Drift per outage against gnss_1730_sf.pos (antenna point)" in text
     s = json.loads((d_loose / "run.json").read_text())["scoring"]
     row = next(x for x in text.splitlines() if x.startswith("| rms |"))
     assert f"| {s['horizontal_m']['rms']:.2f} |" in row
-    figs = report.build_figures([d_loose, d_tight])
+    figs = report_figures.build_figures([d_loose, d_tight])
     fig = figs["outage_drift.png"]
     ax = fig.axes[0]
     z = results_mod.load(d_loose)
@@ -612,7 +613,7 @@ def test_report_of_a_data_set_has_the_drift_figure_and_table(walk_runs, tmp_path
 def test_outage_table_puts_the_smoothed_drift_beside_the_forward(tmp_path):
     import io
 
-    from gpsins import report
+    from gpsins.report import terminal as report_terminal
 
     def scoring(h, v):
         return {"reference": "ref.pos", "point": "antenna",
@@ -623,7 +624,7 @@ def test_outage_table_puts_the_smoothed_drift_beside_the_forward(tmp_path):
     summary = {"mode": "loose", "outages": {"gnss_first_t": 0.0}, "scoring": scoring(1.75, 4.25),
                "smoothed": {"scoring": scoring(0.14, 0.66)}}
     buf = io.StringIO()
-    report.print_outage_table(summary, buf)
+    report_terminal.print_outage_table(summary, buf)
     rows = [ln for ln in buf.getvalue().splitlines() if ln.startswith("│ rms") or ln.startswith("│ 1 ")]
     assert len(rows) == 2
     for row in rows:
@@ -631,7 +632,7 @@ def test_outage_table_puts_the_smoothed_drift_beside_the_forward(tmp_path):
         assert cells[-4:] == ["1.75", "4.25", "0.14", "0.66"]
     summary.pop("smoothed")
     buf = io.StringIO()
-    report.print_outage_table(summary, buf)
+    report_terminal.print_outage_table(summary, buf)
     assert "smooth" not in buf.getvalue()
 
 

@@ -12,7 +12,9 @@ import pytest
 from gpsins_logger import superstar2 as ss2
 
 from gpsins import cli, sim, timing
+from gpsins.timing import alignment
 from gpsins.session import logs, measurements
+from gpsins.session import layouts
 from gpsins.replay import run as replay
 from gpsins.replay import results as results_mod
 from gpsins.sim import messages
@@ -52,7 +54,7 @@ def rewrite(d, sensor, keep=None, stamps=None):
     out = []
     for k in np.flatnonzero(keep):
         raw = scan.record(k)
-        out.append(raw[:h] + STAMP.pack(stamps[k]) + raw[h + logs.STAMP_BYTES:])
+        out.append(raw[:h] + STAMP.pack(stamps[k]) + raw[h + layouts.STAMP_BYTES:])
     (d / f"{sensor}-000.bin").write_bytes(b"".join(out))
 
 
@@ -67,7 +69,7 @@ def flip_bit(x: float, bit: int) -> float:
 
 def align_errors(s, d, k_true, speed=1.0):
     dec = measurements.decode_session(d)
-    al = timing.align(dec.gps.tow, dec.gps.stamps, dec.gps.week, dec.imu.stamps, dec.imu.counter, s.imu_rate_hz,
+    al = alignment.align(dec.gps.tow, dec.gps.stamps, dec.gps.week, dec.imu.stamps, dec.imu.counter, s.imu_rate_hz,
                       gps_latency_s=(GPS_LAT + messages.MEASUREMENT_DELAY_S) / speed, imu_latency_s=IMU_LAT / speed)
     return al, al.imu_t - (s.scenario.start.gps_tow_s + s.imu_t[k_true])
 
@@ -97,7 +99,7 @@ def test_one_flipped_stamp_bit(tmp_path, sensor, bit):
     st = stamps_of(d, sensor).copy()
     i = len(st) // 2 + 3
     st[i] = flip_bit(st[i], bit)
-    assert logs.STAMP_MIN < st[i] < logs.STAMP_MAX
+    assert layouts.STAMP_MIN < st[i] < layouts.STAMP_MAX
     rewrite(d, sensor, stamps=st)
     # The reader may drop the damaged IMU record: the counter still numbers the others.
     al, err = align_errors(s, d, sample_index(d))
@@ -148,7 +150,7 @@ def test_missing_id23_for_a_stretch(tmp_path, speed, step_s):
     k = sample_index(d)
     scan = logs.read_record_file(d / "gps-000.bin", "superstar2")
     t0 = realtime(s, 0.0)
-    gone = (logs.message_ids(scan) == 23) & (scan.stamps > t0 + 20) & (scan.stamps < t0 + 33)
+    gone = (layouts.message_ids(scan) == 23) & (scan.stamps > t0 + 20) & (scan.stamps < t0 + 33)
     rewrite(d, "gps", keep=~gone)
     for sensor in DEVICES:
         rewrite(d, sensor, stamps=t0 + (stamps_of(d, sensor) - t0) / speed)
@@ -218,7 +220,7 @@ def test_everything_at_once(tmp_path):
                     imu_drop_probability=0.01, imu_clock_ppm=50.0, clock_step_at_s=33.3, clock_step_s=-4.0)
     t0 = realtime(s, 0.0)
     scan = logs.read_record_file(d / "gps-000.bin", "superstar2")
-    gone = (logs.message_ids(scan) == 23) & (scan.stamps > t0 + 10) & (scan.stamps < t0 + 23)
+    gone = (layouts.message_ids(scan) == 23) & (scan.stamps > t0 + 10) & (scan.stamps < t0 + 23)
     st = scan.stamps.copy()
     st[400] = flip_bit(st[400], 21)
     rewrite(d, "gps", keep=~gone, stamps=st)
@@ -227,7 +229,7 @@ def test_everything_at_once(tmp_path):
     rewrite(d, "imu", stamps=st)
     k = sample_index(d)  # the reader may drop the damaged record
     dec = measurements.decode_session(d)
-    al = timing.align(dec.gps.tow, dec.gps.stamps, dec.gps.week, dec.imu.stamps, dec.imu.counter, 1.3 * s.imu_rate_hz,
+    al = alignment.align(dec.gps.tow, dec.gps.stamps, dec.gps.week, dec.imu.stamps, dec.imu.counter, 1.3 * s.imu_rate_hz,
                       gps_latency_s=GPS_LAT + messages.MEASUREMENT_DELAY_S, imu_latency_s=IMU_LAT)
     check(al, al.imu_t - (s.scenario.start.gps_tow_s + s.imu_t[k]), "everything at once")
     assert len(al.steps_s) == 1 and abs(al.steps_s[0] + 4.0) < 5e-3
@@ -241,9 +243,9 @@ def test_a_session_that_cannot_be_aligned_says_why(tmp_path):
     s, d = simulate(tmp_path, "bad", jitter_mean_s=0.0005)
     dec = measurements.decode_session(d)
     with pytest.raises(timing.AlignmentError, match="at least 3 GPS measurement blocks"):
-        timing.align(dec.gps.tow[:2], dec.gps.stamps[:2], dec.gps.week, dec.imu.stamps, dec.imu.counter, 64)
+        alignment.align(dec.gps.tow[:2], dec.gps.stamps[:2], dec.gps.week, dec.imu.stamps, dec.imu.counter, 64)
     with pytest.raises(timing.AlignmentError, match="do not advance with GPS time"):
-        timing.align(dec.gps.tow, np.full(len(dec.gps.tow), dec.gps.stamps[0]), dec.gps.week, dec.imu.stamps,
+        alignment.align(dec.gps.tow, np.full(len(dec.gps.tow), dec.gps.stamps[0]), dec.gps.week, dec.imu.stamps,
                      dec.imu.counter, 64)
 
 
@@ -270,7 +272,7 @@ def damage_one_tow(d, change):
     """One ID 23 in the middle gets another time of week, its checksum made good again (as a
     multi-bit flip can leave it: the frame finder accepts it)."""
     scan = logs.read_record_file(d / "gps-000.bin", "superstar2")
-    blocks = np.flatnonzero(logs.message_ids(scan) == 23)
+    blocks = np.flatnonzero(layouts.message_ids(scan) == 23)
     i = int(blocks[len(blocks) // 2])
     out = []
     for k in range(scan.count):
@@ -351,7 +353,7 @@ def test_a_receiver_restart_that_sends_gps_time_back_replays_in_stretches(tmp_pa
     rec = [scan.record(k) for k in first]
     for k in repeat:
         raw = scan.record(k)
-        rec.append(raw[:ss2.HEADER_LEN] + STAMP.pack(again[k]) + raw[ss2.HEADER_LEN + logs.STAMP_BYTES:])
+        rec.append(raw[:ss2.HEADER_LEN] + STAMP.pack(again[k]) + raw[ss2.HEADER_LEN + layouts.STAMP_BYTES:])
     (d / "gps-000.bin").write_bytes(b"".join(rec))
 
     for mode in ("loose", "tight"):

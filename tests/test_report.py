@@ -20,7 +20,12 @@ from scipy.stats import chi2
 
 from figcheck import check_figure, mode_points
 from gpsins.replay import run
-from gpsins import report, report_figures, sim
+from gpsins.report import data as report_data
+from gpsins import sim
+from gpsins.report import page as report_page
+from gpsins.report import terminal as report_terminal
+from gpsins.report import figures as report_figures_mod
+from gpsins.report import draw
 from gpsins.replay import results as results_mod
 from gpsins.sim.messages import MEASUREMENT_DELAY_S
 from gpsins.sim.scenario import parse
@@ -42,7 +47,7 @@ def runs(tmp_path_factory):
     session = write_session(s, root / "session")
     outs = [run.replay(session, root / mode, mode=mode, gps_latency_s=MEASUREMENT_DELAY_S).out
             for mode in ("loose", "tight")]
-    page = report.make_report(outs, root / "report")
+    page = report_page.make_report(outs, root / "report")
     return root, session, outs, page
 
 
@@ -64,7 +69,7 @@ def _many_figures():
 
 def _build(results):
     with _many_figures():
-        return report.build_figures(results)
+        return report_figures_mod.build_figures(results)
 
 
 @contextlib.contextmanager
@@ -84,7 +89,7 @@ def walk(tmp_path_factory):
     root = tmp_path_factory.mktemp("walk")
     out = run.replay(WALK, root / "loose", mode="loose", smooth=True).out
     with _many_figures():
-        return out, report.make_report([out], root / "report")
+        return out, report_page.make_report([out], root / "report")
 
 
 @pytest.fixture(scope="module")
@@ -114,7 +119,7 @@ def _origin(out) -> float:
 
 
 def _edge_marks(ax) -> list:
-    return [ln for ln in ax.get_lines() if ln.get_gid() == report_figures.EDGE_GID]
+    return [ln for ln in ax.get_lines() if ln.get_gid() == draw.EDGE_GID]
 
 
 def _has_data(ax) -> bool:
@@ -176,7 +181,7 @@ def test_pseudorange_innovations_are_normalised_per_satellite_with_the_gate(figs
 
 
 def test_2d_and_3d_fix_nis_have_their_own_bands(runs):
-    loose, tight = (report.load(p) for p in runs[2])
+    loose, tight = (report_data.load(p) for p in runs[2])
     with _built([_with_2d_fixes(loose), tight]) as built:
         axs = {ax.get_ylabel(): ax for ax in built["consistency.png"].axes}
     for ax, dof in ((axs["NIS, 3D fixes"], 3), (axs["NIS, 2D fixes"], 2)):
@@ -300,12 +305,12 @@ def test_the_html_page_is_self_contained(runs):
 
 
 def test_the_terminal_shows_the_per_segment_tables_within_100_columns(runs, walk):
-    out = report.comparison_table(runs[2])  # what `gpsins report` and `gpsins run` print (rich)
+    out = report_terminal.comparison_table(runs[2])  # what `gpsins report` and `gpsins run` print (rich)
     assert "loose: errors per segment" in out and "tight: errors per segment" in out and "B-C" in out
     assert "receiver fixes: errors per segment" in out and "V RMS (max), m" in out
     summary = json.loads((walk[0] / "run.json").read_text())
     buf = io.StringIO()
-    report.print_outage_table(summary, buf)  # what `gpsins replay` prints, the smoothed drift beside
+    report_terminal.print_outage_table(summary, buf)  # what `gpsins replay` prints, the smoothed drift beside
     assert "smooth H" in buf.getvalue()
     for text in (out, buf.getvalue()):  # nothing cut on an 80-100 column terminal or in a log file
         assert max(len(line) for line in text.splitlines()) <= 100 and "\u2026" not in text
@@ -315,7 +320,7 @@ def test_the_terminal_shows_the_per_segment_tables_within_100_columns(runs, walk
 
 
 def test_values_beyond_an_axis_are_marked_at_its_edge(runs):
-    loose, tight = (report.load(p) for p in runs[2])
+    loose, tight = (report_data.load(p) for p in runs[2])
     e = loose.a["err_ned_m"].copy()
     spike = slice(len(e) // 2, len(e) // 2 + 20)
     e[spike, 1] = 80.0  # east, far beyond the bulk
@@ -341,7 +346,7 @@ def test_every_band_has_a_legend_swatch_that_looks_like_it(figs):
 
 
 def test_one_tiny_nis_does_not_squash_the_consistency_plot(runs):
-    loose, tight = (report.load(p) for p in runs[2])
+    loose, tight = (report_data.load(p) for p in runs[2])
     nis = loose.a["upd_nis"].copy()
     j = np.flatnonzero(loose.a["upd_kind"] == 1)[5]
     nis[j] = 1e-21
@@ -368,7 +373,7 @@ def test_the_tight_filters_low_pseudorange_nis_is_explained(figs, runs):
 
 
 def test_2d_fixes_are_drawn_in_north_and_east_with_their_3_sigma(runs):
-    loose, tight = (report.load(p) for p in runs[2])
+    loose, tight = (report_data.load(p) for p in runs[2])
     two_d = _with_2d_fixes(loose)
     with _built([two_d, tight]) as built:
         axs = built["innovations.png"].axes
@@ -416,7 +421,7 @@ def test_no_panel_is_left_empty(figs, walk_figs):
 
 
 def test_the_smoothed_run_draws_and_counts_no_innovations(walk, walk_figs):
-    names = {r.name for r in report._load_all([walk[0]])}
+    names = {r.name for r in report_data._load_all([walk[0]])}
     assert names == {"loose", "loose smoothed"}
     for name in ("innovations.png", "consistency.png"):
         for ax in walk_figs[name].axes:
@@ -461,7 +466,7 @@ def test_one_time_origin_for_every_time_axis_and_table(walk, walk_figs):
     shaded = sorted(p.get_x() for p in walk_figs["outage_drift.png"].axes[1].patches)
     assert shaded == pytest.approx(starts)
     buf = io.StringIO()
-    report.print_outage_table(summary, buf)
+    report_terminal.print_outage_table(summary, buf)
     assert [ln.split("│")[2].strip() for ln in buf.getvalue().splitlines() if ln.startswith(("│ 1 ", "│ 2 "))] \
         == ["25.0", "70.0"]
     for name, fig in walk_figs.items():  # every time axis says where it counts from

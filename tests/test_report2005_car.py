@@ -22,7 +22,8 @@ import numpy as np
 import pytest
 
 from gpsins.replay import run
-from gpsins import report, sim
+from gpsins.report import data as report_data
+from gpsins import sim
 from gpsins.sim import scenario
 from gpsins.sim.session import write_session
 
@@ -60,7 +61,7 @@ def runs(tmp_path_factory):
         inp = run.load_inputs(root / "session", modes=("loose", "tight"), config="report2005")
         for mode in out:
             run.run_mode(inp, root / mode, mode=mode)
-            out[mode].append(report.load(root / mode))
+            out[mode].append(report_data.load(root / mode))
     return out
 
 
@@ -72,8 +73,8 @@ def _fix_table(r) -> dict:
     """Per segment: (sats low, high) from the report's segment table, and the (low, high) VDOP and HDOP of
     the segment's 3-D fixes as the replay read them (each fix in the segment it was measured in, as the table
     counts it)."""
-    f, f_t = r.a["fixes"], report.fix_true_times(r)
-    sats = {row["segment"]: (row["sats_min"], row["sats_max"]) for row in report.segment_table(r)}
+    f, f_t = r.a["fixes"], report_data.fix_true_times(r)
+    sats = {row["segment"]: (row["sats_min"], row["sats_max"]) for row in report_data.segment_table(r)}
     out = {}
     for label, a, b in _segments(r):
         m = (f_t >= a) & (f_t < b) & (f[:, 9] == 2)
@@ -108,8 +109,8 @@ def test_the_segment_table_counts_each_fix_where_it_was_measured(tmp_path):
     write_session(s, tmp_path / "session")
     inp = run.load_inputs(tmp_path / "session", modes=("loose",))
     run.run_mode(inp, tmp_path / "loose", mode="loose")
-    rows = {row["segment"]: (row["sats_min"], row["sats_max"]) for row in report.segment_table(
-        report.load(tmp_path / "loose"))}
+    rows = {row["segment"]: (row["sats_min"], row["sats_max"]) for row in report_data.segment_table(
+        report_data.load(tmp_path / "loose"))}
     t = np.array([f.t for f in s.gnss.fixes])
     n = np.array([f.sats for f in s.gnss.fixes])
     for label, a, b in s.scenario.segment_times():
@@ -195,7 +196,7 @@ def test_final_stop_attitude_within_a_factor_of_2(runs, mode, angle):
 def _interval_segments(r) -> set:
     segs = _segments(r)
     out = set()
-    for row in report.innovation_intervals(r):
+    for row in report_data.innovation_intervals(r):
         out |= {label for label, a, b in segs if a <= row["t_start"] < b}
     return out
 

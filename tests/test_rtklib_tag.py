@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from gpsins.dataset import load
-from gpsins import timing
+from gpsins.timing import envelope
 from gpsins.formats.common import ReaderError
 from gpsins.formats import imu_csv, rtklib_tag
 from gpsins.formats.gpstime import UNIX_TO_GPS_S
@@ -45,7 +45,7 @@ def test_counter_times_agree_with_the_publishers_alignment(raw_walk):
     method; ours, the lower envelope of arrival against counter, lands within 12 ms of it at every sample."""
     rows, tags = raw_walk
     arrival = tags.arrival_t_abs(tags.stream_offsets(rows.end_offset, rows.line_no, rows.file_bytes, rows.newlines))
-    t, fit = timing.counter_times(rows.counter * 1e-3, arrival)
+    t, fit = envelope.counter_times(rows.counter * 1e-3, arrival)
     sf = np.loadtxt(WALK / "imu_1730_sf.csv", delimiter=",", usecols=(0, 1))
     d_ms = (sf[:, 0] - UNIX_TO_GPS_S - t) * 1e3
     print(f"\npublisher - ours: {d_ms[0]:.1f} ms at the start, {d_ms[-1]:.1f} ms at the end; counter rate "
@@ -68,7 +68,7 @@ def test_counter_times_recover_a_simulated_loggers_clock():
     arrival = t_true + 0.002 + rng.exponential(0.003, len(counter))
     tick = 0.015625
     arrival = 1.4e9 + np.floor((arrival - 1.4e9) / tick) * tick
-    t, fit = timing.counter_times(counter * 1e-3, arrival)
+    t, fit = envelope.counter_times(counter * 1e-3, arrival)
     err = t - t_true
     assert fit["counter_rate_ppm"] == pytest.approx(40.0, abs=1.0)
     assert np.ptp(err) < 0.5e-3  # one constant along 200 s

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from gpsins.session import logs
+from gpsins.session import layouts
 from gpsins import sim
 from gpsins.sim import scenario
 from gpsins.sim import atmosphere, earth, ephemeris, gnss, imu, trajectory
@@ -248,7 +249,7 @@ def test_simulated_drive_through_ptys_and_the_real_logger(tmp_path):
     assert r.returncode == 0, r.stderr
     for name, em in (("gps", r.emulators.gps), ("imu", r.emulators.imu)):
         assert r.session.sensors[name].frames() == sent_ok(em), name
-    ids = logs.message_ids(r.session.sensors["gps"].scans[0])
+    ids = layouts.message_ids(r.session.sensors["gps"].scans[0])
     assert np.count_nonzero(ids == ss2.ID_MEASUREMENTS) >= 25 and np.count_nonzero(ids == ss2.ID_EPHEMERIS) >= 4
     again = run_rig(tmp_path / "b", seconds=sc.duration_s, source=SessionSource(r.session.directory))
     assert again.returncode == 0, again.stderr

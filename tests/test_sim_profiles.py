@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from gpsins.session import measurements
-from gpsins import sim, timing
+from gpsins import sim
+from gpsins.timing import alignment
 from gpsins.sim import scenario
 from gpsins.sim import earth, messages, trajectory
 from gpsins.sim.scenario import ScenarioError, builtin_names, first_seconds, parse, with_imu_rate
@@ -186,7 +187,7 @@ def test_sessions_at_other_rates_decode_and_align(tmp_path, rate):
     d = write_session(s, tmp_path / f"s{rate}")
     dec = measurements.decode_session(d)
     assert dec.imu.rate_hz == rate and "imu_frame" in dec.sidecar["simulation"]
-    al = timing.align(dec.gps.tow, dec.gps.stamps, dec.gps.week, dec.imu.stamps, dec.imu.counter, dec.imu.rate_hz,
+    al = alignment.align(dec.gps.tow, dec.gps.stamps, dec.gps.week, dec.imu.stamps, dec.imu.counter, dec.imu.rate_hz,
                       gps_latency_s=messages.MEASUREMENT_DELAY_S)
     k = al.imu_index + int(dec.imu.counter[0]) - 1  # sample number of each kept frame
     assert k[-1] < len(s.imu_t) and len(al.gaps) > 0

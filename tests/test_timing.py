@@ -7,6 +7,9 @@ import pytest
 
 from gpsins.session import measurements
 from gpsins import sim, timing
+from gpsins.timing import alignment
+from gpsins.timing import envelope
+from gpsins.timing import clock as timing_clock
 from gpsins.sim import messages
 from gpsins.sim.scenario import parse
 from gpsins.sim.session import realtime, write_session
@@ -39,8 +42,8 @@ def true_imu_tow(s, dec):
 
 
 def errors(s, dec, method):
-    al = timing.align(dec.gps.tow, dec.gps.stamps, dec.gps.week, dec.imu.stamps, dec.imu.counter, s.imu_rate_hz,
-                      method=method, gps_latency_s=GPS_LAT + messages.MEASUREMENT_DELAY_S, imu_latency_s=IMU_LAT)
+    al = alignment.align(dec.gps.tow, dec.gps.stamps, dec.gps.week, dec.imu.stamps, dec.imu.counter, s.imu_rate_hz,
+                         method=method, gps_latency_s=GPS_LAT + messages.MEASUREMENT_DELAY_S, imu_latency_s=IMU_LAT)
     return al, al.imu_t - true_imu_tow(s, dec)
 
 
@@ -94,7 +97,7 @@ def test_lower_envelope_is_the_linear_programme_optimum():
     rng = np.random.default_rng(1)
     x = np.sort(rng.uniform(0, 100, 400))
     y = 3.0 + 0.01 * x + rng.exponential(0.002, 400)
-    a, b = timing.lower_envelope(x, y)
+    a, b = envelope.lower_envelope(x, y)
     lp = linprog([-len(x), -x.sum()], A_ub=np.column_stack([np.ones_like(x), x]), b_ub=y, bounds=[(None, None)] * 2)
     assert np.all(y - (a + b * x) >= -1e-12)
     assert np.isclose(a, lp.x[0], atol=1e-9) and np.isclose(b, lp.x[1], atol=1e-11)
@@ -109,11 +112,11 @@ def test_steps_ignore_a_rate_and_lone_damaged_values():
     y[300] -= 0.3  # a damaged stamp
     y[450:] -= 4.0  # a backward step of a whole counter period
     # System time at half the rate of GPS time (served at 2x).
-    clock = timing.fit_gps_clock(x, 1000.0 + 0.5 * x + y, 0.0)
+    clock = timing_clock.fit_gps_clock(x, 1000.0 + 0.5 * x + y, 0.0)
     assert list(clock.starts) == [0, 450] and np.allclose(clock.rate, 0.5, atol=1e-4)
     assert clock.damaged.sum() == 1 and clock.damaged[300]
     assert abs(clock.steps_s[0] + 4.0) < 0.01
-    assert list(timing._steps(np.delete(y, 300), 0.01)[0]) == [449]
+    assert list(timing_clock._steps(np.delete(y, 300), 0.01)[0]) == [449]
 
 
 def test_imu_stamps_that_share_no_span_with_the_gps_stamps_are_refused():
@@ -122,7 +125,7 @@ def test_imu_stamps_that_share_no_span_with_the_gps_stamps_are_refused():
     n = np.arange(3840)
     imu_stamps = 1.7e9 - 3600.0 + n / 64.0
     with pytest.raises(timing.AlignmentError, match="do not overlap"):
-        timing.align(gps_tow, gps_stamps, 1590, imu_stamps, n % 256, 64.0)
+        alignment.align(gps_tow, gps_stamps, 1590, imu_stamps, n % 256, 64.0)
 
 
 def test_numpy_window_minimum_and_lower_hull_equal_scipys():
@@ -139,7 +142,7 @@ def test_numpy_window_minimum_and_lower_hull_equal_scipys():
             pad = np.full(ww, np.inf)
             r = minimum_filter1d(np.concatenate([pad, y, pad]), size=ww, mode="constant", cval=np.inf,
                                  origin=-(ww // 2))
-            left, right = timing._running_min(y, w)
+            left, right = envelope._running_min(y, w)
             np.testing.assert_array_equal(left, r[:n])
             np.testing.assert_array_equal(right, r[ww:ww + n])
     for trial in range(60):
@@ -148,7 +151,7 @@ def test_numpy_window_minimum_and_lower_hull_equal_scipys():
         y = 0.01 * x + rng.exponential(0.003, n) + (rng.random(n) < 0.01) * 5.0
         xs, ys = (x - x.mean()) / np.ptp(x), y - y.min()
         hull = set(ConvexHull(np.column_stack([xs, ys])).vertices.tolist())
-        chain = timing._lower_chain(x, y)
+        chain = envelope._lower_chain(x, y)
         assert set(chain.tolist()) <= hull
         assert np.all(np.diff(x[chain]) > 0)
         # Every point lies on or above each edge of the chain's span.
@@ -170,10 +173,10 @@ def test_block_by_block_stamp_statistics_equal_the_whole_series(monkeypatch):
     direct = np.median([(y[j] - y[i]) / (x[j] - x[i]) for i in range(n)
                         for j in [np.searchsorted(x, x[i] + 40.0)] if j < n])
     stamps = y - x / 64.0  # as align gives it: the counter's trend removed
-    whole = [timing._damaged_low(stamps, w, 0.02) for w in (8, 64)]
-    monkeypatch.setattr(timing, "DAMAGE_BLOCK", 97)
-    monkeypatch.setattr(timing, "SLOPE_BLOCK", 97)
-    assert timing._median_slope(x, y, 40.0) == direct
+    whole = [envelope._damaged_low(stamps, w, 0.02) for w in (8, 64)]
+    monkeypatch.setattr(envelope, "DAMAGE_BLOCK", 97)
+    monkeypatch.setattr(envelope, "SLOPE_BLOCK", 97)
+    assert envelope._median_slope(x, y, 40.0) == direct
     for w, expected in zip((8, 64), whole):
-        got = timing._damaged_low(stamps, w, 0.02)
+        got = envelope._damaged_low(stamps, w, 0.02)
         assert np.array_equal(got, expected) and 4 <= got.sum() <= 8

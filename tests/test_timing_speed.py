@@ -7,6 +7,7 @@ import pytest
 
 from gpsins.devices import emulate
 from gpsins import mainjob, sim, timing
+from gpsins.timing import alignment
 from gpsins.session import measurements
 from gpsins.replay import run
 from gpsins.sim.scenario import parse
@@ -57,7 +58,7 @@ def test_robust_alignment_of_a_drive_served_faster_than_real_time(tmp_path, monk
     lat = {"imu_latency_s": run.DEFAULT_IMU_LATENCY_S, **mainjob.replay_latencies("superstar2", speed)}
     worst = {}
     for method in timing.METHODS:
-        al = timing.align(dec.gps.tow, dec.gps.stamps, dec.gps.week, dec.imu.stamps, dec.imu.counter,
+        al = alignment.align(dec.gps.tow, dec.gps.stamps, dec.gps.week, dec.imu.stamps, dec.imu.counter,
                           dec.imu.rate_hz, method=method, **lat)
         err = al.imu_t - truth
         worst[method] = float(np.abs(err).max())

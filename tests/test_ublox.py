@@ -17,9 +17,13 @@ from pyubx2 import NMEA_PROTOCOL, UBX_PROTOCOL, UBXReader
 from pyubx2.ubxtypes_configdb import UBX_CONFIG_DATABASE
 
 from gpsins.session import logs, measurements_ubx
-from gpsins import mainjob, sim, timing
+from gpsins.session import scan as log_scan
+from gpsins.session import layouts
+from gpsins import mainjob, sim
+from gpsins.timing import envelope
 from gpsins.replay import run
-from gpsins.devices.emulate import Faults, UbloxEmulators
+from gpsins.devices.pty import Faults
+from gpsins.devices.ublox import UbloxEmulators
 from gpsins.sim import ublox as sim_ublox
 from gpsins.sim.scenario import parse
 from gpsins.formats.truth import write_truth
@@ -169,14 +173,14 @@ def test_record_file_reader_takes_ubx_records_and_reports_damage():
               for _ in range(200)]
     recs = [f[:6] + struct.pack("<d", 1.7e9 + 0.1 * k) + f[6:] for k, f in enumerate(frames)]
     data = bytearray(b"".join(recs))
-    s = logs.scan(bytes(data), logs.UBX_RECORDS)
+    s = log_scan.scan(bytes(data), layouts.UBX_RECORDS)
     assert s.frames() == frames and np.allclose(s.stamps, 1.7e9 + 0.1 * np.arange(200))
     # Damage record 50 (its checksum fails), garbage before record 120, a truncated last record.
     at = sum(map(len, recs[:50])) + 20
     data[at] ^= 0x10
     cut = sum(map(len, recs[:120]))
     damaged = bytes(data[:cut]) + b"\xb5\x62\x00garbage" + bytes(data[cut:-5])
-    s = logs.scan(damaged, logs.UBX_RECORDS)
+    s = log_scan.scan(damaged, layouts.UBX_RECORDS)
     assert s.frames() == frames[:50] + frames[51:199]
     assert s.stats["truncated_tail_bytes"] == len(recs[-1]) - 5
     assert s.stats["discarded_bytes"] == len(recs[50]) + 10
@@ -320,7 +324,7 @@ def test_walk_capture_served_and_recorded_gives_pyubx2s_frames(tmp_path, shared_
     # Along the lower envelope (timing's, as the alignment does it): a loaded host stamps a frame late,
     # never early, so a least-squares line through stalls is no measure of the serving rate (it failed
     # 2 runs of 8 under load with 0.25). Served at once the slope would be 0; at its timing 1 / speed.
-    _, slope = timing.lower_envelope(tow - tow[0], st[raw] - st[raw][0])
+    _, slope = envelope.lower_envelope(tow - tow[0], st[raw] - st[raw][0])
     print(f"RAWX stamps against their time of week: slope x speed {slope * speed:.4f}")
     assert abs(slope * speed - 1.0) < 0.05
 

@@ -18,7 +18,8 @@ import numpy as np
 from .session import dump, logs
 from . import sim
 from .sim import scenario
-from .devices.emulate import Emulators, UbloxEmulators
+from .devices.emulate import Emulators
+from .devices.ublox import UbloxEmulators
 from .sim import ublox as sim_ublox
 from .sim.messages import MEASUREMENT_DELAY_S, SimSource
 from .sim.ublox import UbloxSimSource
@@ -175,7 +176,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"3. recorded {got.sensors['gps'].count} GPS frames (the receiver offered {offered}, sending what the "
               f"logger requested) and {got.sensors['imu'].count} IMU frames of {len(simulation.imu_t)}")
     from .replay import run as replay
-    from . import report
+    from .report import page as report_page
+    from .report import terminal as report_terminal
 
     results = []
     # The emulated receiver sends ID 23 its measurement delay after the epoch; on a
@@ -193,9 +195,9 @@ def run(args: argparse.Namespace) -> int:
         wall = res.summary["wall_time_s"]["total_s"]
         print(f"   {res.summary['imu_samples']} IMU samples in {wall:.2f} s; results in {res.out}")
         results.append(res.out)
-    page = report.make_report(results, out / "report")
+    page = report_page.make_report(results, out / "report")
     print("5. comparison against the simulator's truth (from the first known heading on)")
-    report.print_comparison(results)
+    report_terminal.print_comparison(results)
     (out / "run.json").write_text(json.dumps({"scenario": sc.name, "seed": args.seed, "speed": args.speed,
                                               "session": str(session), "truth": str(out / "truth.npz"),
                                               "results": [str(r) for r in results], "report": str(page)}, indent=2))

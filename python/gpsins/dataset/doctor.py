@@ -23,8 +23,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .. import _core, evaluate
-from . import load as dataset_mod
-from ..session import measurements
+from . import fixes as dataset_fixes
+from ..formats import gpstime
 
 REST_SPEED_MPS = 0.2
 MOVING_SPEED_MPS = 1.0  # course defined well enough from the fixes' positions
@@ -135,8 +135,8 @@ def _check_content(ds, modes, d: Diagnosis) -> None:
 
 
 def _week_tow(t: float) -> str:
-    w = int(t // measurements.SECONDS_PER_WEEK)
-    return f"week {w} {t - w * measurements.SECONDS_PER_WEEK:.1f} s"
+    w = int(t // gpstime.SECONDS_PER_WEEK)
+    return f"week {w} {t - w * gpstime.SECONDS_PER_WEEK:.1f} s"
 
 
 def _check_spans(ds, t_imu: np.ndarray, d: Diagnosis) -> None:
@@ -219,7 +219,7 @@ def _horizontal_velocity(ds, fixes, ned: np.ndarray) -> tuple[np.ndarray, str]:
     if v is not None and np.isfinite(v[:, :2]).all(axis=1).mean() > 0.8:
         lag = ds.velocity_lag_s
         if lag == "measured":
-            found = dataset_mod.velocity_lag(fixes)
+            found = dataset_fixes.velocity_lag(fixes)
             lag = max(0.0, found["lag_s"]) if found else 0.0
         good = np.isfinite(v[:, :2]).all(axis=1)
         vh = np.column_stack([np.interp(fixes.t_abs, fixes.t_abs[good] - lag, v[good, j]) for j in range(2)])

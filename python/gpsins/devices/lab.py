@@ -11,8 +11,7 @@ import numpy as np
 
 from gpsins_logger import bp3010
 
-from ..sim.lab import (LabDay, Session, _truth_doc,
-                       plan_text)
+from ..sim.lab import LabDay, Session, _truth_doc, plan_text
 
 
 class LabSessionSource:

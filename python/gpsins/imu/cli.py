@@ -314,13 +314,14 @@ def run_calibrate(args) -> int:
 def _updown_session(args, lat: float) -> int:
     """Up-down from a recording: its steady windows, classified by the axis that sees gravity (one
     session with the up and down positions of one or more axes, or all six)."""
-    from . import lab
+    from . import lab_plan
+    from . import lab_calibration
 
-    plan = lab.Plan(Path(args.table).resolve().parent / "plan", lat, args.height_m,
+    plan = lab_plan.Plan(Path(args.table).resolve().parent / "plan", lat, args.height_m,
                     [{"session": str(Path(args.table).resolve())}], [], None)
     notes: list[str] = []
     try:
-        res = lab.updown(plan, None, notes)
+        res = lab_calibration.updown(plan, None, notes)
     except records.RecordError as e:
         raise _error(str(e)) from None
     for w in notes:
@@ -338,6 +339,7 @@ def _updown_session(args, lat: float) -> int:
 def run_lab(args) -> int:
     """`gpsins lab PLAN --out DIR`, or `gpsins lab --simulate --out DIR`: a simulated lab day first."""
     from . import lab
+    from . import lab_plan
     from . import records as records_mod
 
     out = Path(args.out)
@@ -361,7 +363,7 @@ def run_lab(args) -> int:
         raise _error("give a lab plan (PLAN.toml) or --simulate")
     try:
         res = lab.run(plan, out / "report" if args.simulate else out)
-    except (lab.PlanError, records_mod.RecordError) as e:
+    except (lab_plan.PlanError, records_mod.RecordError) as e:
         raise _error(str(e)) from None
     for w in res["warnings"]:
         print(f"gpsins lab: warning: {w}", file=sys.stderr)

@@ -85,11 +85,12 @@ def load(source: str | Path, rate_hz: float | None = None, columns=None, start_s
         raise RecordError(f"{p}: no such file or directory; give a session directory or a CSV/NPY of rates")
     if p.is_dir():
         from ..session import logs
+        from ..session import layouts
 
         try:
             session = logs.read_session(p)
             imu = session.imu()
-        except (logs.LogError, KeyError) as e:
+        except (layouts.LogError, KeyError) as e:
             raise RecordError(f"{p}: {e}") from None
         if len(imu) == 0:
             raise RecordError(f"{p}: no IMU frames")

@@ -13,8 +13,11 @@ from pathlib import Path
 import numpy as np
 
 from .. import timing
+from ..timing import alignment
 from ..nav import runs as flt
-from ..session import growing, logs, measurements, measurements_ubx
+from ..session import growing, measurements_ubx
+from ..session import layouts
+from ..formats import gpstime
 from ..nav import config as nav_config
 from ..nav import inputs as nav_inputs
 from .outputs import DEFAULT_LEAP_S
@@ -81,7 +84,7 @@ class Follower:
         except growing.NotSuperstar:
             self.stream = None
             return self._poll_whole(final)
-        except (logs.LogError, FileNotFoundError):
+        except (layouts.LogError, FileNotFoundError):
             return None
         gps, imu = self.stream.gps, self.stream.imu
         if imu is None or gps.week is None or gps.newest() is None:
@@ -198,7 +201,7 @@ class Follower:
 
     def _compute_fit(self, tow, gps_stamps, week, kept, imu_stamps, counter, rate_hz) -> dict | None:
         try:
-            al = timing.align(tow, gps_stamps, week, imu_stamps, counter, rate_hz, gps_latency_s=self.gps_latency_s,
+            al = alignment.align(tow, gps_stamps, week, imu_stamps, counter, rate_hz, gps_latency_s=self.gps_latency_s,
                               imu_latency_s=self.imu_latency_s)
         except timing.AlignmentError:
             return None
@@ -242,7 +245,7 @@ class Follower:
         fx = fixes[(fixes[:, 0] > self.fix_fed) & (fixes[:, 0] <= t_end)]
         if self.filter is None:
             setup = flt._setup(rows[:0], fixes[:0], self.cfg, self.mode, [], iono,
-                               self.week * measurements.SECONDS_PER_WEEK)
+                               self.week * gpstime.SECONDS_PER_WEEK)
             self.filter, self.scale_factors = setup.core_filter, setup.scale_factors
         for e in ephemerides:
             key = (e.prn, e.week, e.iode, e.toe_s)
@@ -267,9 +270,9 @@ class Follower:
         reader is the Superstar II's)."""
         try:
             dec = measurements_ubx.decode_session(self.session, nav_config.value(self.cfg, "fix_uere_m"))
-            al = timing.align(dec.gps.tow, dec.gps.stamps, dec.gps.week, dec.imu.stamps, dec.imu.counter,
+            al = alignment.align(dec.gps.tow, dec.gps.stamps, dec.gps.week, dec.imu.stamps, dec.imu.counter,
                               dec.imu.rate_hz, gps_latency_s=self.gps_latency_s, imu_latency_s=self.imu_latency_s)
-        except (logs.LogError, timing.AlignmentError, FileNotFoundError):
+        except (layouts.LogError, timing.AlignmentError, FileNotFoundError):
             return None  # not enough on disk yet to know GPS time (or no session yet)
         if self.week is None:
             self.week = int(dec.gps.week)

@@ -34,7 +34,7 @@ import numpy as np
 
 from .. import evaluate
 from ..nav import runs as flt
-from ..session import measurements
+from ..formats import gpstime
 from ..formats import nmea
 from ..replay import results, solution
 from .outputs import NmeaServer, _nis
@@ -162,7 +162,7 @@ def _status(fol: Follower, sol: flt.Solution, a: dict) -> dict:
 
 
 def _send_nmea(server: NmeaServer, fol: Follower, sol: flt.Solution, a: dict, every: int) -> None:
-    base = fol.week * measurements.SECONDS_PER_WEEK
+    base = fol.week * gpstime.SECONDS_PER_WEEK
     llh = a["llh"]
     c = evaluate.c_en(llh[:, 0], llh[:, 1])
     v_ned = np.einsum("nji,nj->ni", c, sol.v_ecef)

@@ -12,7 +12,7 @@ import numpy as np
 
 from .. import _core
 # The configuration language lives in filter_config; these are the names callers reach through here.
-from .config import (_merge, _vec3, core_config, load_config)
+from .config import _merge, _vec3, core_config, load_config
 from .inputs import _imu_table, _pr_table, pr_table
 
 

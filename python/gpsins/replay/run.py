@@ -56,9 +56,12 @@ from pathlib import Path
 import numpy as np
 
 from ..dataset import load as dataset_mod
+from ..dataset import fixes as dataset_fixes
 from .. import evaluate
 from ..nav import runs as flt
-from ..session import logs, measurements
+from ..session import measurements
+from ..formats import gpstime
+from ..session import layouts
 from ..evaluate import outages as outages_mod
 from ..nav import inputs as nav_inputs
 from ..nav import config as nav_config
@@ -67,7 +70,7 @@ from ..nav import estimator as estimator_mod, mounting, noise_from_data
 from ..session import measurements_ubx
 from ..formats import reference as reference_mod
 from . import results, solution
-from .. import timing
+from ..timing import alignment
 from .. import __version__
 from ..formats import rinex
 
@@ -185,7 +188,7 @@ def _session_inputs(session: Path, mode: str, config, timing_method: str, gps_la
     dec.imu.dtheta = dec.imu.dv = None
     decode_s += time.perf_counter() - t0
     t1 = time.perf_counter()
-    al = timing.align(dec.gps.tow, dec.gps.stamps, dec.gps.week, dec.imu.stamps, dec.imu.counter, dec.imu.rate_hz,
+    al = alignment.align(dec.gps.tow, dec.gps.stamps, dec.gps.week, dec.imu.stamps, dec.imu.counter, dec.imu.rate_hz,
                       method=timing_method, gps_latency_s=gps_latency_s, imu_latency_s=imu_latency_s)
     align_s = time.perf_counter() - t1
     imu = nav_inputs.ImuColumns(al.imu_t, *increments)
@@ -207,7 +210,7 @@ def _session_inputs(session: Path, mode: str, config, timing_method: str, gps_la
         inp.pseudoranges = prs if isinstance(prs, nav_inputs.PseudorangeColumns) else nav_inputs.PseudorangeColumns.compact(prs)
         dec.gps.pseudoranges = None
         inp.ephemerides, inp.klobuchar = ephs, klob
-    inp.truth = load_session_truth(session, dec.gps.week * measurements.SECONDS_PER_WEEK) if truth else None
+    inp.truth = load_session_truth(session, dec.gps.week * gpstime.SECONDS_PER_WEEK) if truth else None
     max_gap = float(nav_config.load_config(config, overrides).get("max_gap_s", 0.5))
     inp.info = {"session": str(session), "alignment": al.summary(), "decode_s": decode_s, "align_s": align_s,
                 "imu_gaps_longer_than_max_gap": al.gap_list(min_s=max_gap) if timing_method == "robust" else [],
@@ -241,8 +244,8 @@ def _dataset_inputs(path: Path, config, overrides: dict, modes=("loose",), force
         raise dataset_mod.DatasetError(path, "the data contradict the declaration:\n  " + "\n  ".join(
             f.line() for f in diagnosis.errors()) + "\n(`gpsins check` shows every check; --force replays anyway)")
     first, last = ds.gnss_span()
-    week = int(min(first, ds.imu.t_abs[0]) // measurements.SECONDS_PER_WEEK)
-    t_week = week * measurements.SECONDS_PER_WEEK
+    week = int(min(first, ds.imu.t_abs[0]) // gpstime.SECONDS_PER_WEEK)
+    t_week = week * gpstime.SECONDS_PER_WEEK
     imu = nav_inputs.ImuColumns(ds.imu.t_abs - t_week, ds.imu.dtheta_rad, ds.imu.dv_mps)
     explicit = set(ds.filter_table) if config is None else set(_config_keys(config))
     explicit |= set(overrides)
@@ -259,16 +262,16 @@ def _dataset_inputs(path: Path, config, overrides: dict, modes=("loose",), force
     uere = float(nav_config.value(cfg0, "fix_uere_m"))
     measured_lag = None
     if ds.fixes is not None and len(ds.fixes):
-        fixes = dataset_mod.fix_table(ds.fixes, t_week, uere, ds.sigma_floor_m, ds.sigma_default_m,
+        fixes = dataset_fixes.fix_table(ds.fixes, t_week, uere, ds.sigma_floor_m, ds.sigma_default_m,
                                       ds.velocity_sigma_floor_mps)
         sats = ds.fixes.ns.astype(int)
         if np.mean(np.isin(ds.fixes.q, dataset_mod.CARRIER_QUALITIES)) >= 0.5:
             derived.update(dataset_mod.STANDALONE_FIX_MODEL_OFF)
-        vs = dataset_mod.velocity_sigma(ds.fixes, ds.velocity_sigma_floor_mps)
+        vs = dataset_fixes.velocity_sigma(ds.fixes, ds.velocity_sigma_floor_mps)
         if vs is not None:
             # Per-fix velocity sigmas travel in the fix table; this median only stands in where a fix has none.
             derived.update(use_fix_velocity=True, fix_velocity_sigma_mps=vs, fix_velocity_sigma_hdop_scaled=False)
-            measured_lag = dataset_mod.velocity_lag(ds.fixes)
+            measured_lag = dataset_fixes.velocity_lag(ds.fixes)
             if ds.velocity_lag_s == "measured":
                 if measured_lag is None:
                     ds.notes.append('[gnss] velocity_lag_s = "measured": too few RTK-fixed epochs to measure it; '
@@ -310,7 +313,7 @@ def _dataset_inputs(path: Path, config, overrides: dict, modes=("loose",), force
     inp.data_config = {k: v for k, v in derived.items() if k not in explicit}
     if ds.reference is not None:
         inp.reference = (ds.reference.t_abs - t_week, ds.reference.r_ecef, ds.reference.source)
-    n_fix_q = {dataset_mod.Q_NAMES.get(int(q), str(q)): int(n) for q, n in
+    n_fix_q = {dataset_fixes.Q_NAMES.get(int(q), str(q)): int(n) for q, n in
                zip(*np.unique(ds.fixes.q, return_counts=True))} if ds.fixes is not None else {}
     inp.info = {"dataset": str(path), "name": ds.name, "decode_s": decode_s, "skipped": dict(ds.skipped),
                 "warnings": list(ds.notes), "imu_to_body": ds.imu_to_body.tolist(),
@@ -375,7 +378,7 @@ def _score_reference_system(ref, week: int, rows: dict) -> dict:
     ``rows``: the solution rows that bracket its epochs (``solution.Brackets``)."""
     if ref is None or len(rows.get("t", ())) < 2:
         return {}
-    summary = reference_mod.compare_summary(ref, week * measurements.SECONDS_PER_WEEK + rows["t"], rows["r_imu"],
+    summary = reference_mod.compare_summary(ref, week * gpstime.SECONDS_PER_WEEK + rows["t"], rows["r_imu"],
                                             rows["yaw"], rows["pitch"])
     return {"file": reference_mod.FILE_NAME, "damaged_lines": len(ref.damaged_lines), **summary}
 
@@ -387,7 +390,7 @@ def heading_aiding(ref, week: int, interval_s: float = HEADING_AIDING_INTERVAL_S
     """A reference system's dual-antenna heading and pitch as the filter's attitude input
     [t, yaw, pitch, sigma yaw, sigma pitch], at most one epoch per ``interval_s``."""
     ok = np.isfinite(ref.heading_rad) & np.isfinite(ref.sigma_heading_rad)
-    t = ref.gps_seconds()[ok] - week * measurements.SECONDS_PER_WEEK
+    t = ref.gps_seconds()[ok] - week * gpstime.SECONDS_PER_WEEK
     keep = np.ones(len(t), bool)
     last = -np.inf
     for i, x in enumerate(t):  # thin to the interval without drifting off it
@@ -493,7 +496,7 @@ def load_inputs(source: str | Path, *, modes=("loose",), config=None, overrides:
                                gps_latency_s=gps_latency_s, imu_latency_s=imu_latency_s, truth=truth, nav=nav,
                                force=force)
     if len(stretches) > 1:
-        raise logs.LogError(f"{source}: GPS time goes back {len(stretches) - 1} time(s) (receiver restarts): "
+        raise layouts.LogError(f"{source}: GPS time goes back {len(stretches) - 1} time(s) (receiver restarts): "
                             f"{len(stretches)} stretches, each to be replayed on its own")
     return stretches[0]
 
@@ -615,7 +618,7 @@ def _run_mode(inp: Inputs, out: Path, *, mode: str = "loose", overrides: dict | 
     spec = spec if spec is not None else inp.outage_spec
     schedule = outages_mod.schedule(spec, *inp.gnss_span) if spec is not None else np.zeros((0, 2))
     if spec is not None and not len(schedule):
-        raise logs.LogError(f"{source}: outages {spec.text()}: none falls inside the GNSS span, "
+        raise layouts.LogError(f"{source}: outages {spec.text()}: none falls inside the GNSS span, "
                             f"{inp.gnss_span[1] - inp.gnss_span[0]:.1f} s from its first epoch")
 
     ins_overrides = {"zero_velocity_updates": False} if mode == "ins" else {}
@@ -630,7 +633,7 @@ def _run_mode(inp: Inputs, out: Path, *, mode: str = "loose", overrides: dict | 
     tight = {}
     if filter_mode == "tight":
         tight = dict(pseudoranges=prs if prs is not None else np.zeros((0, 5)), ephemerides=inp.ephemerides,
-                     klobuchar=inp.klobuchar, gps_time_offset_s=inp.week * measurements.SECONDS_PER_WEEK)
+                     klobuchar=inp.klobuchar, gps_time_offset_s=inp.week * gpstime.SECONDS_PER_WEEK)
 
     if estimator is not None and (mode == "ins" or smooth or aid_heading):
         raise ValueError(f"--estimator {estimator}: not with --mode ins, --smooth or --aid-heading (the built-in "
@@ -693,13 +696,13 @@ def _run_mode(inp: Inputs, out: Path, *, mode: str = "loose", overrides: dict | 
     ref = inp.reference
     if reference is not None:
         f = dataset_mod.load_reference(reference, reference_q)
-        ref = (f.t_abs - inp.week * measurements.SECONDS_PER_WEEK, f.r_ecef, f.source)
+        ref = (f.t_abs - inp.week * gpstime.SECONDS_PER_WEEK, f.r_ecef, f.source)
         t_imu = (float(inp.imu[0, 0]), float(inp.imu[len(inp.imu) - 1, 0]))
         if not np.any((ref[0] >= t_imu[0]) & (ref[0] <= t_imu[1])):
-            raise logs.LogError(f"{reference}: none of its {len(ref[0])} epochs (Q {list(reference_q)}) falls inside "
+            raise layouts.LogError(f"{reference}: none of its {len(ref[0])} epochs (Q {list(reference_q)}) falls inside "
                                 f"the IMU's span (GPS week {inp.week}, {t_imu[0]:.1f} to {t_imu[1]:.1f} s of week)")
     scored_point = "antenna"
-    sys_epochs = (ref_system.gps_seconds() - inp.week * measurements.SECONDS_PER_WEEK) if ref_system else np.zeros(0)
+    sys_epochs = (ref_system.gps_seconds() - inp.week * gpstime.SECONDS_PER_WEEK) if ref_system else np.zeros(0)
     if ref is None and found:
         ref, scored_point = _truth_reference(found[0], sys_epochs), "imu"
     has_ref = ref is not None and len(ref[0]) > 0

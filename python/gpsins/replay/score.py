@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..session import measurements
+from ..formats import gpstime
 from . import run
 from ..formats import kfgins, rtklib_pos, solution_csv
 
@@ -44,7 +44,7 @@ def read_solution(path: str | Path, fmt: str | None = None, columns: list[str] |
 
 def _as_estimator(sol: dict, name: str):
     def solution_file(inputs):
-        t = sol["t_abs"] - inputs.week * measurements.SECONDS_PER_WEEK
+        t = sol["t_abs"] - inputs.week * gpstime.SECONDS_PER_WEEK
         keep = np.concatenate([[True], np.diff(t) > 0])  # a time written twice (rounded) counts once
         return {k: sol[k][keep] for k in ("r_ecef", "v_ecef", "q_eb")} | {"t": t[keep]}
 

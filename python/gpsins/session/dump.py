@@ -19,6 +19,8 @@ from gpsins_logger import bp3010
 from gpsins_logger import superstar2 as ss2
 
 from . import logs
+from . import layouts
+from . import scan as log_scan
 
 
 def _span(stamps: np.ndarray) -> dict:
@@ -27,10 +29,10 @@ def _span(stamps: np.ndarray) -> dict:
     return {"first": float(stamps[0]), "last": float(stamps[-1]), "duration_s": float(stamps[-1] - stamps[0])}
 
 
-def _gps_by_id(scans: list[logs.Scan]) -> dict:
+def _gps_by_id(scans: list[layouts.Scan]) -> dict:
     out: dict[int, dict] = {}
     for s in scans:
-        ids, st = logs.message_ids(s), s.stamps
+        ids, st = layouts.message_ids(s), s.stamps
         for mid in np.unique(ids):
             sel = st[ids == mid]
             e = out.setdefault(int(mid), {"records": 0, "stamps": []})
@@ -104,8 +106,8 @@ def raw_summary(path: str | Path, device: str) -> dict:
     else:
         stream = path.read_bytes()
     if device == "superstar2":
-        s = logs.scan(np.frombuffer(stream, np.uint8), logs.SS2_RAW, str(path))
-        ids = logs.message_ids(s)
+        s = log_scan.scan(np.frombuffer(stream, np.uint8), layouts.SS2_RAW, str(path))
+        ids = layouts.message_ids(s)
         messages = {str(int(m)): int(np.count_nonzero(ids == m)) for m in np.unique(ids)}
         return {"file": str(path), "device": device, "frames": s.count, "messages": messages, **s.stats}
     if device == "bp3010":
@@ -117,7 +119,7 @@ def raw_summary(path: str | Path, device: str) -> dict:
         return {"file": str(path), "device": device, "frames": len(frames), "bytes": len(stream),
                 "discarded_bytes": st.discarded_bytes, "checksum_failures": st.checksum_failures,
                 "truncated_tail_bytes": st.tail_bytes, "truncated_tail_offset": st.tail_offset}
-    raise logs.LogError(f"{path}: unknown device {device!r} (superstar2 or bp3010)")
+    raise layouts.LogError(f"{path}: unknown device {device!r} (superstar2 or bp3010)")
 
 
 def write_csv(directory: str | Path, out) -> int:
@@ -137,7 +139,7 @@ def write_csv(directory: str | Path, out) -> int:
             n += len(imu)
             continue
         for s in files.scans:
-            ids, st, lens = logs.message_ids(s), s.stamps, s.lengths - logs.STAMP_BYTES
+            ids, st, lens = layouts.message_ids(s), s.stamps, s.lengths - layouts.STAMP_BYTES
             for k in range(s.count):
                 w.writerow([name, repr(float(st[k])), int(ids[k]), int(lens[k])] + [""] * 8)
             n += s.count

@@ -26,14 +26,17 @@ import numpy as np
 from gpsins_logger import bp3010
 from gpsins_logger import superstar2 as ss2
 
-from . import logs, measurements
+from . import measurements
+from . import layouts
+from . import stamps
+from . import stream as log_stream
 from ..formats.gpstime import SECONDS_PER_WEEK
 
 CONTEXT_BLOCKS = 8  # measurement blocks before the newest that the time-of-week test sees
 IMU_CONTEXT = 16  # IMU records before the new ones that the moved-record test sees
 
 
-class NotSuperstar(logs.LogError):
+class NotSuperstar(layouts.LogError):
     """The session's GPS is not a Superstar II (a u-blox session is read whole each round)."""
 
 
@@ -82,7 +85,7 @@ class GpsStream:
     def week(self) -> int | None:
         return self._weeks.most_common(1)[0][0] if self._weeks else None
 
-    def add(self, scan: logs.Scan) -> bool:
+    def add(self, scan: layouts.Scan) -> bool:
         """Decode the new records; True when a fix (ID 21) came."""
         fix = False
         for fr, st in scan.iter_frames():
@@ -201,7 +204,7 @@ class ImuStream:
     """The BP3010 records decoded as they come; ``valid`` as ``measurements.valid_imu`` decides it."""
 
     def __init__(self, rate_hz: int, skipped: Counter):
-        self.rate_hz, self.lsb, self.skipped = rate_hz, logs.bp3010_lsb(rate_hz), skipped
+        self.rate_hz, self.lsb, self.skipped = rate_hz, layouts.bp3010_lsb(rate_hz), skipped
         self.stamps, self.counter, self.status = _Column(np.float64), _Column(np.uint8), _Column(np.uint8)
         self.dtheta, self.dv = _Column(np.int16, (3,)), _Column(np.int16, (3,))
         self.valid = _Column(bool)
@@ -211,7 +214,7 @@ class ImuStream:
     def n(self) -> int:
         return self.stamps.n
 
-    def add(self, scan: logs.Scan) -> int:
+    def add(self, scan: layouts.Scan) -> int:
         """Decode the new records; returns how many."""
         m = scan.count
         if not m:
@@ -219,7 +222,7 @@ class ImuStream:
         body = scan.frame_data.reshape(-1, bp3010.FRAME_LEN)[:, 1:15]
         dth, dv = np.empty((m, 3), np.int16), np.empty((m, 3), np.int16)
         st, ct = np.empty(m, np.uint8), np.empty(m, np.uint8)
-        logs._decode_bp3010(body, dth, dv, st, ct)
+        log_stream._decode_bp3010(body, dth, dv, st, ct)
         n0 = self.n
         self.stamps.extend(scan.stamps)
         self.dtheta.extend(dth)
@@ -253,8 +256,8 @@ class SessionStream:
         self.sidecar: dict = {}
         self._side_stat = None
         self._clock_stat = None
-        self._limits = logs.StampLimits()
-        self.tails: dict[str, list[logs.RecordTail]] = {"gps": [], "imu": []}
+        self._limits = stamps.StampLimits()
+        self.tails: dict[str, list[log_stream.RecordTail]] = {"gps": [], "imu": []}
         self.skipped: Counter = Counter()
         self.gps = GpsStream(self.skipped)
         self.imu: ImuStream | None = None
@@ -280,7 +283,7 @@ class SessionStream:
         except OSError:
             ckey = None
         if ckey != self._clock_stat or self._clock_stat is None:
-            self._limits = logs.stamp_limits(self.directory, self.sidecar)
+            self._limits = stamps.stamp_limits(self.directory, self.sidecar)
             self._clock_stat = ckey
         for name in ("gps", "imu"):
             info = self.sidecar.get("sensors", {}).get(name)
@@ -293,14 +296,14 @@ class SessionStream:
             files = info.get("files", [])
             tails = self.tails[name]
             for fname in files[len(tails):]:
-                tails.append(logs.RecordTail(self.directory / fname, info["device"], self._limits))
+                tails.append(log_stream.RecordTail(self.directory / fname, info["device"], self._limits))
 
-    def limits(self) -> logs.StampLimits:
+    def limits(self) -> stamps.StampLimits:
         """The session's span now; while the logger runs, a stamp it gave is no later than this clock."""
         lim = self._limits
         if self.finished:
             return lim
-        return logs.StampLimits(lim.lo, max(lim.hi, time.time() + logs.SPAN_MARGIN_S), lim.back_s)
+        return stamps.StampLimits(lim.lo, max(lim.hi, time.time() + layouts.SPAN_MARGIN_S), lim.back_s)
 
     @property
     def finished(self) -> bool:

@@ -23,6 +23,7 @@ import numpy as np
 from gpsins_logger import bp3010, superstar2 as ss2
 
 from . import logs
+from . import layouts
 from .. import timing
 from ..nav.inputs import PseudorangeColumns
 from ..formats.gpstime import SECONDS_PER_WEEK
@@ -71,7 +72,7 @@ class GpsMeasurements:
 @dataclass
 class Decoded:
     gps: GpsMeasurements
-    imu: logs.ImuLog  # valid frames only
+    imu: layouts.ImuLog  # valid frames only
     skipped: Counter = field(default_factory=Counter)
     sidecar: dict = field(default_factory=dict)
     directory: Path | None = None
@@ -164,9 +165,9 @@ def decode_gps(files: logs.SensorFiles, skipped: Counter, rows: tuple[int, int] 
         except ss2.ProtocolError:
             skipped["gps frames that do not decode"] += 1
     if not tows:
-        raise logs.LogError("no GPS measurement blocks (ID 23) in the session: GPS time is unknown")
+        raise layouts.LogError("no GPS measurement blocks (ID 23) in the session: GPS time is unknown")
     if not weeks:
-        raise logs.LogError("no GPS week in the session (ID 21 or 49)")
+        raise layouts.LogError("no GPS week in the session (ID 21 or 49)")
     tow, stamps = np.frombuffer(tows, dtype=np.float64), np.frombuffer(tstamps, dtype=np.float64)
     good = ~implausible_tows(tow, stamps)
     if not good.all():
@@ -301,9 +302,9 @@ def decode_stretches(directory: str | Path) -> list[Decoded]:
 def _decode(directory: str | Path, split: bool) -> list[Decoded]:
     session, skipped = read_counting_damage(directory, imu_frames=False)
     if "gps" not in session.sensors or not session.sensors["gps"].count:
-        raise logs.LogError(f"{directory}: no GPS records")
+        raise layouts.LogError(f"{directory}: no GPS records")
     if "imu" not in session.sensors or not session.sensors["imu"].count:
-        raise logs.LogError(f"{directory}: no IMU records")
+        raise layouts.LogError(f"{directory}: no IMU records")
     files = session.sensors["gps"]
     gps = decode_gps(files, Counter(skipped) if split else skipped)
     if not split or not gps.restarts:
@@ -323,7 +324,7 @@ def _decode(directory: str | Path, split: bool) -> list[Decoded]:
     return out
 
 
-def valid_imu(session: logs.SessionLog, skipped: Counter) -> logs.ImuLog:
+def valid_imu(session: logs.SessionLog, skipped: Counter) -> layouts.ImuLog:
     """The session's IMU samples without the frames flagged invalid, over range or failing
     their test (counted). The session lets go of its IMU, so no second copy is held."""
     imu = session.imu()

@@ -33,7 +33,9 @@ import numpy as np
 from gpsins_logger import ubx
 
 from . import logs
-from .measurements import SECONDS_PER_WEEK, Decoded, read_counting_damage, valid_imu
+from . import layouts
+from ..formats.gpstime import SECONDS_PER_WEEK
+from .measurements import Decoded, read_counting_damage, valid_imu
 from ..formats import ubx as ubx_reader
 from ..formats import common
 
@@ -94,7 +96,7 @@ def decode_gps(files: logs.SensorFiles, skipped: Counter, fix_uere_m: float = 3.
     try:
         u = ubx_reader.parse(b"".join(s.frame_data.tobytes() for s in files.scans), "gps records")
     except common.ReaderError as e:
-        raise logs.LogError(f"no usable UBX records in the session ({e})") from None
+        raise layouts.LogError(f"no usable UBX records in the session ({e})") from None
     if rawx_t:
         t_abs, t_stamps = np.array(rawx_t), np.array(rawx_stamps)
     else:
@@ -102,7 +104,7 @@ def decode_gps(files: logs.SensorFiles, skipped: Counter, fix_uere_m: float = 3.
         # loose mode only, and --gps-latency is NAV-PVT's delay after the epoch.
         ok = np.isfinite(u.pvt_t_abs)
         if ok.sum() < 3:
-            raise logs.LogError("no RXM-RAWX and fewer than 3 NAV-PVT with a valid time in the session: GPS time "
+            raise layouts.LogError("no RXM-RAWX and fewer than 3 NAV-PVT with a valid time in the session: GPS time "
                                 "is unknown (enable RXM-RAWX or NAV-PVT)")
         t_abs, t_stamps = u.pvt_t_abs[ok], np.array(pvt_stamps)[ok]
         skipped["gps: no RXM-RAWX; GPS time from NAV-PVT epochs, no pseudoranges"] += 1
@@ -168,7 +170,7 @@ def esf_samples(files: logs.SensorFiles, skipped: Counter) -> EsfSamples | None:
                       np.array(accel) * ACCEL_LSB_MPS2)
 
 
-def esf_imu_log(e: EsfSamples, gps_s_per_stamp_s: float = 1.0) -> logs.ImuLog:
+def esf_imu_log(e: EsfSamples, gps_s_per_stamp_s: float = 1.0) -> layouts.ImuLog:
     """The ESF samples as an IMU log: increments, and a counter made of the time tags.
     The sampling rate is counted against GPS time (the stamps' span scaled by
     gps_s_per_stamp_s: 1 on a vehicle, the speed on a faster-than-real-time
@@ -180,7 +182,7 @@ def esf_imu_log(e: EsfSamples, gps_s_per_stamp_s: float = 1.0) -> logs.ImuLog:
     span = float(e.stamps[-1] - e.stamps[0]) * gps_s_per_stamp_s
     rate = max(1, int(round(n[-1] / span))) if span > 0 else 1
     period = 1.0 / rate
-    return logs.ImuLog(e.stamps, e.rate_rad_s * period, e.accel_mps2 * period,
+    return layouts.ImuLog(e.stamps, e.rate_rad_s * period, e.accel_mps2 * period,
                        np.full(len(n), 1, np.uint8), (n & 0xFF).astype(np.uint8), rate)
 
 
@@ -188,14 +190,14 @@ def decode_session(directory: str | Path, fix_uere_m: float = 3.0) -> Decoded:
     session, skipped = read_counting_damage(directory, imu_frames=False)
     gps_files = session.sensors.get("gps")
     if gps_files is None or not gps_files.count:
-        raise logs.LogError(f"{directory}: no GPS records")
+        raise layouts.LogError(f"{directory}: no GPS records")
     gps = decode_gps(gps_files, skipped, fix_uere_m)
     if "imu" in session.sensors and session.sensors["imu"].count:
         imu = valid_imu(session, skipped)  # a BP3010 on its own port
     else:
         esf = esf_samples(gps_files, skipped)
         if esf is None:
-            raise logs.LogError(f"{directory}: no IMU: neither an imu sensor nor ESF-RAW records")
+            raise layouts.LogError(f"{directory}: no IMU: neither an imu sensor nor ESF-RAW records")
         # GPS seconds per stamp second from the RAWX epochs (their delays are small against the span).
         ratio = float((gps.tow[-1] - gps.tow[0]) / (gps.stamps[-1] - gps.stamps[0])) if len(gps.tow) > 1 else 1.0
         imu = esf_imu_log(esf, ratio if np.isfinite(ratio) and ratio > 0 else 1.0)
