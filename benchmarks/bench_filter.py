@@ -108,7 +108,7 @@ def tight(repeats: int) -> None:
     offset = s.scenario.start.gps_week * 604800.0 + s.scenario.start.gps_tow_s
     for dec in (1, 10):
         cfg = nav_config.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), "mode": "tight",
-                                     "pseudorange_decimation": dec})
+                                            "pseudorange_decimation": dec})
         kw = dict(pseudoranges=prs, ephemerides=ephs, klobuchar=(s.gnss.ion_alpha, s.gnss.ion_beta),
                   gps_time_offset_s=offset)
         flt.run(imu, fixes, cfg, **kw)
@@ -133,7 +133,7 @@ def checks() -> None:
         for check in nav_config.UPDATE_CHECKS:
             for reset in (5.0, 0.0):
                 cfg = nav_config.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), "update_check": check,
-                                             "gnss_reset_timeout_s": reset})
+                                                    "gnss_reset_timeout_s": reset})
                 sol = flt.run(imu, sim.fix_table(s), cfg, covariance=True)
                 err = evaluate.nav_errors(sol, tr)
                 e = evaluate.nees(err.e9, sol.covariance[:, :9, :9])

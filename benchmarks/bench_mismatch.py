@@ -15,7 +15,7 @@ pseudorange variance tight, sized for a low-cost receiver in open sky); `preset`
 preset's models (correlated fix errors per unit of DOP measured on the simulated receiver; tight at
 10 Hz with a 0.6 m correlated pseudorange part). Measured on a simulator without orbit/clock errors
 (20 seeds, band 7.24..10.95): with the preset loose 10.58 and tight 5.91; with ReceiverErrors loose
-8.34 and tight 7.17. Before the bias instability's white share (gpsins.filter.flicker_white_var) and
+8.34 and tight 7.17. Before the bias instability's white share (gpsins.nav.config.flicker_white_var) and
 the misalignment noise: preset loose 11.88 (attitude NEES 4.5 of 3: the bias wandered faster than
 its random walk allowed; the misalignment, 1 mrad, moves it by 0.03 only) and tight 6.93;
 ReceiverErrors loose 9.45, tight 8.40.

@@ -40,7 +40,7 @@ def main() -> None:
         for shift in shifts:
             with tempfile.TemporaryDirectory() as d:
                 res = run.replay(WALK / f"{name}.toml", Path(d) / "r", outages=f"{25 + shift:g}:15:45:45",
-                                    smooth=True, overrides=overrides).summary
+                                 smooth=True, overrides=overrides).summary
             f, s = res["scoring"], res["smoothed"]["scoring"]
             fwd += [o["max_h_m"] for o in f["per_outage"] if np.isfinite(o["max_h_m"])]
             smo += [o["max_h_m"] for o in s["per_outage"] if np.isfinite(o["max_h_m"])]

@@ -12,6 +12,7 @@ import pytest
 from gpsins import cli
 from gpsins.dataset import load as dataset, doctor
 from gpsins.replay import run
+from gpsins.replay import inputs as replay_inputs
 from gpsins.sim import dataset_writer, simulate
 from gpsins.sim.scenario import load
 
@@ -52,7 +53,7 @@ def test_a_mistake_is_refused_with_what_was_measured(tmp_path, edit, check, says
     print(f.line())
     assert f.level == "error" and says in f.text
     with pytest.raises(dataset.DatasetError, match="contradict the declaration"):
-        run.load_inputs(p)
+        replay_inputs.load_inputs(p)
     assert cli.main(["check", str(p)]) == 2
 
 

@@ -156,7 +156,7 @@ def test_fast_fix_error_weighs_like_its_inflated_variance(stop_and_go, tau_s):
     base = {**sim.imu_noise_truth(s.scenario.imu), "fix_error_gm_sigma_m": 0.0, "fix_uere_2d_m": 0.0,
             "fix_error_gm_dop_scaled": True}
     fast = flt.run(imu, fixes, nav_config.load_config(None, {**base, "fix_uere_m": 1.0, "fix_error_fast_sigma_m": 0.7,
-                                                       "fix_error_fast_tau_s": tau_s}))
+                                                              "fix_error_fast_tau_s": tau_s}))
     grown = flt.run(imu, fixes, nav_config.load_config(None, {**base, "fix_uere_m": np.sqrt(1.0 + 0.49 * (1 + a) / (1 - a))}))
     plain = flt.run(imu, fixes, nav_config.load_config(None, {**base, "fix_uere_m": 1.0}))
     late = fast.t > fast.t[0] + 30.0  # past the first fix, the only one without a predecessor

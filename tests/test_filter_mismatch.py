@@ -95,7 +95,7 @@ def test_tight_nees_under_mismatch_with_correlated_pseudorange_errors(runs):
     over tens of seconds; bench_mismatch: 20 seeds white 12.82, correlated 8.40)."""
     ds, out = runs
     cfg = nav_config.load_config(None, {**unit.filter_overrides(ds), "mode": "tight",
-                                 **unit.receiver_overrides(unit.ReceiverErrors(), "tight")})
+                                        **unit.receiver_overrides(unit.ReceiverErrors(), "tight")})
     per_seed = []
     for s, _, _ in out:
         sol = flt.run(sim.imu_table(s), sim.fix_table(s), cfg, covariance=True, **sim.tight_inputs(s))

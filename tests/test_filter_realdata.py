@@ -14,6 +14,7 @@ import pytest
 from gpsins import _core, sim
 from gpsins.nav import runs as flt
 from gpsins.replay import run
+from gpsins.replay import inputs as replay_inputs
 from gpsins.nav import config as nav_config
 from gpsins.replay import results as results_mod
 from gpsins.sim import dataset_writer as dw, scenario
@@ -134,7 +135,7 @@ def handheld_walk(tmp_path_factory):
 
 def test_heading_search_finds_a_handheld_devices_heading(handheld_walk):
     s, path = handheld_walk
-    inp = run._dataset_inputs(path, None, {})
+    inp = replay_inputs._dataset_inputs(path, None, {})
     # The simulated walk has no gait: its heading shows only while it speeds up (the first corner comes
     # 38 s after it sets off), yet the default 20 s window decides it.
     cfg = nav_config.load_config(inp.base_config, inp.data_config)
@@ -168,7 +169,7 @@ def test_heading_search_decides_on_weak_motion(tmp_path, seed):
     path = dw.write_dataset(s, tmp_path, imu_to_body_ypr_deg=(HANDHELD_OFFSET_DEG, 0.0, 0.0),
                             antenna_m=(0.0, 0.0, 0.0), vehicle_kind="none", imu_time_offset_s=0.0)
     path.write_text(re.sub(r"imu_to_body_ypr_deg = .*", "imu_to_body_ypr_deg = [0.0, 0.0, 0.0]", path.read_text()))
-    inp = run._dataset_inputs(path, None, {})
+    inp = replay_inputs._dataset_inputs(path, None, {})
     found = flt.search_heading(inp.imu.table(), inp.fixes, nav_config.load_config(inp.base_config, inp.data_config))
     true_start = _true_yaw_deg(s, s.imu_t[:1])[0] + HANDHELD_OFFSET_DEG
     assert found["yaw_deg"] is not None and found["dominance"] >= flt.DOMINANCE
@@ -201,7 +202,7 @@ def test_nonholonomic_constraint_reduces_outage_drift_on_a_simulated_car(car_set
     s, path = car_set
     on = run.replay(path, tmp_path / "nhc", outages="30:15:30").summary
     off = run.replay(path, tmp_path / "free", outages="30:15:30",
-                        overrides={"nonholonomic_constraint": False}).summary
+                     overrides={"nonholonomic_constraint": False}).summary
     d_on, d_off = on["scoring"]["horizontal_m"]["rms"], off["scoring"]["horizontal_m"]["rms"]
     print(f"\ncar: drift RMS with NHC {d_on:.2f} m, without {d_off:.2f} m; "
           f"{on['counters']['nonholonomic_updates']} NHC updates")

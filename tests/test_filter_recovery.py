@@ -144,7 +144,7 @@ def test_a_fix_at_saturated_dop_sets_no_heading(default_drive):
     s = default_drive
     fixes = sim.fix_table(s)
     cfg = nav_config.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), "fix_max_dop": 20.0,
-                                 "heading_max_course_sigma_deg": 0.0})  # a vehicle's course only
+                                        "heading_max_course_sigma_deg": 0.0})  # a vehicle's course only
     first = [e["t"] for e in flt.run(sim.imu_table(s), fixes, cfg).event_list() if e["kind"] == "heading_set"][0]
     k = int(np.argmin(np.abs(fixes[:, 0] - first)))
     assert np.all(np.isfinite(fixes[k, 4:7]))
@@ -291,7 +291,7 @@ def test_nominal_step_comes_from_the_stamps_not_the_configured_rate():
 
 def test_the_report_divergence_test_is_selectable():
     cfg = nav_config.core_config(nav_config.load_config(None, {"update_check": "attitude_correction",
-                                                 "max_attitude_correction_deg": 2.0}))
+                                                               "max_attitude_correction_deg": 2.0}))
     assert str(cfg.update_check).endswith("attitude_correction")
     assert cfg.max_attitude_correction_rad == pytest.approx(np.radians(2.0))
     with pytest.raises(nav_config.ConfigError, match="update_check"):

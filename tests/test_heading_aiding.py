@@ -8,6 +8,8 @@ import pytest
 from gpsins import _core, sim
 from gpsins.nav import runs as flt
 from gpsins.replay import run, results
+from gpsins.replay import inputs as replay_inputs
+from gpsins.replay import scoring as replay_scoring
 from gpsins.sim import scenario
 from gpsins.formats.reference import FILE_NAME
 from gpsins.sim.session import write_session
@@ -29,7 +31,7 @@ def _yaw_rms_deg(z) -> float:
 
 @pytest.mark.parametrize("mode", ["loose", "tight"])
 def test_heading_aiding_gives_the_reference_heading_from_the_start(session, tmp_path, mode):
-    inp = run.load_inputs(session, modes=(mode,))
+    inp = replay_inputs.load_inputs(session, modes=(mode,))
     free = run.run_mode(inp, tmp_path / "free", mode=mode)
     aided = run.run_mode(inp, tmp_path / "aided", mode=mode, aid_heading=True)
     zf, za = results.load(tmp_path / "free"), results.load(tmp_path / "aided")
@@ -41,7 +43,7 @@ def test_heading_aiding_gives_the_reference_heading_from_the_start(session, tmp_
     assert _yaw_rms_deg(za) < 3 * REFERENCE_YAW_SIGMA_DEG
     assert _yaw_rms_deg(za) < 0.3 * _yaw_rms_deg(zf)
     assert aided.summary["update_kinds"]["baseline_attitude"] == aided.summary["heading_aiding"]["epochs"] - \
-        int(np.sum(run.heading_aiding(run._reference_system(session), inp.week)[:, 0] < za["t"][0]))
+        int(np.sum(replay_scoring.heading_aiding(replay_scoring._reference_system(session), inp.week)[:, 0] < za["t"][0]))
     assert aided.summary["counters"]["diverged"] is False
 
 

@@ -10,7 +10,7 @@ import pytest
 
 from gpsins.dataset import load
 from gpsins.gnss import ionosphere, spp
-from gpsins.replay import run as replay
+from gpsins.replay import inputs as replay_inputs
 from gpsins.evaluate import c_en
 from gpsins.formats import rinex, rtklib_pos, ubx
 from gpsins.formats.common import Navigation, Pseudoranges
@@ -141,7 +141,7 @@ def test_dataset_ionosphere_key(tmp_path):
     assert ds.ionosphere == "dual-frequency" and any("dual-frequency" in k for k in ds.skipped)
     plain = load.load(WALK / "walk_0827_ubx.toml")
     assert plain.ionosphere == "broadcast" and len(ds.pseudoranges) < len(plain.pseudoranges)
-    inp = replay.load_inputs(path, modes=("tight",))
+    inp = replay_inputs.load_inputs(path, modes=("tight",))
     # The filter must not add Klobuchar's delay to ranges that come without theirs.
     assert inp.klobuchar is None and inp.data_config["pseudorange_ionosphere"] is False
     assert inp.info["ionosphere"] == "dual-frequency"

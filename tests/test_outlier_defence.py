@@ -65,7 +65,7 @@ def test_an_over_confident_filter_is_pulled_back_instead_of_locked_out(drive):
     quiet = {k: (np.asarray(v) / 10.0).tolist() for k, v in noise["imu_noise"].items()}
     imu, fixes = sim.imu_table(s), rtk_fixes(s)
     base = nav_config.load_config(None, {**noise, "imu_noise": quiet, "use_fix_velocity": True,
-                                  "fix_error_gm_sigma_m": [0.0, 0.0, 0.0], "gyro_misalignment_sigma_rad": 0.0})
+                                         "fix_error_gm_sigma_m": [0.0, 0.0, 0.0], "gyro_misalignment_sigma_rad": 0.0})
     hard = flt.run(imu, fixes, {**base, "robust_after_rejections": 0})
     robust = flt.run(imu, fixes, base)
     limit = int(base["robust_after_rejections"])

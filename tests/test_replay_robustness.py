@@ -70,7 +70,7 @@ def flip_bit(x: float, bit: int) -> float:
 def align_errors(s, d, k_true, speed=1.0):
     dec = measurements.decode_session(d)
     al = alignment.align(dec.gps.tow, dec.gps.stamps, dec.gps.week, dec.imu.stamps, dec.imu.counter, s.imu_rate_hz,
-                      gps_latency_s=(GPS_LAT + messages.MEASUREMENT_DELAY_S) / speed, imu_latency_s=IMU_LAT / speed)
+                         gps_latency_s=(GPS_LAT + messages.MEASUREMENT_DELAY_S) / speed, imu_latency_s=IMU_LAT / speed)
     return al, al.imu_t - (s.scenario.start.gps_tow_s + s.imu_t[k_true])
 
 
@@ -230,7 +230,7 @@ def test_everything_at_once(tmp_path):
     k = sample_index(d)  # the reader may drop the damaged record
     dec = measurements.decode_session(d)
     al = alignment.align(dec.gps.tow, dec.gps.stamps, dec.gps.week, dec.imu.stamps, dec.imu.counter, 1.3 * s.imu_rate_hz,
-                      gps_latency_s=GPS_LAT + messages.MEASUREMENT_DELAY_S, imu_latency_s=IMU_LAT)
+                         gps_latency_s=GPS_LAT + messages.MEASUREMENT_DELAY_S, imu_latency_s=IMU_LAT)
     check(al, al.imu_t - (s.scenario.start.gps_tow_s + s.imu_t[k]), "everything at once")
     assert len(al.steps_s) == 1 and abs(al.steps_s[0] + 4.0) < 5e-3
     dropped_by_reader = dec.skipped.get("imu: records with impossible stamps (their bytes are counted above)", 0)
@@ -246,7 +246,7 @@ def test_a_session_that_cannot_be_aligned_says_why(tmp_path):
         alignment.align(dec.gps.tow[:2], dec.gps.stamps[:2], dec.gps.week, dec.imu.stamps, dec.imu.counter, 64)
     with pytest.raises(timing.AlignmentError, match="do not advance with GPS time"):
         alignment.align(dec.gps.tow, np.full(len(dec.gps.tow), dec.gps.stamps[0]), dec.gps.week, dec.imu.stamps,
-                     dec.imu.counter, 64)
+                        dec.imu.counter, 64)
 
 
 def test_400_hz_counter_wraps_every_0_64_s(tmp_path):

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from gpsins.replay import run, results
+from gpsins.replay import inputs as replay_inputs
 from gpsins import sim
 from gpsins.sim import scenario
 from gpsins.sim.session import write_session
@@ -33,7 +34,7 @@ def runs(tmp_path_factory):
     for seed in SEEDS:
         root = tmp_path_factory.mktemp(f"report2005_{seed}")
         write_session(sim.simulate(scenario.load("default"), seed=seed), root / "session")
-        inp = run.load_inputs(root / "session", modes=("loose", "tight"), config="report2005")
+        inp = replay_inputs.load_inputs(root / "session", modes=("loose", "tight"), config="report2005")
         for mode in out:
             run.run_mode(inp, root / mode, mode=mode)
             out[mode].append(results.load(root / mode))

@@ -22,6 +22,7 @@ import numpy as np
 import pytest
 
 from gpsins.replay import run
+from gpsins.replay import inputs as replay_inputs
 from gpsins.report import data as report_data
 from gpsins import sim
 from gpsins.sim import scenario
@@ -58,7 +59,7 @@ def runs(tmp_path_factory):
     for seed in SEEDS:
         root = tmp_path_factory.mktemp(f"{SCENARIO}_{seed}")
         write_session(sim.simulate(scenario.load(SCENARIO), seed=seed), root / "session")
-        inp = run.load_inputs(root / "session", modes=("loose", "tight"), config="report2005")
+        inp = replay_inputs.load_inputs(root / "session", modes=("loose", "tight"), config="report2005")
         for mode in out:
             run.run_mode(inp, root / mode, mode=mode)
             out[mode].append(report_data.load(root / mode))
@@ -107,7 +108,7 @@ def test_the_segment_table_counts_each_fix_where_it_was_measured(tmp_path):
     simulator's own fixes whose true time falls in it."""
     s = sim.simulate(scenario.load("default"), seed=0)
     write_session(s, tmp_path / "session")
-    inp = run.load_inputs(tmp_path / "session", modes=("loose",))
+    inp = replay_inputs.load_inputs(tmp_path / "session", modes=("loose",))
     run.run_mode(inp, tmp_path / "loose", mode="loose")
     rows = {row["segment"]: (row["sats_min"], row["sats_max"]) for row in report_data.segment_table(
         report_data.load(tmp_path / "loose"))}

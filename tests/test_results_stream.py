@@ -11,6 +11,7 @@ import pytest
 
 from gpsins.nav import runs as flt
 from gpsins.replay import run as replay, results
+from gpsins.replay import inputs as replay_inputs
 from gpsins import sim
 from gpsins.nav import config as nav_config
 from gpsins.nav import inputs as nav_inputs
@@ -28,7 +29,7 @@ def session(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def tight_inputs(session):
-    return replay.load_inputs(session, modes=("tight",))
+    return replay_inputs.load_inputs(session, modes=("tight",))
 
 
 def _whole_and_chunked(inp, chunk_rows, output_every=2, overlap=True):
@@ -50,8 +51,8 @@ def _whole_and_chunked(inp, chunk_rows, output_every=2, overlap=True):
 def test_chunked_run_equals_one_call(tight_inputs, chunk_rows, overlap):
     inp = tight_inputs
     if chunk_rows == 1:  # one sample per call over the first 1500 samples is enough to show the seams
-        inp = replay.Inputs(inp.source, inp.kind, inp.week, inp.imu[:1500], inp.fixes, inp.fix_sats, inp.gnss_span,
-                            inp.pseudoranges, inp.ephemerides, inp.klobuchar)
+        inp = replay_inputs.Inputs(inp.source, inp.kind, inp.week, inp.imu[:1500], inp.fixes, inp.fix_sats, inp.gnss_span,
+                                   inp.pseudoranges, inp.ephemerides, inp.klobuchar)
     whole, run, chunks, blocks = _whole_and_chunked(inp, chunk_rows, overlap=overlap)
     cat = lambda parts, name: np.concatenate([getattr(p, name) for p in parts])  # noqa: E731
     for name in ("t", "r_ecef", "v_ecef", "q_eb", "sigma", "clock", "covariance", "heading_known"):
@@ -102,7 +103,7 @@ def test_results_tables_round_trip(tmp_path):
 def test_replay_in_chunks_writes_what_one_chunk_writes(session, tmp_path):
     """Small chunks against one chunk: the same tables, .pos, statistics and scoring, and the statistics
     equal those recomputed from the per-epoch errors."""
-    inp = replay.load_inputs(session)
+    inp = replay_inputs.load_inputs(session)
     a = replay.run_mode(inp, tmp_path / "one", chunk_rows=10 ** 7, smooth=True)
     b = replay.run_mode(inp, tmp_path / "many", chunk_rows=1000, smooth=True)
     for name in ("solution.pos", "smoothed.pos"):

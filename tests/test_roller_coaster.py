@@ -241,7 +241,7 @@ def test_gnss_errors_measured_at_the_station_make_both_filters_consistent(statio
     nees = {}
     for name, over in (("preset", {}), ("measured", fix_scatter.filter_overrides(est, mode))):
         cfg = nav_config.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), "mode": mode, "doppler_sigma_mps": 0.0,
-                                     **over})
+                                            **over})
         sol = flt.run(sim.imu_table(s), fixes, cfg, covariance=True, **extra)
         assert not sol.counters["diverged"], (mode, name)
         err = evaluate.nav_errors(sol, truth)

@@ -5,7 +5,7 @@ increments composed back into the truth)."""
 import numpy as np
 import pytest
 
-from gpsins.replay import run
+from gpsins.replay import inputs as replay_inputs
 from gpsins import sim
 from gpsins.sim import scenario
 from gpsins.sim import Simulator, gnss, trajectory
@@ -127,7 +127,7 @@ def test_truth_file_opens_memory_mapped_and_the_replay_reads_it(sessions):
     for k, v in loaded.items():
         if k != "model":
             np.testing.assert_array_equal(np.asarray(mapped[k]), v, err_msg=k)
-    found = run.load_session_truth(d[24.0], 0.0)
+    found = replay_inputs.load_session_truth(d[24.0], 0.0)
     assert found is not None
     truth, extra = found
     assert np.array_equal(truth.t, loaded["tow_s"] + int(loaded["gps_week"]) * 604800.0)

@@ -188,7 +188,7 @@ def test_sessions_at_other_rates_decode_and_align(tmp_path, rate):
     dec = measurements.decode_session(d)
     assert dec.imu.rate_hz == rate and "imu_frame" in dec.sidecar["simulation"]
     al = alignment.align(dec.gps.tow, dec.gps.stamps, dec.gps.week, dec.imu.stamps, dec.imu.counter, dec.imu.rate_hz,
-                      gps_latency_s=messages.MEASUREMENT_DELAY_S)
+                         gps_latency_s=messages.MEASUREMENT_DELAY_S)
     k = al.imu_index + int(dec.imu.counter[0]) - 1  # sample number of each kept frame
     assert k[-1] < len(s.imu_t) and len(al.gaps) > 0
     err = al.imu_t - (sc.start.gps_tow_s + s.imu_t[k])

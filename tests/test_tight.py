@@ -257,8 +257,8 @@ def test_signal_in_space_states_keep_tight_with_doppler_consistent():
         tr = s.truth
         for states in (True, False):
             cfg = nav_config.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), "mode": "tight",
-                                         "pseudorange_sis_sigma_m": 2.0 * np.sqrt(1.5),
-                                         "pseudorange_sis_states": states})
+                                                "pseudorange_sis_sigma_m": 2.0 * np.sqrt(1.5),
+                                                "pseudorange_sis_states": states})
             sol = flt.run(sim.imu_table(s), sim.fix_table(s), cfg, covariance=True, **sim.tight_inputs(s))
             assert sol.counters["range_rates_used"] > 0
             err = evaluate.nav_errors(sol, evaluate.Truth(tr.t, tr.r_ecef, tr.v_ecef, tr.q_eb))

@@ -9,7 +9,7 @@ from gpsins.devices import emulate
 from gpsins import mainjob, sim, timing
 from gpsins.timing import alignment
 from gpsins.session import measurements
-from gpsins.replay import run
+from gpsins.replay import inputs as replay_inputs
 from gpsins.sim.scenario import parse
 
 START = {"gps_week": 1590, "gps_tow_s": 419400.0, "lat_deg": 59.37, "lon_deg": 17.95, "height_m": 30.0,
@@ -55,11 +55,11 @@ def test_robust_alignment_of_a_drive_served_faster_than_real_time(tmp_path, monk
     s, em, dec = served(tmp_path, monkeypatch, speed)
     truth = true_imu_tow(s, em, dec)
     # The latencies the main job replays with.
-    lat = {"imu_latency_s": run.DEFAULT_IMU_LATENCY_S, **mainjob.replay_latencies("superstar2", speed)}
+    lat = {"imu_latency_s": replay_inputs.DEFAULT_IMU_LATENCY_S, **mainjob.replay_latencies("superstar2", speed)}
     worst = {}
     for method in timing.METHODS:
         al = alignment.align(dec.gps.tow, dec.gps.stamps, dec.gps.week, dec.imu.stamps, dec.imu.counter,
-                          dec.imu.rate_hz, method=method, **lat)
+                             dec.imu.rate_hz, method=method, **lat)
         err = al.imu_t - truth
         worst[method] = float(np.abs(err).max())
         print(f"{speed:g}x {method}: error {1e3 * err[0]:+.2f} -> {1e3 * err[-1]:+.2f} ms, "

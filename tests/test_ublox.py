@@ -450,7 +450,7 @@ def test_session_without_rawx_replays_loose_on_nav_pvt_time(tmp_path):
     d = _write_session(tmp_path / "session", s, {"NAV-PVT", "ESF-RAW"})
     write_truth(s, tmp_path / "truth.npz")
     res = run.replay(d, tmp_path / "loose", mode="loose", gps_latency_s=sim_ublox.FIX_DELAY_S,
-                        imu_latency_s=sim_ublox.ESF_DELAY_S)
+                     imu_latency_s=sim_ublox.ESF_DELAY_S)
     sm = res.summary
     assert any("no RXM-RAWX" in k for k in sm["skipped"])
     assert sm["alignment"]["imu_frames_missing"] == 0

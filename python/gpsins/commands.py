@@ -51,23 +51,23 @@ def _cmd_emulate(args: argparse.Namespace) -> int:
 
 
 def _cmd_replay(args: argparse.Namespace) -> int:
-    from .replay import run
+    from .replay import inputs as replay_inputs
     from .nav import config as nav_config
 
     if args.set and "help" in args.set:
-        if run.is_dataset(args.session) and Path(args.session).is_file():
+        if replay_inputs.is_dataset(args.session) and Path(args.session).is_file():
             # The values a replay of this data set starts from: its [filter] table (or --config) and
             # what it takes from its data; the noise fit, where on, scales the noise at the run.
-            inp = run.load_inputs(args.session, config=args.config, force=True)
+            inp = replay_inputs.load_inputs(args.session, config=args.config, force=True)
             print(nav_config.describe_keys(inp.base_config, inp.data_config,
-                                    f"values for {args.session}: its [filter] table and, from its data, "
-                                    f"{', '.join(sorted(inp.data_config)) or 'nothing'}"))
+                                           f"values for {args.session}: its [filter] table and, from its data, "
+                                           f"{', '.join(sorted(inp.data_config)) or 'nothing'}"))
         else:
             print(nav_config.describe_keys(args.config))
         return 0
     overrides = nav_config.parse_overrides(args.set or [])
     nav_config.load_config(args.config, overrides)  # a bad key or value fails here, before any decoding
-    if run.is_dataset(args.session):
+    if replay_inputs.is_dataset(args.session):
         if not Path(args.session).is_file():
             raise CommandError(f"{args.session}: no such data-set file")
     else:
@@ -83,16 +83,16 @@ def _cmd_replay(args: argparse.Namespace) -> int:
 
     memory.map_large_arrays()  # a day-long replay: freed whole-run arrays go back to the system
     modes = ["loose", "tight"] if args.mode == "both" else [args.mode]
-    stretches = run.load_stretches(args.session, modes=modes, config=args.config, overrides=overrides,
-                                      timing_method=args.timing, gps_latency_s=args.gps_latency,
-                                      imu_latency_s=args.imu_latency, truth=not args.no_truth, nav=args.nav,
-                                      force=args.force)
+    stretches = replay_inputs.load_stretches(args.session, modes=modes, config=args.config, overrides=overrides,
+                                             timing_method=args.timing, gps_latency_s=args.gps_latency,
+                                             imu_latency_s=args.imu_latency, truth=not args.no_truth, nav=args.nav,
+                                             force=args.force)
     if len(stretches) > 1:
         print(f"{args.session}: GPS time goes back {len(stretches) - 1} time(s) (receiver restarts): "
               f"{len(stretches)} stretches, each replayed on its own")
     for j, inp in enumerate(stretches):
         for i, mode in enumerate(modes):
-            _replay_one(args, inp, Path(args.out) / run.stretch_dir(j, len(stretches)) /
+            _replay_one(args, inp, Path(args.out) / replay_inputs.stretch_dir(j, len(stretches)) /
                         (mode if len(modes) > 1 else ""), mode, overrides, last_use=i == len(modes) - 1)
     return 0
 
@@ -105,9 +105,9 @@ def _replay_one(args: argparse.Namespace, inp, out: Path, mode: str, overrides: 
     from .replay import run
 
     res = run.run_mode(inp, out, mode=mode, overrides=overrides, outages=args.outages,
-                          reference=args.reference, reference_q=args.reference_q, point=args.point,
-                          smooth=args.smooth, covariance_every=args.covariance_every,
-                          aid_heading=args.aid_heading, last_use=last_use, estimator=args.estimator)
+                       reference=args.reference, reference_q=args.reference_q, point=args.point,
+                       smooth=args.smooth, covariance_every=args.covariance_every,
+                       aid_heading=args.aid_heading, last_use=last_use, estimator=args.estimator)
     c = res.summary["counters"]
     stretch = res.summary.get("stretch")
     where = f" (stretch {stretch['index']} of {stretch['of']})" if stretch else ""

@@ -4,7 +4,5 @@
 from __future__ import annotations
 
 
-
-
 class CommandError(ValueError):
     """A failure the user can fix: its message is the one line after ``gpsins CMD:``."""

@@ -102,12 +102,12 @@ def record_drive(simulation: sim.Simulation, out: Path, speed: float = 1.0, devi
 def replay_latencies(device: str, speed: float) -> dict:
     """The emulated devices' delays from the measurement to its first byte (shrunk on a faster
     than real-time drive), plus the logger's."""
-    from .replay import run as replay
+    from .replay import inputs as replay_inputs
 
     if device == "ublox":
-        return {"gps_latency_s": sim_ublox.MEASUREMENT_DELAY_S / speed + replay.DEFAULT_IMU_LATENCY_S,
-                "imu_latency_s": sim_ublox.ESF_DELAY_S / speed + replay.DEFAULT_IMU_LATENCY_S}
-    return {"gps_latency_s": MEASUREMENT_DELAY_S / speed + replay.DEFAULT_IMU_LATENCY_S}
+        return {"gps_latency_s": sim_ublox.MEASUREMENT_DELAY_S / speed + replay_inputs.DEFAULT_IMU_LATENCY_S,
+                "imu_latency_s": sim_ublox.ESF_DELAY_S / speed + replay_inputs.DEFAULT_IMU_LATENCY_S}
+    return {"gps_latency_s": MEASUREMENT_DELAY_S / speed + replay_inputs.DEFAULT_IMU_LATENCY_S}
 
 
 def _live_beside(simulation: sim.Simulation, session: Path, out: Path, device: str, speed: float) -> dict:
@@ -176,6 +176,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"3. recorded {got.sensors['gps'].count} GPS frames (the receiver offered {offered}, sending what the "
               f"logger requested) and {got.sensors['imu'].count} IMU frames of {len(simulation.imu_t)}")
     from .replay import run as replay
+    from .replay import inputs as replay_inputs
     from .report import page as report_page
     from .report import terminal as report_terminal
 
@@ -183,7 +184,7 @@ def run(args: argparse.Namespace) -> int:
     # The emulated receiver sends ID 23 its measurement delay after the epoch; on a
     # faster-than-real-time drive that delay shrinks with the speed.
     try:
-        inp = replay.load_inputs(session, modes=MODES, **replay_latencies(device, args.speed))
+        inp = replay_inputs.load_inputs(session, modes=MODES, **replay_latencies(device, args.speed))
     except ValueError as e:  # name the recorded session in the one-line message
         raise type(e)(f"{session}: {e}") from e
     for mode in MODES:

@@ -88,7 +88,7 @@ def _local_ned(fixes) -> tuple[np.ndarray, float, float]:
 
 
 def diagnose(ds, modes=("loose",)) -> Diagnosis:
-    """Every check on a loaded data set (``dataset.load``) for the filter modes to be run."""
+    """Every check on a loaded data set (``dataset.load.load``) for the filter modes to be run."""
     d = Diagnosis()
     _check_content(ds, modes, d)
     t, f, w = _imu_rates(ds)

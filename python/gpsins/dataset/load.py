@@ -21,7 +21,7 @@ Extensions (all optional):
 - ``[imu] time = "rtklib_tag"``, ``tag = "FILE.tag"``, ``counter_hz``: a raw stream logged by RTKLIB
   (str2str, rtknavi) with its time tags; ``columns`` name a ``counter`` (the sensor's own sample counter,
   ``counter_bits`` 32 unless given) instead of ``t``. Each sample's time is its counter mapped onto the
-  tags' arrival times along their lower envelope (``timing.counter_times``); the first line and an
+  tags' arrival times along their lower envelope (``timing.envelope.counter_times``); the first line and an
   unterminated last one are not used (the logger starts and stops mid-line).
 - ``[gnss] week``: the GPS week of a kf-gins GNSS file (default: ``[imu] week``).
 - ``[gnss] geoid_height_m``, ``[scoring] reference_geoid_height_m``: for .pos (and kf-gins)
@@ -88,7 +88,7 @@ _KNOWN = {
 # zero-g offset +-20 mg, taken here as about 2 sigma and 1 sigma); the triad's misalignment is not
 # carried as attitude noise (a datasheet's cross-axis figure is a bound for the whole product line,
 # and carried as noise at 5e-3 rad it would swamp a good unit's 3e-4 rad/s of rate noise; the
-# recording's noise fit, gpsins.noise_from_data, takes up what remains).
+# recording's noise fit, gpsins.nav.noise_from_data, takes up what remains).
 GENERIC_MEMS = {
     "gyro_bias_cal_rad_per_s": [0.0, 0.0, 0.0], "accel_bias_cal_mps2": [0.0, 0.0, 0.0],
     "gyro_scale_factor_cal": [0.0, 0.0, 0.0], "accel_scale_factor_cal": [0.0, 0.0, 0.0],
@@ -146,7 +146,7 @@ class Dataset:
         return outages_mod.schedule(spec, *self.gnss_span())
 
     def filter_config(self, overrides: dict | None = None) -> dict:
-        """The [filter] table completed from its preset, as ``gpsins.filter`` checks it."""
+        """The [filter] table completed from its preset, as ``gpsins.nav.config`` checks it."""
         from ..nav import config as nav_config
         return nav_config.load_config(dict(self.filter_table) or None, overrides)
 
@@ -208,7 +208,7 @@ def _positive_number(value) -> bool:
 
 def _read_tagged_imu(t: dict, f: Path, base: Path, path: Path) -> ImuData:
     """``time = "rtklib_tag"``: a raw stream logged with RTKLIB's time tags; the times are the sensor's counter
-    (``counter_hz``) mapped onto the tags' arrival times (``timing.counter_times``)."""
+    (``counter_hz``) mapped onto the tags' arrival times (``timing.envelope.counter_times``)."""
     if "tag" not in t:
         raise DatasetError(path, 'time = "rtklib_tag" needs `tag = "FILE.tag"`', field="[imu] tag")
     hz = t.get("counter_hz")

@@ -16,9 +16,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 
-
-
-
 BITS_PER_BYTE = 10
 DRAIN_WAIT_S = 0.25  # longest wait for the host to read a frame before an overlapping one follows
 DRAIN_POLL_S = 0.0002

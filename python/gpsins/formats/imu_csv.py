@@ -10,7 +10,7 @@ line and column.
 
 A stream logged raw has no time column but the sensor's own sample counter:
 ``read_counter_rows`` gives its rows with where each line ends, for the logger's arrival
-times (``rtklib_tag``) and the alignment (``timing.counter_times``); ``from_samples``
+times (``rtklib_tag``) and the alignment (``timing.envelope.counter_times``); ``from_samples``
 then makes the increments.
 """
 

@@ -12,7 +12,6 @@ from typing import Iterator, Protocol
 from gpsins_logger import bp3010
 
 
-
 @dataclass(frozen=True)
 class TimedMessage:
     t: float  # seconds since the start of the run

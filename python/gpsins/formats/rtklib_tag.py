@@ -23,7 +23,7 @@ when no layout fits the whole file is a last, incomplete pair (a file cut while 
 
 The ticks are the host's, arrival times rather than measurement times, and on Windows they step by
 15.6 ms; a sensor's own sample counter (``imu_csv``'s ``counter`` column) carries the measurement
-times, and ``timing.lower_envelope`` of arrival against counter gives the mapping (``counter_times``).
+times, and ``timing.envelope.lower_envelope`` of arrival against counter gives the mapping (``counter_times``).
 """
 
 from __future__ import annotations

@@ -22,7 +22,6 @@ from ..formats import gpstime
 from ..formats.gpstime import SECONDS_PER_WEEK
 
 
-
 @dataclass
 class Epochs:
     """Pseudoranges per epoch with what is needed to use them."""
@@ -184,7 +183,7 @@ def write_pos(path: str | Path, run: SppRun, source: str, llh: bool = True) -> N
 
 def truth_errors(run: SppRun, directory: str | Path) -> np.ndarray | None:
     """NED errors of the solved epochs against a simulator's truth.npz next to a session, if there is one."""
-    from ..replay.run import load_session_truth
+    from ..replay.inputs import load_session_truth
 
     found = load_session_truth(Path(directory), 0.0)
     if found is None or not run.ok.any():

@@ -318,7 +318,7 @@ def _updown_session(args, lat: float) -> int:
     from . import lab_calibration
 
     plan = lab_plan.Plan(Path(args.table).resolve().parent / "plan", lat, args.height_m,
-                    [{"session": str(Path(args.table).resolve())}], [], None)
+                         [{"session": str(Path(args.table).resolve())}], [], None)
     notes: list[str] = []
     try:
         res = lab_calibration.updown(plan, None, notes)

@@ -37,7 +37,7 @@ class Follower:
 
     def __init__(self, session: str | Path, *, mode: str = "loose", config=None, overrides: dict | None = None,
                  gps_latency_s: float = 0.0, imu_latency_s: float = 0.0, hold_s: float = 0.0):
-        from ..replay.run import DEFAULT_GPS_LATENCY_S, DEFAULT_IMU_LATENCY_S
+        from ..replay.inputs import DEFAULT_GPS_LATENCY_S, DEFAULT_IMU_LATENCY_S
 
         if mode not in ("loose", "tight"):
             raise ValueError(f"--mode {mode!r}: loose or tight")
@@ -202,7 +202,7 @@ class Follower:
     def _compute_fit(self, tow, gps_stamps, week, kept, imu_stamps, counter, rate_hz) -> dict | None:
         try:
             al = alignment.align(tow, gps_stamps, week, imu_stamps, counter, rate_hz, gps_latency_s=self.gps_latency_s,
-                              imu_latency_s=self.imu_latency_s)
+                                 imu_latency_s=self.imu_latency_s)
         except timing.AlignmentError:
             return None
         span = float(imu_stamps[-1] - imu_stamps[0])
@@ -271,7 +271,7 @@ class Follower:
         try:
             dec = measurements_ubx.decode_session(self.session, nav_config.value(self.cfg, "fix_uere_m"))
             al = alignment.align(dec.gps.tow, dec.gps.stamps, dec.gps.week, dec.imu.stamps, dec.imu.counter,
-                              dec.imu.rate_hz, gps_latency_s=self.gps_latency_s, imu_latency_s=self.imu_latency_s)
+                                 dec.imu.rate_hz, gps_latency_s=self.gps_latency_s, imu_latency_s=self.imu_latency_s)
         except (layouts.LogError, timing.AlignmentError, FileNotFoundError):
             return None  # not enough on disk yet to know GPS time (or no session yet)
         if self.week is None:

@@ -2,7 +2,7 @@
 
 A separate process follows the session the logger is writing, read only. Every ``--interval`` (0.02 s)
 it looks at the record files' sizes; when GPS records have landed it reads only the bytes added since
-(``live_stream``: parts as they rotate, damaged records skipped as replay skips them), times the new IMU
+(``session.growing``: parts as they rotate, damaged records skipped as replay skips them), times the new IMU
 samples by the last clock fit extended along the IMU's frame counter (the robust alignment, fitted again
 on everything when the data grew by ``REFIT_S`` or ``REFIT_SHARE``, after a round's outputs, or at once
 for a gap the counter cannot count), feeds the samples, fixes and pseudoranges up to the newest fix to
@@ -15,7 +15,7 @@ the streaming filter (the C++ core, as a replay's chunks are fed), and writes:
 - ``status.jsonl``: one JSON line per round: the last epoch's time, position, attitude, their sigmas,
   the GNSS state, the filter's counters, the alignment's warnings.
 
-``--http-port`` serves a status page (``live_page``); ``run_root`` follows the newest session under a
+``--http-port`` serves a status page (``live.page``); ``run_root`` follows the newest session under a
 logger's root and moves on when the logger starts another (a restart). A u-blox session is decoded and
 aligned whole each round (the incremental reader is the Superstar II's). Against a replay of the
 finished session: samples fed during the drive were timed by the fit of their time, which the rest of the

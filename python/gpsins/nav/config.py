@@ -5,7 +5,7 @@ A configuration is a TOML table whose keys are the core's `InsConfig` names
 (units in the names), plus a few conveniences:
 
 - ``preset = "default" | "report2005"`` starts from a bundled preset
-  (``gpsins/presets/*.toml``); the file's own keys then override it.
+  (``gpsins/nav/presets/*.toml``); the file's own keys then override it.
 - ``*_deg`` keys (``attitude_sigma_deg``, ``initial_yaw_deg``, ``heading_sigma_deg``)
   are converted to the radian fields.
 - ``[imu_noise]`` holds the IMU's Allan coefficients (what ``gpsins allan``

@@ -146,7 +146,7 @@ def filter_axes(cov_ned: np.ndarray, q_eb: np.ndarray, r_ecef: np.ndarray) -> np
 
 
 class PluginRun:
-    """An estimator's run in the place of ``filter.ChunkedRun``: one call, its solution handed on in
+    """An estimator's run in the place of ``nav.runs.ChunkedRun``: one call, its solution handed on in
     the chunks the built-in filter's would come in (the epochs up to every ``chunk_rows``-th IMU
     sample), so the replay writes and scores it as its own, to the last bit."""
 

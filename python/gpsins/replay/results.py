@@ -3,7 +3,7 @@
 A results directory holds
 
 - ``solution.parquet``: the forward solution, one row per output epoch (see
-  ``replay.RESULT_ARRAYS`` for what each array is);
+  ``replay.summary.RESULT_ARRAYS`` for what each array is);
 - ``smoothed.parquet`` (``--smooth``): the fixed-interval smoothed solution, same epochs;
 - ``updates.parquet``: one row per measurement update;
 - ``covariance.parquet`` (``--covariance-every N``): the full error-state covariance of every
@@ -212,7 +212,7 @@ def exists(path: str | Path) -> bool:
 
 
 def load(path: str | Path, stride: int = 1) -> dict:
-    """Everything a results directory holds as one dict of arrays (the names of ``replay.RESULT_ARRAYS``;
+    """Everything a results directory holds as one dict of arrays (the names of ``replay.summary.RESULT_ARRAYS``;
     the smoothed solution's with the prefix ``smooth_``, updates with ``upd_``), per-epoch arrays every
     ``stride``-th epoch."""
     p = Path(path)

@@ -15,6 +15,7 @@ import numpy as np
 
 from ..formats import gpstime
 from . import run
+from . import inputs as replay_inputs
 from ..formats import kfgins, rtklib_pos, solution_csv
 
 FORMATS = ("pos", "kf-gins", "csv")
@@ -27,7 +28,7 @@ class ScoreError(ValueError):
 def read_solution(path: str | Path, fmt: str | None = None, columns: list[str] | None = None,
                   time: str = "gps_abs", week: int | None = None) -> dict:
     """t_abs, r_ecef, v_ecef (NaN where the file has none) and q_eb (NaN likewise) of a solution file;
-    ``columns``, ``time``, ``week``: a CSV's (``readers.solution_csv``)."""
+    ``columns``, ``time``, ``week``: a CSV's (``formats.solution_csv``)."""
     path = Path(path)
     fmt = fmt or ("pos" if path.suffix.lower() == ".pos" else "csv" if columns else "kf-gins")
     if fmt not in FORMATS:
@@ -60,9 +61,9 @@ def score(solution: str | Path, against: str | Path, out: str | Path, *, fmt: st
     point = point or ("antenna" if Path(solution).suffix.lower() == ".pos" else "imu")
     if point not in ("antenna", "imu"):
         raise ScoreError(f"--point {point!r}: antenna or imu")
-    inp = run.load_inputs(against, force=True)
+    inp = replay_inputs.load_inputs(against, force=True)
     # At the antenna the solution is where the reference is: no lever arm between them.
     overrides = {"lever_arm_body_m": [0.0, 0.0, 0.0]} if point == "antenna" else {}
     return run.run_mode(inp, out, mode="loose", overrides=overrides, outages=outages, reference=reference,
-                           reference_q=reference_q, point=point,
-                           estimator=_as_estimator(sol, f"file {Path(solution).name}"))
+                        reference_q=reference_q, point=point,
+                        estimator=_as_estimator(sol, f"file {Path(solution).name}"))

@@ -1,6 +1,6 @@
 """A filter solution on its way to disk, a chunk of epochs at a time.
 
-``Stream`` takes the filter's output chunk by chunk (``filter.ChunkedRun``): it works out what
+``Stream`` takes the filter's output chunk by chunk (``nav.runs.ChunkedRun``): it works out what
 a user looks at for each epoch (geodetic position, Euler angles, NED sigmas, the antenna's
 position, and with a simulated truth the errors and the 9-state NEES), appends them to the
 results table (``results.TableWriter``), writes the RTKLIB-style ``.pos`` lines, and keeps

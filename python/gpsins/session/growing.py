@@ -1,6 +1,6 @@
 """A Superstar II / BP3010 session as the logger writes it, read and decoded incrementally for
 ``gpsins live``: each ``read()`` reads only the bytes the record files gained since the last one
-(``logs.RecordTail``: the block reader's own chain of records, damaged records skipped and counted as
+(``session.stream.RecordTail``: the block reader's own chain of records, damaged records skipped and counted as
 it skips them, parts picked up as the sidecar lists them), decodes only the new records (the same
 decoding as ``measurements.decode_gps`` and ``measurements.valid_imu``) and keeps the columns the
 alignment and the filter take: GPS times of week and stamps, fixes (ID 21 paired with its ID 20),

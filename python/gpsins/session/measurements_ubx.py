@@ -105,7 +105,7 @@ def decode_gps(files: logs.SensorFiles, skipped: Counter, fix_uere_m: float = 3.
         ok = np.isfinite(u.pvt_t_abs)
         if ok.sum() < 3:
             raise layouts.LogError("no RXM-RAWX and fewer than 3 NAV-PVT with a valid time in the session: GPS time "
-                                "is unknown (enable RXM-RAWX or NAV-PVT)")
+                                   "is unknown (enable RXM-RAWX or NAV-PVT)")
         t_abs, t_stamps = u.pvt_t_abs[ok], np.array(pvt_stamps)[ok]
         skipped["gps: no RXM-RAWX; GPS time from NAV-PVT epochs, no pseudoranges"] += 1
     week = int(t_abs[0] // SECONDS_PER_WEEK)
@@ -183,7 +183,7 @@ def esf_imu_log(e: EsfSamples, gps_s_per_stamp_s: float = 1.0) -> layouts.ImuLog
     rate = max(1, int(round(n[-1] / span))) if span > 0 else 1
     period = 1.0 / rate
     return layouts.ImuLog(e.stamps, e.rate_rad_s * period, e.accel_mps2 * period,
-                       np.full(len(n), 1, np.uint8), (n & 0xFF).astype(np.uint8), rate)
+                          np.full(len(n), 1, np.uint8), (n & 0xFF).astype(np.uint8), rate)
 
 
 def decode_session(directory: str | Path, fix_uere_m: float = 3.0) -> Decoded:

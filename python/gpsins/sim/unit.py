@@ -75,7 +75,7 @@ def draw_unit(ds: Datasheet, rng: np.random.Generator, base: ImuModel | None = N
 
 
 def filter_overrides(ds: Datasheet, scale_factor_states: bool = True) -> dict:
-    """Filter configuration keys from the datasheet and calibration alone (gpsins.filter names)."""
+    """Filter configuration keys from the datasheet and calibration alone (gpsins.nav.config names)."""
     out = {
         "gyro_bias_cal_rad_per_s": list(ds.gyro_bias_cal_rad_per_s),
         "accel_bias_cal_mps2": list(ds.accel_bias_cal_mps2),
