@@ -101,7 +101,8 @@ def run(seed: int, duration_s: float, smooth: bool, work: Path, ride: bool = Fal
                "gnss_resets": int(res.summary["counters"].get("gnss_resets", 0)),
                "nis_per_dof": {k: v["nis_per_dof_mean"] for k, v in res.summary.get("sources", {}).items()},
                "noise_fit": (res.summary.get("noise_fit") or {}).get("factors"),
-               "mounting_fit": res.summary.get("mounting_fit")}
+               "mounting_fit": res.summary.get("mounting_fit"),
+               "constraint_fit": res.summary.get("constraint_fit")}
         if smooth and "smoothed" in res.summary:
             row["smoothed_drift_rms_h_m"] = res.summary["smoothed"]["scoring"]["horizontal_m"]["rms"]
         rows.append(row)
@@ -133,6 +134,9 @@ def main() -> int:
                 fit = ", ".join(f"{k} {v:.2f}" for k, v in (r["noise_fit"] or {}).items())
                 m = r["mounting_fit"]
                 mount = f"; mounting yaw {m['yaw_deg']:.2f} pitch {m['pitch_deg']:.2f} deg" if m else ""
+                c = r["constraint_fit"]
+                mount += (f"; constraint every {c['interval_s']:.2f} s, sigma {c['lateral_sigma_mps']:.3f} / "
+                          f"{c['vertical_sigma_mps']:.3f} m/s" if c else "")
                 print(f"    NIS/dof {nis}" + (f"; fitted variance x {fit}" if fit else "") + mount, flush=True)
     for name in dict.fromkeys(r["case"] for r in rows):
         d = [r["drift_rms_h_m"] for r in rows if r["case"] == name]

@@ -706,6 +706,7 @@ void bind_filter(py::module_& m) {
   GPSINS_FIELD(body_to_vehicle_ypr_rad);
   GPSINS_FIELD(vehicle_point_body_m);
   GPSINS_FIELD(nhc_sigma_mps);
+  GPSINS_FIELD(nhc_vertical_sigma_mps);
   GPSINS_FIELD(nhc_min_speed_mps);
   GPSINS_FIELD(nhc_interval_s);
   GPSINS_FIELD(gate_probability);

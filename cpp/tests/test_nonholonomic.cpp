@@ -67,9 +67,11 @@ TEST_CASE("non-holonomic constraint: lateral and vertical rows, zero innovation 
   const Vec3 fwd_body = kCvb.transpose() * Vec3(1.0, 0.0, 0.0);
   f.nav.v_ecef_mps = c_eb * fwd_body * 12.0;
   const Vec3 earth_b = c_eb.transpose() * earth_rate_ecef();
-  const auto m = nonholonomic(f, kCvb, Vec3::Zero(), earth_b, 0.1);  // no rotation relative to the Earth
+  const auto m = nonholonomic(f, kCvb, Vec3::Zero(), earth_b, 0.1, 0.3);  // no rotation relative to the Earth
   CHECK(m.y.norm() < 1e-9);
-  CHECK(m.R(0, 0) == doctest::Approx(0.01));
+  CHECK(m.R(0, 0) == doctest::Approx(0.01));  // lateral
+  CHECK(m.R(1, 1) == doctest::Approx(0.09));  // vertical
+  CHECK(m.R(0, 1) == 0.0);
   const auto full = vehicle_velocity(f, kCvb, Vec3::Zero(), earth_b);
   CHECK(full.y(0) == doctest::Approx(-12.0));  // the forward speed is what the odometer row sees
   const auto odo = odometer_speed(f, kCvb, Vec3::Zero(), earth_b, 12.5, 0.05);

@@ -206,7 +206,10 @@ struct InsConfig {
   bool nonholonomic_constraint = false;
   Vec3 body_to_vehicle_ypr_rad = Vec3::Zero();  // v_vehicle = Rz(y) Ry(p) Rx(r) v_body
   Vec3 vehicle_point_body_m = Vec3::Zero();     // where the constraint holds, from the IMU
+  // The lateral row's sigma, and the vertical's unless nhc_vertical_sigma_mps > 0: a car's
+  // ride (its body pitching on the springs) violates the vertical row far more than a skid the lateral.
   double nhc_sigma_mps = 0.1;
+  double nhc_vertical_sigma_mps = 0.0;
   double nhc_min_speed_mps = 1.0;
   double nhc_interval_s = 0.1;
 

@@ -15,7 +15,9 @@ void InsFilter<NB, NC, NT>::constrain_vehicle(const Increment& inc) {
   if (!(inc.dt_s > 0.0) || standstill_ || t_last_ - last_nhc_t_ < cfg_.nhc_interval_s - 1e-9) return;
   if (core_.nav.v_ecef_mps.norm() < cfg_.nhc_min_speed_mps) return;
   last_nhc_t_ = t_last_;
-  const auto m = nonholonomic(core_, c_vb_, cfg_.vehicle_point_body_m, inc.dtheta_rad / inc.dt_s, cfg_.nhc_sigma_mps);
+  const double vertical = cfg_.nhc_vertical_sigma_mps > 0.0 ? cfg_.nhc_vertical_sigma_mps : cfg_.nhc_sigma_mps;
+  const auto m =
+      nonholonomic(core_, c_vb_, cfg_.vehicle_point_body_m, inc.dtheta_rad / inc.dt_s, cfg_.nhc_sigma_mps, vertical);
   record(kNonholonomic, apply(m, 2, kNonholonomic), 2);
   ++counters_.nonholonomic_updates;
 }

@@ -88,6 +88,10 @@ def summary_lines(run: dict) -> list[str]:
     if m:
         out.append(f"mounting estimated: body to vehicle yaw {m['yaw_deg']:.2f} deg, pitch {m['pitch_deg']:.2f} deg "
                    f"over {m['epochs']} epochs")
+    c = run.get("constraint_fit")
+    if c:
+        out.append(f"vehicle constraint from the recording: every {c['interval_s']:.2f} s, sigma lateral "
+                   f"{c['lateral_sigma_mps']:.3f} m/s, vertical {c['vertical_sigma_mps']:.3f} m/s")
     return out
 
 

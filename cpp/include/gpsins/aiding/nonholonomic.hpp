@@ -34,16 +34,17 @@ Measurement<3, Eskf<NB, NC, NT>::N> vehicle_velocity(const Eskf<NB, NC, NT>& f, 
   return m;
 }
 
-// No lateral and no vertical velocity: the rows right and down, z = 0.
+// No lateral and no vertical velocity: the rows right and down, z = 0, each with its own sigma.
 template <int NB, int NC, int NT>
 Measurement<2, Eskf<NB, NC, NT>::N> nonholonomic(const Eskf<NB, NC, NT>& f, const Mat3& c_vb, const Vec3& point_body_m,
-                                                 const Vec3& w_ib_body_rad_per_s, double sigma_mps) {
+                                                 const Vec3& w_ib_body_rad_per_s, double lateral_sigma_mps,
+                                                 double vertical_sigma_mps) {
   const auto full = vehicle_velocity(f, c_vb, point_body_m, w_ib_body_rad_per_s);
   Eigen::Matrix<double, 2, 3> rows = Eigen::Matrix<double, 2, 3>::Zero();
   rows(0, 1) = 1.0;
   rows(1, 2) = 1.0;
   auto m = project(full, rows);
-  m.R = Eigen::Matrix2d::Identity() * sigma_mps * sigma_mps;
+  m.R = Eigen::Vector2d(lateral_sigma_mps * lateral_sigma_mps, vertical_sigma_mps * vertical_sigma_mps).asDiagonal();
   return m;
 }
 
