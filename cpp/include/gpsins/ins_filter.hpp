@@ -284,7 +284,6 @@ class InsFilter {
   // Sustained GNSS rejection.
   double rejected_since_ = -1.0;
   bool rejecting_ = false;
-  bool epoch_accepted_ = false;
 
   // Inputs held until the IMU reaches their time (the oldest is used at once when one is full).
   FixedQueue<FixInput, kPending> pending_;

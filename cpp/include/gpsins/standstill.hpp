@@ -57,8 +57,6 @@ class StandstillDetector {
   // Variance of the window's mean rate from the spread of its block means
   // (vibration included), per axis.
   Vec3 mean_rate_variance() const;
-  const Vec3& std_f() const { return std_f_; }
-  const Vec3& std_w() const { return std_w_; }
 
  private:
   void close_block();
