@@ -8,6 +8,7 @@
 #pragma once
 
 #include <array>
+#include <cassert>
 #include <cmath>
 #include <cstdint>
 #include <limits>
@@ -90,6 +91,25 @@ struct AttitudeInput {
   double sigma_pitch_rad = 0.0;
 };
 
+// The filter's phase, from start-up to navigation: one at a time. It changes only by
+// InsFilter::advance, on these events:
+//   WaitingForImu  -> Levelling       the first IMU sample (FirstImuSample)
+//   Levelling      -> HeadingUnknown  the first fix after level_time_s (Initialised), or
+//                  -> Navigating      so when initial_yaw_rad is configured
+//   HeadingUnknown -> Navigating      a heading from the course over ground or a dual-antenna
+//                                     baseline (HeadingMeasured)
+//   HeadingUnknown, Navigating -> Coasting  an IMU gap too long to bridge (GapCoast)
+//   Coasting       -> HeadingUnknown  the gap's end (GapEnd)
+// An IMU gap while levelling restarts the levelling sums; the phase stays.
+enum class Phase : std::uint8_t {
+  WaitingForImu,   // no IMU sample yet: no time base
+  Levelling,       // summing the specific force; the first fix after level_time_s initialises
+  HeadingUnknown,  // navigating, the yaw kept decoupled (decouple_yaw) until a heading is measured
+  Coasting,        // after an IMU gap: a constant-velocity coast through the gap's fixes (no heading from them)
+  Navigating,      // navigating with a known heading
+};
+enum class PhaseEvent : std::uint8_t { FirstImuSample, Initialised, HeadingMeasured, GapCoast, GapEnd };
+
 // Enumerators from the shared lists (filter_names.hpp).
 #define GPSINS_ENUMERATOR(enumerator, value, name) enumerator = value,
 enum UpdateKind : int { GPSINS_UPDATE_KINDS(GPSINS_ENUMERATOR) };
@@ -148,8 +168,22 @@ class InsFilter {
   bool add_ephemeris(const gnss::Ephemeris& e) { return store_.add(e); }
   void set_klobuchar(const gnss::Klobuchar& k) { iono_ = k; }
 
-  bool initialised() const { return initialised_; }
-  bool heading_known() const { return heading_known_; }
+  Phase phase() const { return phase_; }
+  bool initialised() const { return phase_ != Phase::WaitingForImu && phase_ != Phase::Levelling; }
+  // Before initialisation: whether initial_yaw_rad will give it.
+  bool heading_known() const {
+    switch (phase_) {
+      case Phase::WaitingForImu:
+      case Phase::Levelling:
+        return std::isfinite(cfg_.initial_yaw_rad);
+      case Phase::HeadingUnknown:
+      case Phase::Coasting:
+        return false;
+      case Phase::Navigating:
+        return true;
+    }
+    return false;
+  }
   bool standstill() const { return standstill_; }
   const Core& core() const { return core_; }
   const Counters& counters() const { return counters_; }
@@ -164,6 +198,35 @@ class InsFilter {
  private:
   static constexpr int kPending = 16;
   static constexpr int kSteps = 15;
+
+  // The phase's transitions (Phase), the only writer of phase_.
+  void advance(PhaseEvent e) {
+    switch (e) {
+      case PhaseEvent::FirstImuSample:
+        assert(phase_ == Phase::WaitingForImu);
+        phase_ = Phase::Levelling;
+        break;
+      case PhaseEvent::Initialised:
+        assert(phase_ == Phase::Levelling);
+        phase_ = std::isfinite(cfg_.initial_yaw_rad) ? Phase::Navigating : Phase::HeadingUnknown;
+        break;
+      case PhaseEvent::HeadingMeasured:
+        assert(phase_ == Phase::HeadingUnknown);
+        phase_ = Phase::Navigating;
+        break;
+      case PhaseEvent::GapCoast:
+        assert(phase_ == Phase::HeadingUnknown || phase_ == Phase::Navigating);
+        phase_ = Phase::Coasting;
+        break;
+      case PhaseEvent::GapEnd:
+        assert(phase_ == Phase::Coasting);
+        phase_ = Phase::HeadingUnknown;
+        break;
+    }
+  }
+  bool have_time() const { return phase_ != Phase::WaitingForImu; }
+  // Navigating without a heading: the yaw is kept decoupled from the other states.
+  bool yaw_decoupled() const { return phase_ == Phase::HeadingUnknown || phase_ == Phase::Coasting; }
 
   Increment calibrated(double dt, const Vec3& dtheta, const Vec3& dv) const;
   void propagate_to(const Increment& inc);
@@ -247,10 +310,7 @@ class InsFilter {
   std::vector<FilterEvent>* events_ = nullptr;
   std::array<double, 8> gates_{};
 
-  bool initialised_ = false;
-  bool heading_known_ = false;
-  bool coasting_ = false;  // restart_after_gap is using the gap's fixes on its constant-velocity coast
-  bool have_time_ = false;
+  Phase phase_ = Phase::WaitingForImu;
   double t_last_ = 0.0;
   double dt_nominal_ = 1.0 / 64.0;
   std::array<double, kSteps> steps_{};
@@ -303,8 +363,7 @@ class InsFilter {
   double last_clock_t_ = -1e300;
   bool have_fix_time_ = false;
   double last_fix_t_ = 0.0;
-  bool have_prev_fix_ = false;
-  FixInput prev_fix_;
+  FixInput prev_fix_;  // the last fix used; initialise() sets it, so there is one whenever the filter navigates
   Mat3 c_vb_ = Mat3::Identity();
   FixedQueue<AttitudeInput, kPending> pending_att_;
   double last_att_t_ = -1e300;

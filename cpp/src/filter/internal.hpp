@@ -54,7 +54,7 @@ void InsFilter<NB, NC, NT>::record(int kind, const UpdateResult<M>& r, int dof, 
     u.innovation[static_cast<std::size_t>(i)] = r.innovation(i);
     u.innovation_sigma[static_cast<std::size_t>(i)] = r.innovation_sigma(i);
   }
-  if (!heading_known_ && initialised_) decouple_yaw();
+  if (yaw_decoupled()) decouple_yaw();
   if (!r.accepted) ++counters_.updates_rejected;
   if (r.guarded) ++counters_.updates_guarded;
   if (r.attitude_refused) ++counters_.updates_attitude_refused;

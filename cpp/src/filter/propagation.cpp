@@ -38,11 +38,11 @@ void InsFilter<NB, NC, NT>::propagate_to(const Increment& inc) {
     const double frac = std::clamp((t_meas - t_last_) / rest.dt_s, 0.0, 1.0);
     Increment first, second;
     split_increment(rest, frac, first, second);
-    if (initialised_) propagate_nav(first, t_last_ + first.dt_s);
+    if (initialised()) propagate_nav(first, t_last_ + first.dt_s);
     t_last_ += first.dt_s;
     if (take_fix) {
       const FixInput fix = pending_.pop_front();
-      if (initialised_) {
+      if (initialised()) {
         process_fix(fix);
       } else if (level_time_ + first.dt_s >= cfg_.level_time_s - 0.5 * dt_nominal_) {
         level_f_sum_ += first.dv_mps;
@@ -53,14 +53,14 @@ void InsFilter<NB, NC, NT>::propagate_to(const Increment& inc) {
       }
     } else {
       const PseudorangeEpoch ep = pending_pr_.pop_front();
-      if (initialised_) process_pseudoranges(ep);
+      if (initialised()) process_pseudoranges(ep);
     }
     rest = second;
   }
   t_last_ += rest.dt_s;
-  if (!initialised_) return;
+  if (!initialised()) return;
   propagate_nav(rest, t_last_);
-  if (!heading_known_) {
+  if (!heading_known()) {
     if (!standstill_) inflate_unknown_heading(rest);
     decouple_yaw();
   } else if (cfg_.nonholonomic_constraint) {

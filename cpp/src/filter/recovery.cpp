@@ -36,7 +36,7 @@ void InsFilter<NB, NC, NT>::reset_to_fix(const FixInput& fix) {
   double var_v = cfg_.velocity_sigma_mps * cfg_.velocity_sigma_mps;
   if (fix.v_ecef_mps.allFinite()) {
     core_.nav.v_ecef_mps = fix.v_ecef_mps;
-  } else if (have_prev_fix_ && fix.t_s - prev_fix_.t_s > 0.0 && fix.t_s - prev_fix_.t_s <= 2.0) {
+  } else if (fix.t_s - prev_fix_.t_s > 0.0 && fix.t_s - prev_fix_.t_s <= 2.0) {
     core_.nav.v_ecef_mps = (fix.r_ecef_m - prev_fix_.r_ecef_m) / (fix.t_s - prev_fix_.t_s);
     const double dt = fix.t_s - prev_fix_.t_s, s = cfg_.fix_uere_m * fix.hdop;
     var_v += 2.0 * s * s / (dt * dt);
@@ -50,7 +50,7 @@ void InsFilter<NB, NC, NT>::reset_to_fix(const FixInput& fix) {
   const Mat3 att_ned = c_bn.transpose() * P.template block<3, 3>(es::att, es::att) * c_bn;
   const Vec3 att_var =
       att_ned.diagonal() + square(Vec3(cfg_.attitude_sigma_rad.x(), cfg_.attitude_sigma_rad.y(),
-                                       heading_known_ ? cfg_.heading_sigma_rad : cfg_.attitude_sigma_rad.z()));
+                                       heading_known() ? cfg_.heading_sigma_rad : cfg_.attitude_sigma_rad.z()));
   P.template topRows<9>().setZero();
   P.template leftCols<9>().setZero();
   P.template block<3, 3>(es::att, es::att) = c_bn * att_var.asDiagonal() * c_bn.transpose();

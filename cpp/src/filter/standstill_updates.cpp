@@ -52,7 +52,7 @@ bool force_at_rest(const Core& core, const StandstillDetector& det, const InsCon
 template <int NB, int NC, int NT>
 void InsFilter<NB, NC, NT>::detect_standstill(const Increment& inc) {
   const bool fresh = detector_.add(inc.dv_mps / inc.dt_s, inc.dtheta_rad / inc.dt_s, inc.dt_s);
-  if (!initialised_ || !cfg_.zero_velocity_updates) {
+  if (!initialised() || !cfg_.zero_velocity_updates) {
     standstill_ = false;
     standstill_blocks_ = 0;
     return;
@@ -115,7 +115,7 @@ void InsFilter<NB, NC, NT>::detect_standstill(const Increment& inc) {
     auto mz = zero_rate(core_, rate, var);
     // Without a heading the attitude coupling (Earth rate seen through a wrong
     // yaw) is far outside the linear range: use the update for the biases only.
-    if (!heading_known_) mz.H.template middleCols<3>(es::att).setZero();
+    if (!heading_known()) mz.H.template middleCols<3>(es::att).setZero();
     record(kZeroRate, apply(mz, 3), 3);
     ++counters_.zero_rate_updates;
   }

@@ -52,7 +52,7 @@ Measurement<1, InsFilter<NB, NC, NT>::N> InsFilter<NB, NC, NT>::range_measuremen
                                                                                   const Vec3& v_a) const {
   if constexpr (Core::kHasClock) {
     auto m = pseudorange(core_, cfg_.lever_arm_body_m, u.sat, u.pr_corr, u.sagnac, u.var);
-    add_time_offset(m, core_, es::pos, v_a, heading_known_);  // the range rate the receiver's motion gives
+    add_time_offset(m, core_, es::pos, v_a, heading_known());  // the range rate the receiver's motion gives
     if constexpr (Core::kSisCount > 0) {
       if (u.sis_slot >= 0) {
         m.y(0) -= core_.sis(u.sis_slot);
@@ -145,7 +145,7 @@ void InsFilter<NB, NC, NT>::process_pseudoranges(const PseudorangeEpoch& ep) {
     const int n_gal = ep.ranges ? static_cast<int>(galileo_end - galileo_first) : 0;
     if (n_gal >= 2) any = update_galileo(&*galileo_first, n_gal, v_a, ep.t_s) || any;
     // Every system's Doppler shares the one drift: the receiver's oscillator (GGTO's rate is nil).
-    if (heading_known_) any = update_range_rates(use.data(), n) || any;
+    if (heading_known()) any = update_range_rates(use.data(), n) || any;
     note_gnss(any, ep.t_s);
   } else {
     (void)ep;
