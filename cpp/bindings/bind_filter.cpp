@@ -79,7 +79,7 @@ FixInput fix_of(const double* p, int cols) {
   f.v_ecef_mps = Vec3(p[4], p[5], p[6]);
   f.hdop = p[7];
   f.vdop = p[8];
-  f.mode = std::isfinite(p[9]) ? static_cast<int>(p[9]) : 0;
+  f.mode = std::isfinite(p[9]) ? static_cast<int>(p[9]) : kFixModeNone;
   if (cols == kFixColsSigma) {
     f.sigma_ned_m = Vec3(p[10], p[11], p[12]);
     f.sigma_v_ned_mps = Vec3(p[13], p[14], p[15]);
@@ -164,7 +164,7 @@ struct StateRow {
     if constexpr (NT == 1) o[k++] = e.time_offset_s;
     const auto s = e.sigma();
     for (int i = 0; i < N; ++i) o[k++] = s(i);
-    o[k++] = (f.standstill() ? 1.0 : 0.0) + (f.heading_known() ? 2.0 : 0.0);  // flags
+    o[k++] = (f.standstill() ? kRowFlagStandstill : 0) + (f.heading_known() ? kRowFlagHeadingKnown : 0);  // flags
   }
 };
 
@@ -726,7 +726,7 @@ void bind_filter(py::module_& m) {
       .def(py::init<const InsConfig&, const std::string&>(), py::arg("config"), py::arg("mode") = "loose")
       .def("push_imu", &PyFilter::push_imu, py::arg("t"), py::arg("dtheta"), py::arg("dv"))
       .def("push_fix", &PyFilter::push_fix, py::arg("t"), py::arg("r_ecef"), py::arg("v_ecef"), py::arg("hdop"),
-           py::arg("vdop"), py::arg("mode") = 2,
+           py::arg("vdop"), py::arg("mode") = kFixMode3D,
            py::arg("sigma_ned") = Vec3::Constant(std::numeric_limits<double>::quiet_NaN()),
            py::arg("sigma_v_ned") = Vec3::Constant(std::numeric_limits<double>::quiet_NaN()))
       .def("run", &PyFilter::run, py::arg("imu"), py::arg("fixes"), py::arg("pseudoranges") = py::none(),

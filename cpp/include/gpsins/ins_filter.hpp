@@ -7,6 +7,7 @@
 // changes nothing.
 #pragma once
 
+#include <algorithm>
 #include <array>
 #include <cassert>
 #include <cmath>
@@ -36,7 +37,8 @@ enum class InputStatus : int {
 const char* input_status_text(InputStatus s);
 
 // FixInput::mode: a 3D fix, or a 2D fix (its height the receiver's assumption: the
-// horizontal is used); anything else is no solution (counted).
+// horizontal is used); anything else is no solution (counted), kFixModeNone among them.
+inline constexpr int kFixModeNone = 0;
 inline constexpr int kFixMode3D = 2;
 inline constexpr int kFixMode2D = 3;
 
@@ -113,6 +115,10 @@ enum class PhaseEvent : std::uint8_t { FirstImuSample, Initialised, HeadingMeasu
 // Enumerators from the shared lists (filter_names.hpp).
 #define GPSINS_ENUMERATOR(enumerator, value, name) enumerator = value,
 enum UpdateKind : int { GPSINS_UPDATE_KINDS(GPSINS_ENUMERATOR) };
+// One past the largest update kind: the size of a table indexed by kind.
+#define GPSINS_KIND_VALUE(enumerator, value, name) value,
+inline constexpr int kUpdateKindEnd = 1 + std::max({GPSINS_UPDATE_KINDS(GPSINS_KIND_VALUE)});
+#undef GPSINS_KIND_VALUE
 
 struct UpdateRecord {
   double t_s = 0.0;
@@ -198,6 +204,10 @@ class InsFilter {
  private:
   static constexpr int kPending = 16;
   static constexpr int kSteps = 15;
+  static constexpr double kDefaultImuRateHz = 64.0;  // the nominal step's start when imu_rate_hz is not set
+  static constexpr int kGateDofs = 8;                // gates_[dof], dof 1 to 7
+  static constexpr double kLongAgo_s = -1e300;       // a time before any input
+  static constexpr double kNoSpeed = -1.0;           // no GNSS speed yet
 
   // The phase's transitions (Phase), the only writer of phase_.
   void advance(PhaseEvent e) {
@@ -294,7 +304,7 @@ class InsFilter {
   // robust_kind: the kind whose rejections in a row allow a down-weighted update (0: none).
   template <int M, int K>
   UpdateResult<M> apply(const Measurement<M, K>& m, int dof, int robust_kind = 0);
-  std::array<int, 10> rejections_in_row_{};  // per update kind
+  std::array<int, kUpdateKindEnd> rejections_in_row_{};  // per update kind
   double gate(int dof) const { return gates_[static_cast<std::size_t>(dof)]; }
   double attitude_limit() const {
     return cfg_.update_check == UpdateCheck::AttitudeCorrection || cfg_.update_check == UpdateCheck::Both
@@ -308,11 +318,11 @@ class InsFilter {
   UpdateRecord last_update_;
   std::vector<UpdateRecord>* log_ = nullptr;
   std::vector<FilterEvent>* events_ = nullptr;
-  std::array<double, 8> gates_{};
+  std::array<double, kGateDofs> gates_{};
 
   Phase phase_ = Phase::WaitingForImu;
   double t_last_ = 0.0;
-  double dt_nominal_ = 1.0 / 64.0;
+  double dt_nominal_ = 1.0 / kDefaultImuRateHz;
   std::array<double, kSteps> steps_{};
   int steps_count_ = 0, steps_head_ = 0;
   Increment last_inc_;  // calibrated, for gap bridging
@@ -337,19 +347,19 @@ class InsFilter {
   StandstillDetector detector_;
   bool standstill_ = false;
   int standstill_blocks_ = 0;
-  double gnss_speed_mps_ = -1.0, gnss_speed_t_ = -1e300;  // last GNSS speed and its time
-  double gnss_speed_sigma_mps_ = 0.0;                     // that speed's sigma (per horizontal axis)
-  bool moved_ = false;                                    // the filter or GNSS has shown motion since the start
+  double gnss_speed_mps_ = kNoSpeed, gnss_speed_t_ = kLongAgo_s;  // last GNSS speed and its time
+  double gnss_speed_sigma_mps_ = 0.0;                             // that speed's sigma (per horizontal axis)
+  bool moved_ = false;                                            // the filter or GNSS has shown motion since the start
 
   // Sustained GNSS rejection.
-  double rejected_since_ = -1.0;
+  double rejected_since_ = 0.0;  // set when a rejection begins (rejecting_)
   bool rejecting_ = false;
 
   // Inputs held until the IMU reaches their time (the oldest is used at once when one is full).
   FixedQueue<FixInput, kPending> pending_;
   static constexpr int kPendingPr = 4;
   FixedQueue<PseudorangeEpoch, kPendingPr> pending_pr_;
-  double last_pr_t_ = -1e300;
+  double last_pr_t_ = kLongAgo_s;
   gnss::EphemerisStore store_;
   gnss::Klobuchar iono_;
   std::array<int, gnss::kMaxSatId + 1> last_lock_{};
@@ -360,15 +370,15 @@ class InsFilter {
   bool clock_set_ = false;
   bool clock_suspect_ = false;  // the last epoch's median residual lay beyond the gate
   double last_clock_median_m_ = 0.0;
-  double last_clock_t_ = -1e300;
+  double last_clock_t_ = kLongAgo_s;
   bool have_fix_time_ = false;
   double last_fix_t_ = 0.0;
   FixInput prev_fix_;  // the last fix used; initialise() sets it, so there is one whenever the filter navigates
   Mat3 c_vb_ = Mat3::Identity();
   FixedQueue<AttitudeInput, kPending> pending_att_;
-  double last_att_t_ = -1e300;
-  double last_nhc_t_ = -1e300;
-  double zupt_refused_t_ = -1e300;  // the last zero-velocity update the gate refused
+  double last_att_t_ = kLongAgo_s;
+  double last_nhc_t_ = kLongAgo_s;
+  double zupt_refused_t_ = kLongAgo_s;  // the last zero-velocity update the gate refused
 };
 
 extern template class InsFilter<5, 0>;

@@ -30,6 +30,11 @@ namespace filter_detail {
 
 inline Vec3 square(const Vec3& v) { return v.cwiseProduct(v); }
 
+// Two fixes at most this far apart give a velocity by their difference (s).
+inline constexpr double kMaxFixDifferenceSpan_s = 2.0;
+// Per-axis means of 3-axis sums (a covariance block's trace, a squared norm).
+inline constexpr double kAxes = 3.0;
+
 }  // namespace filter_detail
 
 // Every update's bookkeeping: its record (the update log, last_update), the counters, and

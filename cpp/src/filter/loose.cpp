@@ -13,6 +13,7 @@
 
 namespace gpsins {
 
+using filter_detail::kMaxFixDifferenceSpan_s;
 using filter_detail::square;
 
 namespace {
@@ -54,7 +55,7 @@ void InsFilter<NB, NC, NT>::process_fix(const FixInput& fix) {
     double sigma_v_mps = std::numeric_limits<double>::infinity();  // per horizontal axis
     if (v.allFinite())
       sigma_v_mps = fix_speed_sigma(fix);
-    else if (fix.t_s - prev_fix_.t_s > 0.0 && fix.t_s - prev_fix_.t_s <= 2.0)
+    else if (fix.t_s - prev_fix_.t_s > 0.0 && fix.t_s - prev_fix_.t_s <= kMaxFixDifferenceSpan_s)
       v = (fix.r_ecef_m - prev_fix_.r_ecef_m) / (fix.t_s - prev_fix_.t_s);
     const Vec3 v_ned = c_en.transpose() * v;
     const double speed = std::hypot(v_ned.x(), v_ned.y());

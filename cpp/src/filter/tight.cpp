@@ -17,6 +17,9 @@ namespace gpsins {
 
 namespace {
 
+// The elevation's sine a correlated range error's growth at low elevation stops at (about 6 deg).
+constexpr double kMinElevationSine = 0.1;
+
 // (1 + a) / (1 - a), a = exp(-dt / tau): what a Gauss-Markov error's stationary
 // variance is multiplied by when a satellite's updates dt apart are treated as
 // independent. a = 0 (factor 1) without a previous update or for a white error.
@@ -38,7 +41,7 @@ double InsFilter<NB, NC, NT>::correlated_variance(int prn, double t, double el_r
   const double dt = known ? t - pr_used_t_[static_cast<std::size_t>(prn)] : std::numeric_limits<double>::quiet_NaN();
   double var = 0.0;
   if (cfg_.pseudorange_error_gm_sigma_m > 0.0 && known) {
-    const double s = cfg_.pseudorange_error_gm_sigma_m / std::max(std::sin(el_rad), 0.1);
+    const double s = cfg_.pseudorange_error_gm_sigma_m / std::max(std::sin(el_rad), kMinElevationSine);
     var += s * s * gm_update_factor(dt, cfg_.pseudorange_error_gm_tau_s);
   }
   if (sis_m > 0.0) var += sis_m * sis_m * gm_update_factor(dt, cfg_.pseudorange_sis_tau_s);

@@ -8,11 +8,17 @@
 
 namespace gpsins {
 
+namespace {
+
+constexpr double kIntervalTolerance_s = 1e-9;  // rounding in the sample times: an interval is not missed by it
+
+}  // namespace
+
 // The land-vehicle constraint while moving (standing, the zero-velocity update
 // says more); at most every nhc_interval_s.
 template <int NB, int NC, int NT>
 void InsFilter<NB, NC, NT>::constrain_vehicle(const Increment& inc) {
-  if (!(inc.dt_s > 0.0) || standstill_ || t_last_ - last_nhc_t_ < cfg_.nhc_interval_s - 1e-9) return;
+  if (!(inc.dt_s > 0.0) || standstill_ || t_last_ - last_nhc_t_ < cfg_.nhc_interval_s - kIntervalTolerance_s) return;
   if (core_.nav.v_ecef_mps.norm() < cfg_.nhc_min_speed_mps) return;
   last_nhc_t_ = t_last_;
   const double vertical = cfg_.nhc_vertical_sigma_mps > 0.0 ? cfg_.nhc_vertical_sigma_mps : cfg_.nhc_sigma_mps;
