@@ -7,6 +7,7 @@
 #include <Eigen/Cholesky>
 
 #include "gpsins/aiding/zero_rate.hpp"
+#include "gpsins/chi2.hpp"
 #include "gpsins/aiding/zero_velocity.hpp"
 #include "internal.hpp"
 
@@ -16,9 +17,11 @@ using filter_detail::square;
 
 namespace {
 
-// The at-rest test's bound on the squared Mahalanobis distance: chi-square, 3 dof,
-// probability 0.999 (chi2_quantile(0.999, 3) = 16.266, as written here since the start).
-constexpr double kAtRestChi2Bound = 16.27;
+// The at-rest test's bound on the squared Mahalanobis distance: chi-square, 3 dof (the
+// specific force's axes), at this probability. (Written as 16.27 until it was derived here:
+// chi2_quantile(0.999, 3) = 16.266.)
+constexpr double kAtRestProbability = 0.999;
+constexpr int kAtRestDof = 3;
 // The window's duration the mean's noise is taken over is at least this (s).
 constexpr double kMinWindow_s = 1e-3;
 // A GNSS speed this recent (s) counts in the standstill decision.
@@ -49,7 +52,8 @@ bool force_at_rest(const Core& core, const StandstillDetector& det, const InsCon
   const Mat3 S = J * Pab * J.transpose() +
                  Mat3::Identity() * (noise + cfg.standstill_accel_shift_mps2 * cfg.standstill_accel_shift_mps2);
   const double d2 = a.dot(S.ldlt().solve(a));
-  return std::isfinite(d2) && d2 < kAtRestChi2Bound;
+  static const double bound = chi2_quantile(kAtRestProbability, kAtRestDof);
+  return std::isfinite(d2) && d2 < bound;
 }
 
 }  // namespace
