@@ -234,14 +234,19 @@ TEST_CASE("fixes inside a long IMU gap set no heading, and increments covering t
     REQUIRE(f.push_imu(t, s.w_body * span, f_body(t - 0.5 * span) * span) == InputStatus::Ok);
     t_prev = t;
   };
-  for (int k = 1; k <= 2000; ++k) sample(k * dt);
+  CHECK(f.phase() == Phase::WaitingForImu);
+  sample(dt);
+  CHECK(f.phase() == Phase::Levelling);
+  for (int k = 2; k <= 2000; ++k) sample(k * dt);
   REQUIRE(f.heading_known());
+  CHECK(f.phase() == Phase::Navigating);
   const double offset_var = f.core().P(InsFilter<5, 0, 1>::Core::kTimeOffset, InsFilter<5, 0, 1>::Core::kTimeOffset);
   sample(22.05);  // the first sample after the gap
   CHECK(f.counters().imu_gap_restarts == 1);
   CHECK(f.counters().imu_samples_rejected == 0);
   // Not the course at a fix inside the gap: without the IMU the attitude could not follow a turn to its end.
   CHECK_FALSE(f.heading_known());
+  CHECK(f.phase() == Phase::HeadingUnknown);           // through Coasting, over the gap's fixes
   CHECK((f.core().nav.v_ecef_mps - v).norm() < 0.02);  // the 2 s increment over 10 ms: 10 ms of free fall
   // The offset is carried over the coast, its variance too (plus one step of its random walk).
   CHECK(f.core().P(InsFilter<5, 0, 1>::Core::kTimeOffset, InsFilter<5, 0, 1>::Core::kTimeOffset) ==
@@ -253,6 +258,7 @@ TEST_CASE("fixes inside a long IMU gap set no heading, and increments covering t
   REQUIRE(heading_set.size() == 2);
   CHECK(heading_set[1] == doctest::Approx(22.2));  // the first fix after the gap
   CHECK(f.heading_known());
+  CHECK(f.phase() == Phase::Navigating);
   CHECK(f.counters().imu_samples_rejected == 0);
   CHECK_FALSE(f.counters().diverged);
   CHECK((f.core().nav.r_ecef_m - r_at(30.0)).norm() < 0.5);

@@ -7,7 +7,9 @@
 // changes nothing.
 #pragma once
 
+#include <algorithm>
 #include <array>
+#include <cassert>
 #include <cmath>
 #include <cstdint>
 #include <limits>
@@ -35,7 +37,8 @@ enum class InputStatus : int {
 const char* input_status_text(InputStatus s);
 
 // FixInput::mode: a 3D fix, or a 2D fix (its height the receiver's assumption: the
-// horizontal is used); anything else is no solution (counted).
+// horizontal is used); anything else is no solution (counted), kFixModeNone among them.
+inline constexpr int kFixModeNone = 0;
 inline constexpr int kFixMode3D = 2;
 inline constexpr int kFixMode2D = 3;
 
@@ -90,9 +93,32 @@ struct AttitudeInput {
   double sigma_pitch_rad = 0.0;
 };
 
+// The filter's phase, from start-up to navigation: one at a time. It changes only by
+// InsFilter::advance, on these events:
+//   WaitingForImu  -> Levelling       the first IMU sample (FirstImuSample)
+//   Levelling      -> HeadingUnknown  the first fix after level_time_s (Initialised), or
+//                  -> Navigating      so when initial_yaw_rad is configured
+//   HeadingUnknown -> Navigating      a heading from the course over ground or a dual-antenna
+//                                     baseline (HeadingMeasured)
+//   HeadingUnknown, Navigating -> Coasting  an IMU gap too long to bridge (GapCoast)
+//   Coasting       -> HeadingUnknown  the gap's end (GapEnd)
+// An IMU gap while levelling restarts the levelling sums; the phase stays.
+enum class Phase : std::uint8_t {
+  WaitingForImu,   // no IMU sample yet: no time base
+  Levelling,       // summing the specific force; the first fix after level_time_s initialises
+  HeadingUnknown,  // navigating, the yaw kept decoupled (decouple_yaw) until a heading is measured
+  Coasting,        // after an IMU gap: a constant-velocity coast through the gap's fixes (no heading from them)
+  Navigating,      // navigating with a known heading
+};
+enum class PhaseEvent : std::uint8_t { FirstImuSample, Initialised, HeadingMeasured, GapCoast, GapEnd };
+
 // Enumerators from the shared lists (filter_names.hpp).
 #define GPSINS_ENUMERATOR(enumerator, value, name) enumerator = value,
 enum UpdateKind : int { GPSINS_UPDATE_KINDS(GPSINS_ENUMERATOR) };
+// One past the largest update kind: the size of a table indexed by kind.
+#define GPSINS_KIND_VALUE(enumerator, value, name) value,
+inline constexpr int kUpdateKindEnd = 1 + std::max({GPSINS_UPDATE_KINDS(GPSINS_KIND_VALUE)});
+#undef GPSINS_KIND_VALUE
 
 struct UpdateRecord {
   double t_s = 0.0;
@@ -148,8 +174,22 @@ class InsFilter {
   bool add_ephemeris(const gnss::Ephemeris& e) { return store_.add(e); }
   void set_klobuchar(const gnss::Klobuchar& k) { iono_ = k; }
 
-  bool initialised() const { return initialised_; }
-  bool heading_known() const { return heading_known_; }
+  Phase phase() const { return phase_; }
+  bool initialised() const { return phase_ != Phase::WaitingForImu && phase_ != Phase::Levelling; }
+  // Before initialisation: whether initial_yaw_rad will give it.
+  bool heading_known() const {
+    switch (phase_) {
+      case Phase::WaitingForImu:
+      case Phase::Levelling:
+        return std::isfinite(cfg_.initial_yaw_rad);
+      case Phase::HeadingUnknown:
+      case Phase::Coasting:
+        return false;
+      case Phase::Navigating:
+        return true;
+    }
+    return false;
+  }
   bool standstill() const { return standstill_; }
   const Core& core() const { return core_; }
   const Counters& counters() const { return counters_; }
@@ -164,6 +204,39 @@ class InsFilter {
  private:
   static constexpr int kPending = 16;
   static constexpr int kSteps = 15;
+  static constexpr double kDefaultImuRateHz = 64.0;  // the nominal step's start when imu_rate_hz is not set
+  static constexpr int kGateDofs = 8;                // gates_[dof], dof 1 to 7
+  static constexpr double kLongAgo_s = -1e300;       // a time before any input
+  static constexpr double kNoSpeed = -1.0;           // no GNSS speed yet
+
+  // The phase's transitions (Phase), the only writer of phase_.
+  void advance(PhaseEvent e) {
+    switch (e) {
+      case PhaseEvent::FirstImuSample:
+        assert(phase_ == Phase::WaitingForImu);
+        phase_ = Phase::Levelling;
+        break;
+      case PhaseEvent::Initialised:
+        assert(phase_ == Phase::Levelling);
+        phase_ = std::isfinite(cfg_.initial_yaw_rad) ? Phase::Navigating : Phase::HeadingUnknown;
+        break;
+      case PhaseEvent::HeadingMeasured:
+        assert(phase_ == Phase::HeadingUnknown);
+        phase_ = Phase::Navigating;
+        break;
+      case PhaseEvent::GapCoast:
+        assert(phase_ == Phase::HeadingUnknown || phase_ == Phase::Navigating);
+        phase_ = Phase::Coasting;
+        break;
+      case PhaseEvent::GapEnd:
+        assert(phase_ == Phase::Coasting);
+        phase_ = Phase::HeadingUnknown;
+        break;
+    }
+  }
+  bool have_time() const { return phase_ != Phase::WaitingForImu; }
+  // Navigating without a heading: the yaw is kept decoupled from the other states.
+  bool yaw_decoupled() const { return phase_ == Phase::HeadingUnknown || phase_ == Phase::Coasting; }
 
   Increment calibrated(double dt, const Vec3& dtheta, const Vec3& dv) const;
   void propagate_to(const Increment& inc);
@@ -231,7 +304,7 @@ class InsFilter {
   // robust_kind: the kind whose rejections in a row allow a down-weighted update (0: none).
   template <int M, int K>
   UpdateResult<M> apply(const Measurement<M, K>& m, int dof, int robust_kind = 0);
-  std::array<int, 10> rejections_in_row_{};  // per update kind
+  std::array<int, kUpdateKindEnd> rejections_in_row_{};  // per update kind
   double gate(int dof) const { return gates_[static_cast<std::size_t>(dof)]; }
   double attitude_limit() const {
     return cfg_.update_check == UpdateCheck::AttitudeCorrection || cfg_.update_check == UpdateCheck::Both
@@ -245,14 +318,11 @@ class InsFilter {
   UpdateRecord last_update_;
   std::vector<UpdateRecord>* log_ = nullptr;
   std::vector<FilterEvent>* events_ = nullptr;
-  std::array<double, 8> gates_{};
+  std::array<double, kGateDofs> gates_{};
 
-  bool initialised_ = false;
-  bool heading_known_ = false;
-  bool coasting_ = false;  // restart_after_gap is using the gap's fixes on its constant-velocity coast
-  bool have_time_ = false;
+  Phase phase_ = Phase::WaitingForImu;
   double t_last_ = 0.0;
-  double dt_nominal_ = 1.0 / 64.0;
+  double dt_nominal_ = 1.0 / kDefaultImuRateHz;
   std::array<double, kSteps> steps_{};
   int steps_count_ = 0, steps_head_ = 0;
   Increment last_inc_;  // calibrated, for gap bridging
@@ -277,20 +347,19 @@ class InsFilter {
   StandstillDetector detector_;
   bool standstill_ = false;
   int standstill_blocks_ = 0;
-  double gnss_speed_mps_ = -1.0, gnss_speed_t_ = -1e300;  // last GNSS speed and its time
-  double gnss_speed_sigma_mps_ = 0.0;                     // that speed's sigma (per horizontal axis)
-  bool moved_ = false;                                    // the filter or GNSS has shown motion since the start
+  double gnss_speed_mps_ = kNoSpeed, gnss_speed_t_ = kLongAgo_s;  // last GNSS speed and its time
+  double gnss_speed_sigma_mps_ = 0.0;                             // that speed's sigma (per horizontal axis)
+  bool moved_ = false;                                            // the filter or GNSS has shown motion since the start
 
   // Sustained GNSS rejection.
-  double rejected_since_ = -1.0;
+  double rejected_since_ = 0.0;  // set when a rejection begins (rejecting_)
   bool rejecting_ = false;
-  bool epoch_accepted_ = false;
 
   // Inputs held until the IMU reaches their time (the oldest is used at once when one is full).
   FixedQueue<FixInput, kPending> pending_;
   static constexpr int kPendingPr = 4;
   FixedQueue<PseudorangeEpoch, kPendingPr> pending_pr_;
-  double last_pr_t_ = -1e300;
+  double last_pr_t_ = kLongAgo_s;
   gnss::EphemerisStore store_;
   gnss::Klobuchar iono_;
   std::array<int, gnss::kMaxSatId + 1> last_lock_{};
@@ -301,16 +370,15 @@ class InsFilter {
   bool clock_set_ = false;
   bool clock_suspect_ = false;  // the last epoch's median residual lay beyond the gate
   double last_clock_median_m_ = 0.0;
-  double last_clock_t_ = -1e300;
+  double last_clock_t_ = kLongAgo_s;
   bool have_fix_time_ = false;
   double last_fix_t_ = 0.0;
-  bool have_prev_fix_ = false;
-  FixInput prev_fix_;
+  FixInput prev_fix_;  // the last fix used; initialise() sets it, so there is one whenever the filter navigates
   Mat3 c_vb_ = Mat3::Identity();
   FixedQueue<AttitudeInput, kPending> pending_att_;
-  double last_att_t_ = -1e300;
-  double last_nhc_t_ = -1e300;
-  double zupt_refused_t_ = -1e300;  // the last zero-velocity update the gate refused
+  double last_att_t_ = kLongAgo_s;
+  double last_nhc_t_ = kLongAgo_s;
+  double zupt_refused_t_ = kLongAgo_s;  // the last zero-velocity update the gate refused
 };
 
 extern template class InsFilter<5, 0>;

@@ -234,6 +234,9 @@ class BackwardPass {
 // Records the forward pass of an InsFilter's core. Propagation steps between
 // two other records are multiplied into one transition (so with output every
 // k IMU samples the tape holds one Phi per output or update, not per sample).
+// The flags an output row ends with (EskfRecorder::output's flags, a batch run's state rows): their sum.
+inline constexpr int kRowFlagStandstill = 1, kRowFlagHeadingKnown = 2;
+
 template <int NB, int NC, int NT = 0>
 class EskfRecorder final : public EskfObserver<3 * NB + NC + NT> {
  public:
@@ -244,6 +247,7 @@ class EskfRecorder final : public EskfObserver<3 * NB + NC + NT> {
   // Nominal payload: t, r, v, q (w x y z), bg, ba, [sg, sa], [[sis slots] clock or fix error], [time offset],
   // flags: after the quaternion one value per error state, in its order.
   static constexpr int kNominal = 1 + 3 + 3 + 4 + 6 + (NB == 7 ? 6 : 0) + NC + NT + 1;
+  static constexpr int kRowPos = 1, kRowVel = 4, kRowQuat = 7, kRowBias = 11;  // where each starts in it
   using Pass = BackwardPass<N>;
 
   explicit EskfRecorder(std::size_t chunk_bytes) : tape_(chunk_bytes) {}
@@ -335,18 +339,18 @@ void EskfRecorder<NB, NC, NT>::smooth(const std::function<void(long, const doubl
   std::array<double, kNominal> row{};
   Pass::run(tape_, outputs_, [&](long k, const double* nom, int, const typename Pass::VecN& dx, const MatN& ps) {
     std::copy(nom, nom + kNominal, row.begin());
-    Quat q(nom[7], nom[8], nom[9], nom[10]);
+    Quat q(nom[kRowQuat], nom[kRowQuat + 1], nom[kRowQuat + 2], nom[kRowQuat + 3]);
     Vec3 dth = dx.template segment<3>(es::att);
     MatN p = ps;
     // Before the first heading the error about the vertical is no estimate: the forward pass keeps it
     // unknown (sigma pi) and uncorrelated. Its smoothed value is left out of the injection, and its
     // variance out of the reset below, which would otherwise turn some of pi^2 into the tilt (the
     // smoothed tilt sigma came out up to 1.4x the forward's); it is put back about the vertical after.
-    const bool heading_unknown = (static_cast<int>(nom[kNominal - 1]) & 2) == 0;
+    const bool heading_unknown = (static_cast<int>(nom[kNominal - 1]) & kRowFlagHeadingKnown) == 0;
     Vec3 up_b = Vec3::Zero();
     double yaw_var = 0.0;
     if (heading_unknown) {
-      up_b = q.conjugate() * Vec3(nom[1], nom[2], nom[3]).normalized();
+      up_b = q.conjugate() * Vec3(nom[kRowPos], nom[kRowPos + 1], nom[kRowPos + 2]).normalized();
       yaw_var = up_b.dot(ps.template block<3, 3>(es::att, es::att) * up_b);
       const Mat3 keep = Mat3::Identity() - up_b * up_b.transpose();
       dth = keep * dth;
@@ -355,14 +359,14 @@ void EskfRecorder<NB, NC, NT>::smooth(const std::function<void(long, const doubl
     }
     q = (q * quat_from_rotvec(dth)).normalized();
     for (int i = 0; i < 3; ++i) {
-      row[static_cast<std::size_t>(1 + i)] += dx(es::pos + i);
-      row[static_cast<std::size_t>(4 + i)] += dx(es::vel + i);
+      row[static_cast<std::size_t>(kRowPos + i)] += dx(es::pos + i);
+      row[static_cast<std::size_t>(kRowVel + i)] += dx(es::vel + i);
     }
-    row[7] = q.w();
-    row[8] = q.x();
-    row[9] = q.y();
-    row[10] = q.z();
-    for (int i = 0; i < 3 * (NB - 3) + NC + NT; ++i) row[static_cast<std::size_t>(11 + i)] += dx(es::bg + i);
+    row[kRowQuat] = q.w();
+    row[kRowQuat + 1] = q.x();
+    row[kRowQuat + 2] = q.y();
+    row[kRowQuat + 3] = q.z();
+    for (int i = 0; i < N - es::bg; ++i) row[static_cast<std::size_t>(kRowBias + i)] += dx(es::bg + i);
     // The smoothed covariance in the error definition of the smoothed nominal.
     const Mat3 g = Mat3::Identity() - skew(0.5 * dth);
     p.template topRows<3>() = (g * p.template topRows<3>()).eval();

@@ -57,8 +57,6 @@ class StandstillDetector {
   // Variance of the window's mean rate from the spread of its block means
   // (vibration included), per axis.
   Vec3 mean_rate_variance() const;
-  const Vec3& std_f() const { return std_f_; }
-  const Vec3& std_w() const { return std_w_; }
 
  private:
   void close_block();
@@ -80,7 +78,8 @@ class StandstillDetector {
   // At-rest reference.
   bool standing_ = false;
   bool have_ref_ = false;
-  double ended_t_ = -1e300;
+  static constexpr double kLongAgo_s = -1e300;  // a time before any sample
+  double ended_t_ = kLongAgo_s;
   Vec3 ref_f_ = Vec3::Zero(), ref_w_ = Vec3::Zero();
   Vec3 ref_sum_f_ = Vec3::Zero(), ref_sum_w_ = Vec3::Zero();  // newest blocks while standing
   int ref_blocks_ = 0;

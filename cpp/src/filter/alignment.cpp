@@ -25,7 +25,7 @@ template <int NB, int NC, int NT>
 void InsFilter<NB, NC, NT>::initialise(const FixInput& fix) {
   const Vec3 f_mean = level_f_sum_ / level_time_;
   Euler e = levelled(f_mean);
-  e.yaw_rad = heading_known_ ? cfg_.initial_yaw_rad : 0.0;
+  e.yaw_rad = heading_known() ? cfg_.initial_yaw_rad : 0.0;  // while levelling: configured
   const Geodetic llh = ecef_to_geodetic(fix.r_ecef_m);
   core_.nav.q_eb = quat_body_to_ecef(e, llh.lat_rad, llh.lon_rad);
   core_.nav.r_ecef_m = fix.r_ecef_m - core_.nav.q_eb * cfg_.lever_arm_body_m;
@@ -37,7 +37,7 @@ void InsFilter<NB, NC, NT>::initialise(const FixInput& fix) {
   P.setZero();
   const Mat3 c_bn = core_.nav.q_eb.toRotationMatrix().transpose() * rot_ned_to_ecef(llh.lat_rad, llh.lon_rad);
   Vec3 att = cfg_.attitude_sigma_rad;
-  if (!heading_known_) att.z() = M_PI;
+  if (!heading_known()) att.z() = M_PI;
   P.template block<3, 3>(es::att, es::att) = c_bn * square(att).asDiagonal() * c_bn.transpose();
   P.template block<3, 3>(es::vel, es::vel) = Mat3::Identity() * cfg_.velocity_sigma_mps * cfg_.velocity_sigma_mps;
   P.template block<3, 3>(es::pos, es::pos) = Mat3::Identity() * cfg_.position_sigma_m * cfg_.position_sigma_m;
@@ -67,8 +67,7 @@ void InsFilter<NB, NC, NT>::initialise(const FixInput& fix) {
     P(Core::kTimeOffset, Core::kTimeOffset) = cfg_.time_offset_sigma_s * cfg_.time_offset_sigma_s;
   }
   core_.note_restart(0, N);
-  initialised_ = true;
-  have_prev_fix_ = true;
+  advance(PhaseEvent::Initialised);
   prev_fix_ = fix;
   ++counters_.fixes_accepted;
 }
@@ -124,7 +123,7 @@ void InsFilter<NB, NC, NT>::set_heading(const FixInput& fix, const Vec3& v_ecef,
   P.template block<3, 3>(es::pos, es::pos) = Mat3::Identity() * cfg_.position_sigma_m * cfg_.position_sigma_m;
   core_.note_attitude_map(keep);
   core_.note_restart(es::vel, 6);
-  heading_known_ = true;
+  advance(PhaseEvent::HeadingMeasured);
 }
 
 #define GPSINS_INSTANTIATE(NB, NC, NT)                              \

@@ -27,7 +27,7 @@ void InsFilter<NB, NC, NT>::restart_after_gap(double gap_s, double t_end) {
   standstill_ = false;
   standstill_blocks_ = 0;
   last_inc_ = Increment{};
-  if (!initialised_) {
+  if (!initialised()) {  // the levelling starts over
     level_f_sum_.setZero();
     level_time_ = 0.0;
     while (!pending_.empty() && pending_.front().t_s < t_end) {
@@ -63,7 +63,6 @@ void InsFilter<NB, NC, NT>::restart_after_gap(double gap_s, double t_end) {
   }
   core_.note_restart(0, 9);                      // the time offset is kept: a property of the sensors
   if constexpr (NT == 1) accel_ecef_.setZero();  // the coast below has none
-  heading_known_ = false;
   rejecting_ = false;
   auto coast = [&](double dt) {
     if (!(dt > 0.0)) return;
@@ -83,13 +82,13 @@ void InsFilter<NB, NC, NT>::restart_after_gap(double gap_s, double t_end) {
   // to the gap's end (a turn through it left the yaw 11 deg off), and a heading known would
   // let the constant-velocity coast's misfit teach the time offset. The first fix after
   // the gap sets it, as at the start.
-  coasting_ = true;
+  advance(PhaseEvent::GapCoast);
   while (!pending_.empty() && pending_.front().t_s < t_end) {
     const FixInput fix = pending_.pop_front();
     coast(fix.t_s - t_last_);
     process_fix(fix);
   }
-  coasting_ = false;
+  advance(PhaseEvent::GapEnd);
   coast(t_end - t_last_);
   t_last_ = t_end;
 }

@@ -70,12 +70,11 @@ StandstillThresholds thresholds_of(const InsConfig& c) {
 template <int NB, int NC, int NT>
 InsFilter<NB, NC, NT>::InsFilter(const InsConfig& cfg) : cfg_(cfg), detector_(thresholds_of(cfg)) {
   core_.noise = noise_of(cfg);
-  dt_nominal_ = cfg.imu_rate_hz > 0.0 ? 1.0 / cfg.imu_rate_hz : 1.0 / 64.0;
+  dt_nominal_ = cfg.imu_rate_hz > 0.0 ? 1.0 / cfg.imu_rate_hz : 1.0 / kDefaultImuRateHz;
   const bool chi2 = cfg.update_check == UpdateCheck::ChiSquare || cfg.update_check == UpdateCheck::Both;
   const bool gating = chi2 && cfg.gate_probability > 0.0 && cfg.gate_probability < 1.0;
   for (int d = 1; d < static_cast<int>(gates_.size()); ++d)
     gates_[static_cast<std::size_t>(d)] = gating ? chi2_quantile(cfg.gate_probability, d) : 0.0;
-  heading_known_ = std::isfinite(cfg.initial_yaw_rad);
   Euler v;
   v.yaw_rad = cfg.body_to_vehicle_ypr_rad.x();
   v.pitch_rad = cfg.body_to_vehicle_ypr_rad.y();
@@ -107,11 +106,11 @@ InputStatus InsFilter<NB, NC, NT>::push_fix(const FixInput& given) {
     ++counters_.fixes_without_solution;
     return InputStatus::Ok;
   }
-  if (have_time_ && fix.t_s <= t_last_) {
+  if (have_time() && fix.t_s <= t_last_) {
     // Already past it: use it now (its latency is below one IMU interval when
     // measurements arrive in order).
     ++counters_.fixes_late;
-    if (initialised_)
+    if (initialised())
       process_fix(fix);
     else
       ++counters_.fixes_before_alignment;
@@ -119,14 +118,14 @@ InputStatus InsFilter<NB, NC, NT>::push_fix(const FixInput& given) {
   }
   if (pending_.full()) {  // keep the newest; the oldest is used now
     const FixInput oldest = pending_.pop_front();
-    if (have_time_ && oldest.t_s - t_last_ > cfg_.max_gap_s) {
+    if (have_time() && oldest.t_s - t_last_ > cfg_.max_gap_s) {
       // The IMU has stopped for longer than a gap is bridged: used now, on a state that has not
       // moved, it would be rejected (and a run of them reset the filter onto a stale state); the
       // restart after the gap coasts through the newest queued ones.
       ++counters_.fixes_in_imu_gap;
     } else {
       ++counters_.fixes_late;
-      if (initialised_)
+      if (initialised())
         process_fix(oldest);
       else
         ++counters_.fixes_before_alignment;
@@ -139,12 +138,12 @@ InputStatus InsFilter<NB, NC, NT>::push_fix(const FixInput& given) {
 template <int NB, int NC, int NT>
 InputStatus InsFilter<NB, NC, NT>::push_imu(double t_s, const Vec3& dtheta_rad, const Vec3& dv_mps) {
   if (!std::isfinite(t_s) || !dtheta_rad.allFinite() || !dv_mps.allFinite()) return InputStatus::NonFinite;
-  if (have_time_ && !(t_s > t_last_)) return InputStatus::TimeNotIncreasing;
-  double span = have_time_ ? t_s - t_last_ : dt_nominal_;
+  if (have_time() && !(t_s > t_last_)) return InputStatus::TimeNotIncreasing;
+  double span = have_time() ? t_s - t_last_ : dt_nominal_;
   double cover = 1.0;  // the share of this sample's increments its step stands for
   ++counters_.imu_samples;
-  if (!have_time_) {
-    have_time_ = true;
+  if (!have_time()) {
+    advance(PhaseEvent::FirstImuSample);
     t_last_ = t_s - span;
   } else if (span > cfg_.max_gap_s) {
     restart_after_gap(span - dt_nominal_, t_s - dt_nominal_);
@@ -182,9 +181,9 @@ InputStatus InsFilter<NB, NC, NT>::push_imu(double t_s, const Vec3& dtheta_rad, 
     propagate_to(bridge);
   }
   if (!bad) {
-    const bool was_initialised = initialised_;
+    const bool was_levelling = phase_ == Phase::Levelling;
     propagate_to(inc);
-    if (!was_initialised && !initialised_) {
+    if (was_levelling && phase_ == Phase::Levelling) {
       level_f_sum_ += inc.dv_mps;
       level_time_ += inc.dt_s;
     }
@@ -207,7 +206,7 @@ InputStatus InsFilter<NB, NC, NT>::push_attitude(const AttitudeInput& a) {
     return InputStatus::BadValue;
   if (a.t_s < last_att_t_) return InputStatus::TimeNotIncreasing;
   last_att_t_ = a.t_s;
-  if (have_time_ && a.t_s <= t_last_) {
+  if (have_time() && a.t_s <= t_last_) {
     process_attitude(a, last_inc_);
     return InputStatus::Ok;
   }
@@ -235,13 +234,13 @@ InputStatus InsFilter<NB, NC, NT>::push_pseudoranges(const PseudorangeEpoch& ep)
       if (!(cfg_.doppler_sigma_mps > 0.0) || !ep.has_doppler()) return InputStatus::Ok;
       e.ranges = false;
     }
-    if (have_time_ && e.t_s <= t_last_) {
-      if (initialised_) process_pseudoranges(e);
+    if (have_time() && e.t_s <= t_last_) {
+      if (initialised()) process_pseudoranges(e);
       return InputStatus::Ok;
     }
     if (pending_pr_.full()) {
       const PseudorangeEpoch oldest = pending_pr_.pop_front();
-      if (initialised_) process_pseudoranges(oldest);
+      if (initialised()) process_pseudoranges(oldest);
     }
     pending_pr_.push_back(e);
     return InputStatus::Ok;

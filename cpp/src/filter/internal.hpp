@@ -30,6 +30,11 @@ namespace filter_detail {
 
 inline Vec3 square(const Vec3& v) { return v.cwiseProduct(v); }
 
+// Two fixes at most this far apart give a velocity by their difference (s).
+inline constexpr double kMaxFixDifferenceSpan_s = 2.0;
+// Per-axis means of 3-axis sums (a covariance block's trace, a squared norm).
+inline constexpr double kAxes = 3.0;
+
 }  // namespace filter_detail
 
 // Every update's bookkeeping: its record (the update log, last_update), the counters, and
@@ -54,7 +59,7 @@ void InsFilter<NB, NC, NT>::record(int kind, const UpdateResult<M>& r, int dof, 
     u.innovation[static_cast<std::size_t>(i)] = r.innovation(i);
     u.innovation_sigma[static_cast<std::size_t>(i)] = r.innovation_sigma(i);
   }
-  if (!heading_known_ && initialised_) decouple_yaw();
+  if (yaw_decoupled()) decouple_yaw();
   if (!r.accepted) ++counters_.updates_rejected;
   if (r.guarded) ++counters_.updates_guarded;
   if (r.attitude_refused) ++counters_.updates_attitude_refused;

@@ -13,6 +13,7 @@
 
 namespace gpsins {
 
+using filter_detail::kMaxFixDifferenceSpan_s;
 using filter_detail::square;
 
 namespace {
@@ -49,12 +50,12 @@ void InsFilter<NB, NC, NT>::process_fix(const FixInput& fix) {
   // Heading from the course over ground once moving, if not configured: at
   // heading_min_speed_mps from any course, below it from a measured velocity
   // whose course is accurate enough (sigma_v / speed), as a walk's must be.
-  if (!heading_known_ && !coasting_) {
+  if (phase_ == Phase::HeadingUnknown) {
     Vec3 v = fix.v_ecef_mps;
     double sigma_v_mps = std::numeric_limits<double>::infinity();  // per horizontal axis
     if (v.allFinite())
       sigma_v_mps = fix_speed_sigma(fix);
-    else if (have_prev_fix_ && fix.t_s - prev_fix_.t_s > 0.0 && fix.t_s - prev_fix_.t_s <= 2.0)
+    else if (fix.t_s - prev_fix_.t_s > 0.0 && fix.t_s - prev_fix_.t_s <= kMaxFixDifferenceSpan_s)
       v = (fix.r_ecef_m - prev_fix_.r_ecef_m) / (fix.t_s - prev_fix_.t_s);
     const Vec3 v_ned = c_en.transpose() * v;
     const double speed = std::hypot(v_ned.x(), v_ned.y());
@@ -82,7 +83,6 @@ void InsFilter<NB, NC, NT>::process_fix(const FixInput& fix) {
   if constexpr (Core::kHasClock) {  // tight: the receiver's fixes only start the filter, give the heading, reset it
     if (reset_due) reset_to_fix(fix);
     prev_fix_ = fix;
-    have_prev_fix_ = true;
     return;
   }
 
@@ -100,7 +100,7 @@ void InsFilter<NB, NC, NT>::process_fix(const FixInput& fix) {
   auto m = position_fix(core_, fix.r_ecef_m, r_cov, cfg_.lever_arm_body_m, fix_error_map(fix));
   // Until the heading is known the motion the offset's column stands for is not (the first seconds,
   // a gap restart's coast): the prediction is moved, but the offset is not learnt from it.
-  if constexpr (NT == 1) add_time_offset(m, core_, es::pos, antenna_velocity_now(), heading_known_);
+  if constexpr (NT == 1) add_time_offset(m, core_, es::pos, antenna_velocity_now(), heading_known());
   bool accepted;
   if (fix.mode == kFixMode2D) {
     const Eigen::Matrix<double, 2, 3> ne = c_en.transpose().template topRows<2>();
@@ -120,13 +120,11 @@ void InsFilter<NB, NC, NT>::process_fix(const FixInput& fix) {
   if (reset_due && !accepted) {
     reset_to_fix(fix);
     prev_fix_ = fix;
-    have_prev_fix_ = true;
     return;
   }
   prev_fix_ = fix;
-  have_prev_fix_ = true;
 
-  if (cfg_.use_fix_velocity && fix.v_ecef_mps.allFinite() && heading_known_) {
+  if (cfg_.use_fix_velocity && fix.v_ecef_mps.allFinite() && heading_known()) {
     const Vec3 sv = stated_or(fix.sigma_v_ned_mps, Vec3::Constant(fix_velocity_sigma(fix)));
     const Mat3 r_v = c_en * square(sv).asDiagonal() * c_en.transpose();
     const Vec3 rate = gyro_rate_now();
@@ -156,7 +154,7 @@ Mat3 InsFilter<NB, NC, NT>::fast_fix_error_cov(const FixInput& fix, const Mat3& 
   if (cfg_.fix_error_gm_dop_scaled) s = s.cwiseProduct(fix_error_dops(fix));
   double factor = 1.0;
   const double dt = fix.t_s - prev_fix_.t_s;
-  if (have_prev_fix_ && dt > 0.0 && cfg_.fix_error_fast_tau_s > 0.0) {
+  if (dt > 0.0 && cfg_.fix_error_fast_tau_s > 0.0) {
     const double one_minus_a = -std::expm1(-dt / cfg_.fix_error_fast_tau_s);  // accurate for dt << tau
     factor = (2.0 - one_minus_a) / one_minus_a;
   }

@@ -12,6 +12,18 @@
 
 namespace gpsins {
 
+using filter_detail::kAxes;
+
+namespace {
+
+// While the heading is unknown the velocity error grows by up to this multiple of the
+// horizontal acceleration less what a tilt error explains (inflate_unknown_heading).
+constexpr double kUnknownHeadingGrowth = 2.0;
+constexpr double kUnknownHeadingGrowthSq = kUnknownHeadingGrowth * kUnknownHeadingGrowth;
+constexpr double kTiltExplainedAccel_mps2 = 0.1;  // about half a degree of tilt
+
+}  // namespace
+
 template <int NB, int NC, int NT>
 Increment InsFilter<NB, NC, NT>::calibrated(double dt, const Vec3& dtheta, const Vec3& dv) const {
   Increment inc;
@@ -38,11 +50,11 @@ void InsFilter<NB, NC, NT>::propagate_to(const Increment& inc) {
     const double frac = std::clamp((t_meas - t_last_) / rest.dt_s, 0.0, 1.0);
     Increment first, second;
     split_increment(rest, frac, first, second);
-    if (initialised_) propagate_nav(first, t_last_ + first.dt_s);
+    if (initialised()) propagate_nav(first, t_last_ + first.dt_s);
     t_last_ += first.dt_s;
     if (take_fix) {
       const FixInput fix = pending_.pop_front();
-      if (initialised_) {
+      if (initialised()) {
         process_fix(fix);
       } else if (level_time_ + first.dt_s >= cfg_.level_time_s - 0.5 * dt_nominal_) {
         level_f_sum_ += first.dv_mps;
@@ -53,21 +65,21 @@ void InsFilter<NB, NC, NT>::propagate_to(const Increment& inc) {
       }
     } else {
       const PseudorangeEpoch ep = pending_pr_.pop_front();
-      if (initialised_) process_pseudoranges(ep);
+      if (initialised()) process_pseudoranges(ep);
     }
     rest = second;
   }
   t_last_ += rest.dt_s;
-  if (!initialised_) return;
+  if (!initialised()) return;
   propagate_nav(rest, t_last_);
-  if (!heading_known_) {
+  if (!heading_known()) {
     if (!standstill_) inflate_unknown_heading(rest);
     decouple_yaw();
   } else if (cfg_.nonholonomic_constraint) {
     constrain_vehicle(rest);
   }
   const double pos_var = core_.P.template block<3, 3>(es::pos, es::pos).trace();
-  if (!std::isfinite(pos_var) || pos_var > 3.0 * cfg_.max_position_sigma_m * cfg_.max_position_sigma_m ||
+  if (!std::isfinite(pos_var) || pos_var > kAxes * cfg_.max_position_sigma_m * cfg_.max_position_sigma_m ||
       !core_.nav.r_ecef_m.allFinite())
     counters_.diverged = true;
 }
@@ -113,8 +125,8 @@ void InsFilter<NB, NC, NT>::inflate_unknown_heading(const Increment& inc) {
   if (!(inc.dt_s > 0.0)) return;
   const Vec3 u = core_.nav.r_ecef_m.normalized();
   const Vec3 f = core_.nav.q_eb * (inc.dv_mps / inc.dt_s - core_.imu.accel_bias_mps2);
-  const double a = std::max(0.0, (f - f.dot(u) * u).norm() - 0.1);
-  const double q = 4.0 * a * a * inc.dt_s;
+  const double a = std::max(0.0, (f - f.dot(u) * u).norm() - kTiltExplainedAccel_mps2);
+  const double q = kUnknownHeadingGrowthSq * a * a * inc.dt_s;
   core_.P.template block<3, 3>(es::vel, es::vel) += q * (Mat3::Identity() - u * u.transpose());
 }
 

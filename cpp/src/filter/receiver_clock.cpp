@@ -15,6 +15,7 @@ namespace {
 // gated (5 sigma); four times it (10 sigma) re-seeds it at once.
 constexpr double kUngatedClockBound = 25.0;
 constexpr double kClockFarBeyond = 4.0;
+constexpr double kMillisecond_s = 1e-3;  // a receiver's clock steers in whole milliseconds
 
 }  // namespace
 
@@ -63,14 +64,14 @@ void InsFilter<NB, NC, NT>::check_clock(const PrUse* use, int n, double t) {
     const double median = res[static_cast<std::size_t>(n / 2)];
     const double d = median - core_.clock(0);
     const double var_d = core_.P(Core::kClock, Core::kClock) + var[static_cast<std::size_t>(n / 2)] +
-                         core_.P.template block<3, 3>(es::pos, es::pos).trace() / 3.0;
+                         core_.P.template block<3, 3>(es::pos, es::pos).trace() / filter_detail::kAxes;
     const double bound = gate(1) > 0.0 ? gate(1) : kUngatedClockBound;
     const double z2 = d * d / var_d;
     const bool beyond = z2 > bound;
     const bool reseed = !clock_set_ || (beyond && (clock_suspect_ || z2 > kClockFarBeyond * bound));
     clock_suspect_ = clock_set_ && beyond && !reseed;
     if (reseed) {
-      const double ms_m = 1e-3 * gnss::kSpeedOfLight;
+      const double ms_m = kMillisecond_s * gnss::kSpeedOfLight;
       const double whole_ms = std::round(d / ms_m);
       const double rest = d - whole_ms * ms_m;
       const bool ms_jump = clock_set_ && whole_ms != 0.0 && rest * rest <= bound * var_d;

@@ -7,7 +7,16 @@
 
 namespace gpsins {
 
+using filter_detail::kMaxFixDifferenceSpan_s;
 using filter_detail::square;
+
+namespace {
+
+// The velocity variance added when neither the fix nor its difference with the previous one
+// gives a velocity ((10 m/s)^2, on top of the initial spread and the speed itself).
+constexpr double kUnknownVelocityVar_m2ps2 = 100.0;
+
+}  // namespace
 
 // Sustained rejection while the receiver reports solutions: true when a reset is due.
 template <int NB, int NC, int NT>
@@ -36,12 +45,12 @@ void InsFilter<NB, NC, NT>::reset_to_fix(const FixInput& fix) {
   double var_v = cfg_.velocity_sigma_mps * cfg_.velocity_sigma_mps;
   if (fix.v_ecef_mps.allFinite()) {
     core_.nav.v_ecef_mps = fix.v_ecef_mps;
-  } else if (have_prev_fix_ && fix.t_s - prev_fix_.t_s > 0.0 && fix.t_s - prev_fix_.t_s <= 2.0) {
+  } else if (fix.t_s - prev_fix_.t_s > 0.0 && fix.t_s - prev_fix_.t_s <= kMaxFixDifferenceSpan_s) {
     core_.nav.v_ecef_mps = (fix.r_ecef_m - prev_fix_.r_ecef_m) / (fix.t_s - prev_fix_.t_s);
     const double dt = fix.t_s - prev_fix_.t_s, s = cfg_.fix_uere_m * fix.hdop;
     var_v += 2.0 * s * s / (dt * dt);
   } else {
-    var_v += core_.nav.v_ecef_mps.squaredNorm() + 100.0;
+    var_v += core_.nav.v_ecef_mps.squaredNorm() + kUnknownVelocityVar_m2ps2;
   }
   // The nominal stands for the fix's time plus the IMU time offset.
   if constexpr (NT == 1) core_.nav.r_ecef_m += core_.nav.v_ecef_mps * core_.time_offset_s;
@@ -50,7 +59,7 @@ void InsFilter<NB, NC, NT>::reset_to_fix(const FixInput& fix) {
   const Mat3 att_ned = c_bn.transpose() * P.template block<3, 3>(es::att, es::att) * c_bn;
   const Vec3 att_var =
       att_ned.diagonal() + square(Vec3(cfg_.attitude_sigma_rad.x(), cfg_.attitude_sigma_rad.y(),
-                                       heading_known_ ? cfg_.heading_sigma_rad : cfg_.attitude_sigma_rad.z()));
+                                       heading_known() ? cfg_.heading_sigma_rad : cfg_.attitude_sigma_rad.z()));
   P.template topRows<9>().setZero();
   P.template leftCols<9>().setZero();
   P.template block<3, 3>(es::att, es::att) = c_bn * att_var.asDiagonal() * c_bn.transpose();

@@ -7,6 +7,7 @@
 #include <Eigen/Cholesky>
 
 #include "gpsins/aiding/zero_rate.hpp"
+#include "gpsins/chi2.hpp"
 #include "gpsins/aiding/zero_velocity.hpp"
 #include "internal.hpp"
 
@@ -16,9 +17,15 @@ using filter_detail::square;
 
 namespace {
 
-// The at-rest test's bound on the squared Mahalanobis distance: chi-square, 3 dof,
-// probability 0.999 (chi2_quantile(0.999, 3) = 16.266, as written here since the start).
-constexpr double kAtRestChi2Bound = 16.27;
+// The at-rest test's bound on the squared Mahalanobis distance: chi-square, 3 dof (the
+// specific force's axes), at this probability. (Written as 16.27 until it was derived here:
+// chi2_quantile(0.999, 3) = 16.266.)
+constexpr double kAtRestProbability = 0.999;
+constexpr int kAtRestDof = 3;
+// The window's duration the mean's noise is taken over is at least this (s).
+constexpr double kMinWindow_s = 1e-3;
+// A GNSS speed this recent (s) counts in the standstill decision.
+constexpr double kGnssSpeedFresh_s = 1.5;
 
 // At rest the window's mean specific force, in the filter's attitude and less
 // its bias, cancels gravity. Smooth braking or creeping at constant speed is
@@ -40,11 +47,13 @@ bool force_at_rest(const Core& core, const StandstillDetector& det, const InsCon
   Pab.template block<3, 3>(0, 3) = core.P.template block<3, 3>(es::att, es::ba);
   Pab.template block<3, 3>(3, 0) = core.P.template block<3, 3>(es::ba, es::att);
   Pab.template block<3, 3>(3, 3) = core.P.template block<3, 3>(es::ba, es::ba);
-  const double noise = cfg.accel_vrw_mps_per_sqrt_s.squaredNorm() / 3.0 / std::max(det.window_duration_s(), 1e-3);
+  const double noise = cfg.accel_vrw_mps_per_sqrt_s.squaredNorm() / filter_detail::kAxes /
+                       std::max(det.window_duration_s(), kMinWindow_s);
   const Mat3 S = J * Pab * J.transpose() +
                  Mat3::Identity() * (noise + cfg.standstill_accel_shift_mps2 * cfg.standstill_accel_shift_mps2);
   const double d2 = a.dot(S.ldlt().solve(a));
-  return std::isfinite(d2) && d2 < kAtRestChi2Bound;
+  static const double bound = chi2_quantile(kAtRestProbability, kAtRestDof);
+  return std::isfinite(d2) && d2 < bound;
 }
 
 }  // namespace
@@ -52,7 +61,7 @@ bool force_at_rest(const Core& core, const StandstillDetector& det, const InsCon
 template <int NB, int NC, int NT>
 void InsFilter<NB, NC, NT>::detect_standstill(const Increment& inc) {
   const bool fresh = detector_.add(inc.dv_mps / inc.dt_s, inc.dtheta_rad / inc.dt_s, inc.dt_s);
-  if (!initialised_ || !cfg_.zero_velocity_updates) {
+  if (!initialised() || !cfg_.zero_velocity_updates) {
     standstill_ = false;
     standstill_blocks_ = 0;
     return;
@@ -72,7 +81,7 @@ void InsFilter<NB, NC, NT>::detect_standstill(const Increment& inc) {
   // 0.3 m/s on a walk at 0.8 m/s, which looks like rest to the IMU).
   // A refused zero-velocity update is motion the detector missed (pulling away
   // smoothly): no standstill for the hold-off after it.
-  const bool gnss_fresh = t_last_ - gnss_speed_t_ <= 1.5;
+  const bool gnss_fresh = t_last_ - gnss_speed_t_ <= kGnssSpeedFresh_s;
   // Once it has moved, the filter's speed counts as slow only with its sigma: on a
   // smooth slow walk its velocity drifted to 0.2 m/s (sigma 0.34) at a true
   // 0.75 m/s, and the IMU, with no vibration, looked at rest. Before that its
@@ -115,7 +124,7 @@ void InsFilter<NB, NC, NT>::detect_standstill(const Increment& inc) {
     auto mz = zero_rate(core_, rate, var);
     // Without a heading the attitude coupling (Earth rate seen through a wrong
     // yaw) is far outside the linear range: use the update for the biases only.
-    if (!heading_known_) mz.H.template middleCols<3>(es::att).setZero();
+    if (!heading_known()) mz.H.template middleCols<3>(es::att).setZero();
     record(kZeroRate, apply(mz, 3), 3);
     ++counters_.zero_rate_updates;
   }

@@ -17,6 +17,9 @@ namespace gpsins {
 
 namespace {
 
+// The elevation's sine a correlated range error's growth at low elevation stops at (about 6 deg).
+constexpr double kMinElevationSine = 0.1;
+
 // (1 + a) / (1 - a), a = exp(-dt / tau): what a Gauss-Markov error's stationary
 // variance is multiplied by when a satellite's updates dt apart are treated as
 // independent. a = 0 (factor 1) without a previous update or for a white error.
@@ -38,7 +41,7 @@ double InsFilter<NB, NC, NT>::correlated_variance(int prn, double t, double el_r
   const double dt = known ? t - pr_used_t_[static_cast<std::size_t>(prn)] : std::numeric_limits<double>::quiet_NaN();
   double var = 0.0;
   if (cfg_.pseudorange_error_gm_sigma_m > 0.0 && known) {
-    const double s = cfg_.pseudorange_error_gm_sigma_m / std::max(std::sin(el_rad), 0.1);
+    const double s = cfg_.pseudorange_error_gm_sigma_m / std::max(std::sin(el_rad), kMinElevationSine);
     var += s * s * gm_update_factor(dt, cfg_.pseudorange_error_gm_tau_s);
   }
   if (sis_m > 0.0) var += sis_m * sis_m * gm_update_factor(dt, cfg_.pseudorange_sis_tau_s);
@@ -52,7 +55,7 @@ Measurement<1, InsFilter<NB, NC, NT>::N> InsFilter<NB, NC, NT>::range_measuremen
                                                                                   const Vec3& v_a) const {
   if constexpr (Core::kHasClock) {
     auto m = pseudorange(core_, cfg_.lever_arm_body_m, u.sat, u.pr_corr, u.sagnac, u.var);
-    add_time_offset(m, core_, es::pos, v_a, heading_known_);  // the range rate the receiver's motion gives
+    add_time_offset(m, core_, es::pos, v_a, heading_known());  // the range rate the receiver's motion gives
     if constexpr (Core::kSisCount > 0) {
       if (u.sis_slot >= 0) {
         m.y(0) -= core_.sis(u.sis_slot);
@@ -145,7 +148,7 @@ void InsFilter<NB, NC, NT>::process_pseudoranges(const PseudorangeEpoch& ep) {
     const int n_gal = ep.ranges ? static_cast<int>(galileo_end - galileo_first) : 0;
     if (n_gal >= 2) any = update_galileo(&*galileo_first, n_gal, v_a, ep.t_s) || any;
     // Every system's Doppler shares the one drift: the receiver's oscillator (GGTO's rate is nil).
-    if (heading_known_) any = update_range_rates(use.data(), n) || any;
+    if (heading_known()) any = update_range_rates(use.data(), n) || any;
     note_gnss(any, ep.t_s);
   } else {
     (void)ep;

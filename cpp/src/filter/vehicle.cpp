@@ -8,11 +8,17 @@
 
 namespace gpsins {
 
+namespace {
+
+constexpr double kIntervalTolerance_s = 1e-9;  // rounding in the sample times: an interval is not missed by it
+
+}  // namespace
+
 // The land-vehicle constraint while moving (standing, the zero-velocity update
 // says more); at most every nhc_interval_s.
 template <int NB, int NC, int NT>
 void InsFilter<NB, NC, NT>::constrain_vehicle(const Increment& inc) {
-  if (!(inc.dt_s > 0.0) || standstill_ || t_last_ - last_nhc_t_ < cfg_.nhc_interval_s - 1e-9) return;
+  if (!(inc.dt_s > 0.0) || standstill_ || t_last_ - last_nhc_t_ < cfg_.nhc_interval_s - kIntervalTolerance_s) return;
   if (core_.nav.v_ecef_mps.norm() < cfg_.nhc_min_speed_mps) return;
   last_nhc_t_ = t_last_;
   const double vertical = cfg_.nhc_vertical_sigma_mps > 0.0 ? cfg_.nhc_vertical_sigma_mps : cfg_.nhc_sigma_mps;
@@ -30,7 +36,7 @@ void InsFilter<NB, NC, NT>::constrain_vehicle(const Increment& inc) {
 // yaw by the whole (wrapped) innovation.
 template <int NB, int NC, int NT>
 void InsFilter<NB, NC, NT>::process_attitude(const AttitudeInput& a, const Increment& inc) {
-  if (!initialised_) return;
+  if (!initialised()) return;
   ++counters_.baseline_attitude_updates;
   const Vec3 b = cfg_.antenna_baseline_body.normalized();
   double yaw = a.yaw_rad, pitch = a.pitch_rad;
@@ -44,20 +50,20 @@ void InsFilter<NB, NC, NT>::process_attitude(const AttitudeInput& a, const Incre
     yaw += rates(0) * lag;
     pitch += rates(1) * lag;
   }
-  const bool was_known = heading_known_;
-  heading_known_ = true;  // so that record() does not decouple the yaw just measured
+  const bool was_known = heading_known();
   // The first heading may turn the attitude by anything: not a divergence.
   const double limit = was_known ? attitude_limit() : 0.0;
   auto use = [&](const auto& m, int dof) {
     const auto r = core_.update(m.y, m.H, m.R, gate(dof), limit);
-    heading_known_ = was_known || r.accepted;
+    // Before record(), so that it does not decouple the yaw just measured.
+    if (!was_known && r.accepted) advance(PhaseEvent::HeadingMeasured);
     record(kBaselineAttitude, r, dof);
   };
   if (std::isfinite(pitch))
     use(baseline_attitude<2>(core_, b, yaw, pitch, a.sigma_yaw_rad, a.sigma_pitch_rad), 2);
   else
     use(baseline_attitude<1>(core_, b, yaw, pitch, a.sigma_yaw_rad, 0.0), 1);
-  if (heading_known_ && !was_known) event(kHeadingSet, yaw);
+  if (heading_known() && !was_known) event(kHeadingSet, yaw);
 }
 
 #define GPSINS_INSTANTIATE(NB, NC, NT)                                      \

@@ -1,7 +1,7 @@
 // Land-vehicle constraints at a vehicle point p (body axes, from the IMU): a
 // wheeled vehicle does not slide sideways or leave the road, so its velocity
 // in vehicle axes has no lateral and no vertical part (non-holonomic
-// constraint); an odometer measures the forward part.
+// constraint).
 //   v_p (vehicle axes) = C_vb (C_be v + w x p),  w the body rate relative to the Earth,
 // C_vb the body-to-vehicle rotation (scale-factor states are left out of H). With q_true = q (x) exp(dtheta) and
 // w = w_c - dbg: C_be_true v_true = C_be v + C_be dv + [C_be v]x dtheta, and
@@ -45,19 +45,6 @@ Measurement<2, Eskf<NB, NC, NT>::N> nonholonomic(const Eskf<NB, NC, NT>& f, cons
   rows(1, 2) = 1.0;
   auto m = project(full, rows);
   m.R = Eigen::Vector2d(lateral_sigma_mps * lateral_sigma_mps, vertical_sigma_mps * vertical_sigma_mps).asDiagonal();
-  return m;
-}
-
-// Odometer speed along the vehicle's forward axis.
-template <int NB, int NC, int NT>
-Measurement<1, Eskf<NB, NC, NT>::N> odometer_speed(const Eskf<NB, NC, NT>& f, const Mat3& c_vb,
-                                                   const Vec3& point_body_m, const Vec3& w_ib_body_rad_per_s,
-                                                   double speed_mps, double sigma_mps) {
-  const auto full = vehicle_velocity(f, c_vb, point_body_m, w_ib_body_rad_per_s);
-  const Eigen::Matrix<double, 1, 3> row(1.0, 0.0, 0.0);
-  auto m = project(full, row);
-  m.y(0) += speed_mps;
-  m.R(0, 0) = sigma_mps * sigma_mps;
   return m;
 }
 
