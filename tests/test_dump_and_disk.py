@@ -14,7 +14,8 @@ from gpsins.cli import main as cli_main
 from gpsins.devices.sources import StaticSource
 from gpsins_logger import bp3010
 from gpsins_logger import superstar2 as ss2
-from gpsins_logger.recorder import DiskHealth, SensorInfo, Session
+from gpsins_logger.files import DiskHealth
+from gpsins_logger.recorder import SensorInfo, Session
 
 T0 = time.time()  # the stamps must lie inside the session the recorder opens now
 

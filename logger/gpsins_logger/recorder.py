@@ -20,7 +20,6 @@ after removing what it created.
 from __future__ import annotations
 
 import errno
-import json
 import logging
 import os
 import re
@@ -32,10 +31,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from . import __version__
+from .files import SIDECAR, AppendFile, DeadFile, DiskHealth, FileCounts, SidecarFile, file_ident
 
 log = logging.getLogger(__name__)
 
-SIDECAR = "session.json"
 CLOCK_FILE = "clock.csv"
 FORMAT_NAME = "gpsins-session"
 FORMAT_VERSION = 1
@@ -57,212 +56,6 @@ def clock_pair() -> dict[str, float]:
 
 def part_name(sensor: str, part: int, ext: str) -> str:
     return f"{sensor}-{part:03d}.{ext}"
-
-
-@dataclass
-class FileCounts:
-    frames_written: int = 0
-    bytes_written: int = 0
-    write_errors: int = 0
-    frames_lost_to_disk_errors: int = 0
-
-
-class DiskHealth:
-    """Whether the session's writes are failing, told to the operator once
-    when they start failing, every REMINDER_S while they fail, and once when
-    they succeed again (with what was lost meanwhile)."""
-
-    REMINDER_S = 30.0
-    # Failing ends only after this long without a failure: on a nearly full
-    # disk small writes succeed between failures and would make it flap.
-    QUIET_S = 1.0
-
-    def __init__(self, directory: Path, lost_counts):
-        self.directory = directory
-        self._lost_counts = lost_counts  # () -> {sensor: frames lost so far}
-        self._lock = threading.Lock()
-        self.failing_since: float | None = None
-        self.episodes = 0
-        self.last_error = ""
-        self._lost_at_start: dict[str, int] = {}
-        self._last_reminder = 0.0
-        self._last_failure = 0.0
-
-    def failed(self, what: Path, err: OSError) -> None:
-        now = time.monotonic()
-        with self._lock:
-            self.last_error = f"{what.name}: {err.strerror or err}"
-            self._last_failure = now
-            if self.failing_since is None:
-                self.failing_since = now
-                self._last_reminder = now
-                self.episodes += 1
-                self._lost_at_start = self._lost_counts()
-                log.error("disk writes in %s are failing (%s: %s); frames are counted as lost until "
-                          "writing works again", self.directory, what.name, err.strerror or err)
-            elif now - self._last_reminder >= self.REMINDER_S:
-                self._last_reminder = now
-                log.error("disk writes still failing for %.0f s (%s); lost so far: %s", now - self.failing_since,
-                          self.last_error, self._lost_text())
-
-    def succeeded(self) -> None:
-        if self.failing_since is None:  # the common case, without the lock
-            return
-        now = time.monotonic()
-        with self._lock:
-            if self.failing_since is None or now - self._last_failure < self.QUIET_S:
-                return
-            log.warning("disk writes in %s work again after failing for %.1f s; lost meanwhile: %s",
-                        self.directory, self._last_failure - self.failing_since, self._lost_text())
-            self.failing_since = None
-
-    def _lost_text(self) -> str:
-        now = self._lost_counts()
-        return ", ".join(f"{k} {now[k] - self._lost_at_start.get(k, 0)} frames" for k in now)
-
-    def as_dict(self) -> dict:
-        return {"state": "failing" if self.failing_since is not None else "ok", "failing_episodes": self.episodes,
-                "last_error": self.last_error}
-
-
-class _AppendFile:
-    """An O_APPEND file written with one os.write per item. A write that
-    fails is counted and undone (a short write is truncated away, so a full
-    disk never leaves half a record); the next write simply tries again.
-    Opened readable: if the file is deleted under us, what was written since
-    it was last seen in place (`verified`) can still be read from its inode."""
-
-    def __init__(self, path: Path, counts: FileCounts, health: DiskHealth | None = None):
-        self.path = path
-        self.counts = counts
-        self.health = health
-        self._fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_APPEND, 0o644)
-        st = os.fstat(self._fd)
-        self.ident = (st.st_dev, st.st_ino)
-        self.size = self.verified = st.st_size  # bytes in the file; of those, seen in place
-
-    def write(self, data: bytes) -> bool:
-        try:
-            n = os.write(self._fd, data)
-            if n != len(data):  # a short write on a regular file means the disk is full
-                self._undo(n)
-                raise OSError(errno.ENOSPC, f"No space left on device (short write, {n} of {len(data)} bytes)")
-        except OSError as e:
-            if self.health is not None:  # first: it notes the counts before this loss
-                self.health.failed(self.path, e)
-            self.counts.write_errors += 1
-            self.counts.frames_lost_to_disk_errors += 1
-            return False
-        self.counts.bytes_written += n
-        self.size += n
-        if self.health is not None:
-            self.health.succeeded()
-        return True
-
-    def _undo(self, n: int) -> None:
-        try:
-            end = os.lseek(self._fd, 0, os.SEEK_END)
-            os.ftruncate(self._fd, end - n)
-        except OSError:
-            pass  # the reader skips a torn record anyway
-
-    def sync(self) -> None:
-        try:
-            os.fsync(self._fd)
-        except OSError as e:
-            self.counts.write_errors += 1
-            if self.health is not None:
-                self.health.failed(self.path, e)
-
-    def close(self) -> None:
-        self.sync()
-        try:
-            os.close(self._fd)
-        except OSError:
-            pass
-
-    def moved_or_deleted(self) -> str | None:
-        """Why self.path no longer names this file, or None."""
-        try:
-            st = os.stat(self.path)
-        except FileNotFoundError:
-            return "deleted"
-        except OSError:
-            return None  # cannot tell: assume it is still there
-        return None if (st.st_dev, st.st_ino) == self.ident else "replaced"
-
-    def unlinked_tail(self) -> bytes | None:
-        """The bytes written since `verified` if the file has no name left
-        anywhere (deleted), else None (it still exists, e.g. moved with its
-        directory, and holds them itself)."""
-        try:
-            if os.fstat(self._fd).st_nlink > 0:
-                return None
-            out, off = bytearray(), self.verified
-            while off < self.size:
-                chunk = os.pread(self._fd, self.size - off, off)
-                if not chunk:
-                    break
-                out += chunk
-                off += len(chunk)
-            return bytes(out)
-        except OSError:
-            return b""
-
-
-class _SidecarFile:
-    """session.json, replaced atomically (write a temporary, fsync, rename it
-    over) without needing free space once started: every version is padded
-    to a reserved size and the version replaced is kept (hard link) as the
-    next temporary, so its blocks are rewritten in place. On a full disk the
-    sidecar stays current while the records may not. A write that fails
-    leaves the last good sidecar; the next write carries the whole truth."""
-
-    BLOCK = 4096
-
-    def __init__(self, directory: Path):
-        self.path = directory / SIDECAR
-        self.tmp = directory / (SIDECAR + ".tmp")
-        self._old = directory / (SIDECAR + ".old")
-        self.reserved = 0  # bytes of each version, padding included
-
-    def write(self, doc: dict) -> None:
-        text = json.dumps(doc, indent=2).encode("utf-8")
-        if len(text) + 1 > self.reserved:
-            compact = json.dumps(doc, separators=(",", ":")).encode("utf-8")
-            if self.reserved and len(compact) + 1 <= self.reserved:
-                text = compact  # fits the blocks we have: better than growing on a full disk
-            else:  # grow, with head room for more parts and longer counts
-                need = len(text) + 1
-                self.reserved = -(-(need + max(need // 4, 2048)) // self.BLOCK) * self.BLOCK
-        data = text + b" " * (self.reserved - len(text) - 1) + b"\n"  # JSON allows trailing blanks
-        fd = os.open(self.tmp, os.O_WRONLY | os.O_CREAT, 0o644)  # no O_TRUNC: reuse its blocks
-        try:
-            view, off = memoryview(data), 0
-            while off < len(data):
-                n = os.pwrite(fd, view[off:], off)
-                if n <= 0:
-                    raise OSError(errno.ENOSPC, "No space left on device (short write)", str(self.tmp))
-                off += n
-            if os.fstat(fd).st_size > len(data):
-                os.ftruncate(fd, len(data))
-            os.fsync(fd)
-        finally:
-            os.close(fd)
-        kept = False
-        try:
-            if self._old.exists():
-                self._old.unlink()
-            os.link(self.path, self._old)
-            kept = True
-        except OSError:
-            pass  # no sidecar yet, or no hard links here (FAT): the next temporary is new
-        os.replace(self.tmp, self.path)
-        if kept:
-            os.replace(self._old, self.tmp)
-
-    def names(self) -> list[Path]:
-        return [self.path, self.tmp, self._old]
 
 
 class StartupError(RuntimeError):
@@ -300,11 +93,11 @@ class Session:
         self.health = DiskHealth(self.directory, self._lost)
         self.clock_counts = FileCounts()
         self.sidecar_write_errors = 0
-        self._sidecar = _SidecarFile(self.directory)
+        self._sidecar = SidecarFile(self.directory)
         self.clock_steps = 0
         self._locks = {name: threading.Lock() for name in sensors}
-        self._records: dict[str, _AppendFile] = {}
-        self._raws: dict[str, _AppendFile] = {}
+        self._records: dict[str, AppendFile] = {}
+        self._raws: dict[str, AppendFile] = {}
         self._parts: list[dict] = []
         self.start = clock_pair()
         self.stop: dict[str, float] | None = None
@@ -316,9 +109,9 @@ class Session:
         self._continue_failed = False
         self._closed = False
         created = _make_dirs(self.directory)
-        self._dir_id = _ident(self.directory)
+        self._dir_id = file_ident(self.directory)
         try:
-            self._clock = _AppendFile(self.directory / CLOCK_FILE, self.clock_counts)
+            self._clock = AppendFile(self.directory / CLOCK_FILE, self.clock_counts)
             self._must(self._clock.write(b"realtime,monotonic\n"), CLOCK_FILE)
             self._must(self.clock_pair(), CLOCK_FILE)
             # The sidecar lists a part before its files exist: a crash at any moment
@@ -369,10 +162,10 @@ class Session:
         records, raws = {}, {}
         try:
             for name, info in self.sensors.items():
-                records[name] = _AppendFile(directory / part_name(name, self.part, "bin"), self.counts[name],
+                records[name] = AppendFile(directory / part_name(name, self.part, "bin"), self.counts[name],
                                             self.health)
                 if info.raw_capture:
-                    raws[name] = _AppendFile(directory / part_name(name, self.part, "raw"), self.raw_counts[name],
+                    raws[name] = AppendFile(directory / part_name(name, self.part, "raw"), self.raw_counts[name],
                                              self.health)
         except OSError:
             for f in (*records.values(), *raws.values()):
@@ -479,21 +272,21 @@ class Session:
                 if ext == "raw" and not info.raw_capture:
                     continue
                 try:
-                    files[name] = _AppendFile(self.directory / part_name(name, self.part, ext), counts[name],
+                    files[name] = AppendFile(self.directory / part_name(name, self.part, ext), counts[name],
                                               self.health)
                 except OSError as e:
                     log.error("cannot reopen %s: %s", part_name(name, self.part, ext), e.strerror or e)
-                    files[name] = _DeadFile(counts[name], self.health, self.directory / part_name(name, self.part, ext))
+                    files[name] = DeadFile(counts[name], self.health, self.directory / part_name(name, self.part, ext))
 
     # -- the directory going away -------------------------------------------------------
-    def _files(self) -> list["_AppendFile"]:
+    def _files(self) -> list["AppendFile"]:
         return [self._clock, *self._records.values(), *self._raws.values()]
 
     def _gone(self) -> str | None:
         """Why the session directory or one of its open files is no longer
         where it was opened (compared by st_dev/st_ino), or None."""
         try:
-            if _ident(self.directory) != self._dir_id:
+            if file_ident(self.directory) != self._dir_id:
                 return "was replaced (another directory now has its name)"
         except FileNotFoundError:
             return "was deleted"
@@ -542,7 +335,7 @@ class Session:
             self._locks[name].acquire()
         saved = (self._parts, self.continues)
         old_doc = self.sidecar()
-        opened: list[_AppendFile] = []
+        opened: list[AppendFile] = []
         failed: OSError | None = None
         try:
             carried, before, tails = {}, {}, []
@@ -566,10 +359,10 @@ class Session:
                                 "deleted files" if any(t is not None for _, _, t in tails) else
                                 "nothing: the previous files still exist (moved), their records are there",
             }
-            side = _SidecarFile(new_dir)
+            side = SidecarFile(new_dir)
             side.write(self.sidecar())  # lists the part before its files exist
             side.write(self.sidecar())
-            clock = _AppendFile(new_dir / CLOCK_FILE, self.clock_counts)
+            clock = AppendFile(new_dir / CLOCK_FILE, self.clock_counts)
             opened.append(clock)
             head = (f"realtime,monotonic\n{self._seen['realtime']:.6f},{self._seen['monotonic']:.6f}\n")
             if not clock.write(head.encode("ascii")):
@@ -598,7 +391,7 @@ class Session:
             old_side = self._sidecar
             self._records, self._raws, self._clock = records, raws, clock
             self._clock.health = self.health
-            self.directory, self._dir_id, self._sidecar = new_dir, _ident(new_dir), side
+            self.directory, self._dir_id, self._sidecar = new_dir, file_ident(new_dir), side
             self.health.directory = new_dir
             self._seen = self.continues["noticed"]
             self._seen_frames = {name: self.counts[name].frames_written for name in self.sensors}
@@ -667,7 +460,7 @@ class Session:
         }
 
     def write_sidecar(self, strict: bool = False) -> bool:
-        """Write-then-rename (_SidecarFile): a crash leaves the old or the new
+        """Write-then-rename (SidecarFile): a crash leaves the old or the new
         sidecar, never half of one. A failure is counted (raised only when
         strict) and the last good version stays; the next call retries.
         First the directory is checked (check_directory)."""
@@ -726,32 +519,6 @@ class Session:
         return True
 
 
-class _DeadFile(_AppendFile):
-    """A part file that could not be opened: every write counts as lost."""
-
-    def __init__(self, counts: FileCounts, health: DiskHealth, path: Path):
-        self.path, self.counts, self.health, self._fd = path, counts, health, -1
-        self.ident, self.size, self.verified = None, 0, 0
-
-    def moved_or_deleted(self) -> str | None:
-        return None
-
-    def unlinked_tail(self) -> bytes | None:
-        return None
-
-    def write(self, data: bytes) -> bool:
-        self.health.failed(self.path, OSError(errno.EBADF, "part file not open"))
-        self.counts.write_errors += 1
-        self.counts.frames_lost_to_disk_errors += 1
-        return False
-
-    def sync(self) -> None:
-        pass
-
-    def close(self) -> None:
-        pass
-
-
 def _make_dirs(directory: Path) -> list[Path]:
     """mkdir -p that returns what it created (outermost first); the session
     directory itself must be new."""
@@ -778,11 +545,6 @@ def _make_dirs(directory: Path) -> list[Path]:
         raise StartupError(f"cannot create the session directory {directory}: {e.strerror or e}"
                            f"{' (' + e.filename + ')' if e.filename else ''}") from None
     return created
-
-
-def _ident(path: Path) -> tuple[int, int]:
-    st = os.stat(path)
-    return st.st_dev, st.st_ino
 
 
 def continuation_dir(directory: Path) -> Path:
