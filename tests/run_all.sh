@@ -1,16 +1,18 @@
 #!/usr/bin/env bash
 # The whole test suite: C++ unit tests under ctest, then pytest.
 # Expects `bash .ci/setup` to have run: it creates .venv and builds the C++
-# core with its tests in build/release; here that tree is only brought up to
-# date (a no-op unless C++ changed since) and run. Without it, a build/ctest
-# tree is configured and built here.
+# core in build/release. The ctest suite is added to that tree here (only the
+# test files compile, once); later runs bring it up to date, a no-op unless C++
+# changed. Without it, a build/ctest tree is configured and built here.
 set -uo pipefail
 cd "$(dirname "$0")/.."
 py=.venv/bin/python
 [ -x "$py" ] || py=python3
 
 build=build/release
-if [ ! -f "$build/CTestTestfile.cmake" ]; then
+if [ -f "$build/CMakeCache.txt" ]; then
+  grep -q '^GPSINS_BUILD_TESTS:BOOL=ON' "$build/CMakeCache.txt" || cmake -S . -B "$build" -DGPSINS_BUILD_TESTS=ON >/dev/null || exit 1
+else
   build=build/ctest
   cmake -S . -B "$build" -G Ninja -DCMAKE_BUILD_TYPE=Release -DGPSINS_BUILD_TESTS=ON \
     -DGPSINS_BUILD_PYTHON=ON -DPython_EXECUTABLE="$("$py" -c 'import sys; print(sys.executable)')" \
