@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from ..formats import imu_csv, rinex, rtklib_pos, ubx
-from ..formats.gpstime import UNIX_TO_GPS_S
+from ..formats.gpstime import SECONDS_PER_WEEK, UNIX_TO_GPS_S
 
 UNIX_2000_S = 946684800.0  # any Unix time of a recording made this century is above this
 ROWS_READ = 2000
@@ -61,8 +61,8 @@ def _time_scale(t0: float, gnss_start_abs: float | None) -> tuple[str, int | Non
     (GPS seconds since 1980), and the GPS week for seconds of week."""
     if gnss_start_abs is None:
         return ("gpst_unix" if t0 > UNIX_2000_S else "gps_sow"), None
-    week = int(gnss_start_abs // 604800.0)
-    candidates = {"gpst_unix": t0 - UNIX_TO_GPS_S, "gps_abs": t0, "gps_sow": week * 604800.0 + t0}
+    week = int(gnss_start_abs // SECONDS_PER_WEEK)
+    candidates = {"gpst_unix": t0 - UNIX_TO_GPS_S, "gps_abs": t0, "gps_sow": week * SECONDS_PER_WEEK + t0}
     name = min(candidates, key=lambda k: abs(candidates[k] - gnss_start_abs))
     return name, (week if name == "gps_sow" else None)
 

@@ -20,6 +20,7 @@ from __future__ import annotations
 from collections import Counter
 
 from .. import _core
+from .gpstime import SECONDS_PER_WEEK
 
 GALILEO_ID_OFFSET = 32  # the core's gnss::kGalileoIdOffset
 GST_WEEK_TO_GPS_WEEK = 1024  # the GST week count starts with GPS week 1024 (1999-08-22)
@@ -159,5 +160,5 @@ def decode(svid: int, w: dict[int, int]):
     e.health = (hs << 1) | dvs
     week, tow = b(5, 73, 12) + GST_WEEK_TO_GPS_WEEK, b(5, 85, 20)
     # toe and toc are of the week they fall in: within half a week of the time of word type 5.
-    e.week = week + round((tow - e.toe_s) / 604800.0)
+    e.week = week + round((tow - e.toe_s) / SECONDS_PER_WEEK)
     return e if e.sqrt_a > 0 else None

@@ -13,6 +13,7 @@ import numpy as np
 GPS_EPOCH = dt.datetime(1980, 1, 6)
 UNIX_TO_GPS_S = (GPS_EPOCH - dt.datetime(1970, 1, 1)).total_seconds()  # 315964800: both without leap seconds
 SECONDS_PER_WEEK = 604800.0
+MILLISECONDS_PER_WEEK = 604_800_000  # time-of-week counters in ms (u-blox iTOW)
 
 # UTC dates from which GPST - UTC steps up by one second (IERS bulletins).
 _LEAP_DATES = [dt.datetime(*d) for d in (

@@ -25,6 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .gpstime import SECONDS_PER_WEEK
+
 FILE_NAME = "reference.csv"
 MAGIC = "# gpsins reference 1"
 COLUMNS = ("gps_week", "gps_tow_s", "x_m", "y_m", "z_m", "sigma_n_m", "sigma_e_m", "sigma_d_m", "heading_deg",
@@ -57,7 +59,7 @@ class Reference:
 
     def gps_seconds(self) -> np.ndarray:
         """Continuous GPS time (week * 604800 + tow)."""
-        return self.gps_week * 604800.0 + self.gps_tow_s
+        return self.gps_week * SECONDS_PER_WEEK + self.gps_tow_s
 
 
 def _fmt(x: float, digits: int) -> str:
@@ -86,8 +88,8 @@ def row_lines(gps_week: int, tow_s: np.ndarray, r_ecef_m: np.ndarray, sigma_ned_
     sp = np.broadcast_to(np.degrees(sigma_pitch_rad), (n,))
     lines = []
     for k in range(n):
-        week = gps_week + int(tow_s[k] // 604800.0)
-        tow = tow_s[k] - 604800.0 * (week - gps_week)
+        week = gps_week + int(tow_s[k] // SECONDS_PER_WEEK)
+        tow = tow_s[k] - SECONDS_PER_WEEK * (week - gps_week)
         has_att = np.isfinite(heading_rad[k]) and np.isfinite(pitch_rad[k])
         row = [str(week), f"{tow:.3f}", *(_fmt(x, 4) for x in r_ecef_m[k]),
                *(_fmt(x, 4) if np.all(np.isfinite(r_ecef_m[k])) else "" for x in sigma_ned_m[k]),

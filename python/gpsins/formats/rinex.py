@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import _core
-from .gpstime import gps_seconds
+from .gpstime import SECONDS_PER_WEEK, gps_seconds
 from .common import Navigation, Pseudoranges, ReaderError, read_text_lines
 
 URA_TABLE_M = (2.4, 3.4, 4.85, 6.85, 9.65, 13.65, 24.0, 48.0, 96.0, 192.0, 384.0, 768.0, 1536.0, 3072.0, 6144.0)
@@ -161,7 +161,7 @@ def _ephemeris(path, block: list[str], line: int, v3: bool, col: int, skipped):
     e.health, e.tgd_s, e.iodc = int(o[5][1]), o[5][2], int(o[5][3])
     e.fit_interval_long = o[6][1] > 4.0
     # toc as seconds of the toe's week (a record can straddle the week change).
-    e.toc_s = toc - e.week * 604800.0
+    e.toc_s = toc - e.week * SECONDS_PER_WEEK
     return e
 
 

@@ -32,6 +32,7 @@ import numpy as np
 
 from .. import _core, evaluate
 from . import runs as flt
+from ..formats.gpstime import SECONDS_PER_WEEK
 
 UPDATE_COLUMNS = {"t": (np.float64, ()), "kind": (np.int32, ()), "id": (np.int32, ()), "dof": (np.int32, ()),
                   "nis": (np.float64, ()), "gate": (np.float64, ()), "log_det_s": (np.float64, ()),
@@ -81,7 +82,7 @@ def builtin(inputs: EstimatorInputs) -> flt.Solution:
     tight = {}
     if inputs.mode == "tight":
         tight = dict(pseudoranges=inputs.pseudoranges, ephemerides=inputs.ephemerides, klobuchar=inputs.klobuchar,
-                     gps_time_offset_s=inputs.week * 604800.0)
+                     gps_time_offset_s=inputs.week * SECONDS_PER_WEEK)
     return flt.run(inputs.imu, inputs.fixes, {**inputs.config, "mode": inputs.mode}, covariance=True, **tight)
 
 

@@ -26,6 +26,7 @@ from ..dataset import doctor
 from ..session import measurements_ubx
 from ..timing import alignment
 from ..formats import rinex
+from ..formats.gpstime import SECONDS_PER_WEEK
 
 
 DEFAULT_GPS_LATENCY_S = 0.0205  # receiver's epoch-to-first-byte delay (assumed 20 ms) + the logger's
@@ -46,11 +47,11 @@ def load_session_truth(directory: Path, t_offset: float) -> tuple[evaluate.Truth
             from ..formats.truth import open_truth  # memory-mapped: a day-long truth is not read whole
 
             z = open_truth(p)
-            tow = z["tow_s"] + (int(z["gps_week"]) * 604800.0) - t_offset
+            tow = z["tow_s"] + (int(z["gps_week"]) * SECONDS_PER_WEEK) - t_offset
             evaluate.release_pages(z["tow_s"])
             model = json.loads(str(z["model_json"])) if "model_json" in z else {}
             extra = {"seg_labels": z["segment_labels"], "seg_t": z["segment_t"] + float(z["t0_tow_s"]) +
-                     int(z["gps_week"]) * 604800.0 - t_offset,
+                     int(z["gps_week"]) * SECONDS_PER_WEEK - t_offset,
                      "simulation": {"scenario": model.get("scenario"), "seed": model.get("seed"), "truth": str(p)}}
             return evaluate.Truth(tow, z["r_ecef"], z["v_ecef"], z["q_eb"]), extra
     return None

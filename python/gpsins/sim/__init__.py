@@ -23,6 +23,7 @@ import numpy as np
 from . import gnss, imu, reference, trajectory
 from .draws import Stream
 from .scenario import Scenario, load
+from ..formats.gpstime import SECONDS_PER_WEEK
 
 __all__ = ["Simulation", "Simulator", "simulate", "load", "Scenario"]
 
@@ -154,7 +155,7 @@ def tight_inputs(s: Simulation) -> dict:
     week = s.scenario.start.gps_week
     ephs = [_core.gnss.decode_subframes(encode_subframes(e), e.prn, week) for e in s.gnss.ephemerides.values()]
     return dict(pseudoranges=pseudorange_table(s), ephemerides=ephs, klobuchar=(s.gnss.ion_alpha, s.gnss.ion_beta),
-                gps_time_offset_s=week * 604800.0 + s.scenario.start.gps_tow_s)
+                gps_time_offset_s=week * SECONDS_PER_WEEK + s.scenario.start.gps_tow_s)
 
 
 def pseudorange_table(s: Simulation) -> np.ndarray:

@@ -28,6 +28,7 @@ import numpy as np
 from . import Simulation, imu_noise_truth
 from .draws import Stream
 from .earth import ecef_to_geodetic, ecef_to_ned_matrix
+from ..formats.gpstime import SECONDS_PER_WEEK
 
 GPS_UNIX_OFFSET_S = 315964800.0  # 1980-01-06 in Unix time (no leap seconds: gpst_unix)
 
@@ -140,7 +141,7 @@ class DatasetWriter:
         # A receiver whose velocity is the antenna's mean over the fix interval just ended (as u-blox NAV-PVT's
         # is), not the velocity at the fix's instant.
         self.velocity_mean_over_epoch = velocity_mean_over_epoch
-        self.t_start_abs = sc.start.gps_week * 604800.0 + sc.start.gps_tow_s  # run time 0 in GPS seconds
+        self.t_start_abs = sc.start.gps_week * SECONDS_PER_WEEK + sc.start.gps_tow_s  # run time 0 in GPS seconds
         key = (seed, seed_offset, 16)
         self.draw = {"sigma": Stream(key + (1,), "uniform"), "position": Stream(key + (2,), width=3),
                      "velocity": Stream(key + (3,), width=3)}

@@ -16,6 +16,7 @@ from gpsins_logger import superstar2 as ss2
 from ..formats.messages import TimedMessage, TimedSample
 from . import ephemeris
 from .gnss import GnssSim
+from ..formats.gpstime import SECONDS_PER_WEEK
 
 # Processing delays after the measurement epoch (true time) before the receiver starts sending.
 MEASUREMENT_DELAY_S = 0.020
@@ -27,7 +28,7 @@ GPS_EPOCH = np.datetime64("1980-01-06T00:00:00", "us")
 
 
 def _utc_fields(week: int, tow: float, leap: int):
-    t = GPS_EPOCH + np.timedelta64(int(round((week * 604800.0 + tow - leap) * 1e6)), "us")
+    t = GPS_EPOCH + np.timedelta64(int(round((week * SECONDS_PER_WEEK + tow - leap) * 1e6)), "us")
     day = t.astype("datetime64[D]")
     ymd = str(day).split("-")
     sec_of_day = (t - day) / np.timedelta64(1, "s")

@@ -35,6 +35,7 @@ from . import DEFAULT_BLOCK_S, Simulation, Simulator, reference
 from .draws import Stream
 from .messages import GpsMessages
 from ..formats.truth import TruthWriter, load_truth, write_truth
+from ..formats.gpstime import SECONDS_PER_WEEK
 
 __all__ = ["SessionWriter", "simulate_session", "write_session", "write_reference", "write_truth", "load_truth",
            "realtime", "imu_frames", "imu_records"]
@@ -46,7 +47,7 @@ STAMP = struct.Struct("<d")
 def realtime(sim, t: np.ndarray) -> np.ndarray:
     """System clock reading at true run time t (``sim``: anything with the run's ``scenario``)."""
     sc = sim.scenario
-    base = GPS_UNIX_OFFSET_S + sc.start.gps_week * 604800.0 + sc.start.gps_tow_s - sc.gnss.leap_seconds
+    base = GPS_UNIX_OFFSET_S + sc.start.gps_week * SECONDS_PER_WEEK + sc.start.gps_tow_s - sc.gnss.leap_seconds
     out = base + np.asarray(t, dtype=np.float64) + sc.timing.system_clock_offset_s
     if sc.timing.clock_step_at_s is not None:
         out = out + np.where(np.asarray(t) >= sc.timing.clock_step_at_s, sc.timing.clock_step_s, 0.0)

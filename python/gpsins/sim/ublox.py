@@ -30,6 +30,7 @@ from gpsins_logger import ubx
 from ..formats.messages import TimedMessage, TimedSample
 from . import ephemeris
 from .messages import imu_samples
+from ..formats.gpstime import MILLISECONDS_PER_WEEK, SECONDS_PER_WEEK
 
 UERE_M = 3.0
 MEASUREMENT_DELAY_S = 0.020
@@ -110,7 +111,7 @@ def rawx(tow: float, week: int, leap: int, meas: list[tuple]) -> bytes:
 
 
 def _utc(week: int, tow: float, leap: int):
-    ns = int(round((week * 604800.0 + tow - leap) * 1e9))
+    ns = int(round((week * SECONDS_PER_WEEK + tow - leap) * 1e9))
     whole = GPS_EPOCH + np.timedelta64(ns - ns % 1_000_000_000, "ns")
     day = whole.astype("datetime64[D]")
     y, mo, d = (int(x) for x in str(day).split("-"))
@@ -132,7 +133,7 @@ def nav_pvt(f, week: int, leap: int, speed_sigma: float) -> bytes:
         fix_type, flags, h_acc, v_acc, pdop = 0, 0, 1e5, 1e5, 99.99
     gspeed = math.hypot(vn, ve)
     head = math.degrees(math.atan2(ve, vn)) % 360.0
-    body = struct.pack("<IHBBBBBBIiBBBBiiiiIIiiiiiIIHH4xiHH", int(round(f.tow_s * 1000)) % 604800000, y, mo, d, hh,
+    body = struct.pack("<IHBBBBBBIiBBBBiiiiIIiiiiiIIHH4xiHH", int(round(f.tow_s * 1000)) % MILLISECONDS_PER_WEEK, y, mo, d, hh,
                        mm, ss, 0x07, 20, nano, fix_type, flags, 0xE0, f.sats, round(math.degrees(lon) * 1e7),
                        round(math.degrees(lat) * 1e7), round(h * 1e3), round(h * 1e3), round(min(h_acc, 4e6) * 1e3),
                        round(min(v_acc, 4e6) * 1e3), round(vn * 1e3), round(ve * 1e3), round(vd * 1e3),
@@ -144,7 +145,7 @@ def nav_pvt(f, week: int, leap: int, speed_sigma: float) -> bytes:
 def nav_timegps(tow: float, week: int, leap: int) -> bytes:
     itow = int(round(tow * 1000))
     ftow = int(round((tow * 1000 - itow) * 1e6))
-    return ubx.encode_frame(ubx.NAV_TIMEGPS, struct.pack("<IihbBI", itow % 604800000, ftow, week, leap, 0x07, 20))
+    return ubx.encode_frame(ubx.NAV_TIMEGPS, struct.pack("<IihbBI", itow % MILLISECONDS_PER_WEEK, ftow, week, leap, 0x07, 20))
 
 
 def esf_raw(rates: np.ndarray, accel: np.ndarray, tags: np.ndarray) -> bytes:
