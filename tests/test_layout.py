@@ -185,3 +185,56 @@ def test_sim_depends_only_on_shared_formats():
 def test_finds_a_cycle():
     graph = {"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}
     assert find_cycles(graph) == [["a", "b", "c", "a"]]
+
+
+def private_names_used_across_modules(files: dict[str, Path]) -> list[str]:
+    """`a.b:_name <- c` for each name with a leading underscore that module c takes from another
+    gpsins module a.b, by ``from a.b import _name`` or as an attribute ``b._name`` of the imported
+    module: such a name is part of a.b's interface and should say so."""
+    names = set(files) | extension_modules() | {f"{PACKAGE}._core"}
+    found = set()
+    for module, path in files.items():
+        tree = ast.parse(path.read_text(), filename=str(path))
+        module_aliases: dict[str, str] = {}
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom):
+                target = _resolve(module, path, node.level, node.module)
+                for alias in node.names:
+                    sub = f"{target}.{alias.name}"
+                    if sub in names:
+                        module_aliases[alias.asname or alias.name] = sub
+                    elif _is_private(alias.name) and target in names and target != module:
+                        found.add(f"{target}:{alias.name} <- {module}")
+            elif isinstance(node, ast.Import):
+                for alias in node.names:
+                    if alias.name in names:
+                        module_aliases[alias.asname or alias.name] = alias.name
+        for node in ast.walk(tree):
+            if (isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name)
+                    and node.value.id in module_aliases and _is_private(node.attr)
+                    and module_aliases[node.value.id] != module):
+                found.add(f"{module_aliases[node.value.id]}:{node.attr} <- {module}")
+    return sorted(found)
+
+
+def _is_private(name: str) -> bool:
+    return name.startswith("_") and not name.startswith("__")
+
+
+def test_no_module_uses_another_modules_private_names():
+    found = private_names_used_across_modules(module_files())
+    assert not found, "private names used across modules:\n" + "\n".join(found)
+
+
+def test_finds_a_private_name_used_across_modules(tmp_path):
+    pkg = tmp_path / "gpsins"
+    (pkg / "sub").mkdir(parents=True)
+    (pkg / "__init__.py").write_text("")
+    (pkg / "sub" / "__init__.py").write_text("")
+    (pkg / "sub" / "a.py").write_text("def _hidden():\n    pass\n")
+    (pkg / "b.py").write_text("from .sub.a import _hidden\n")
+    (pkg / "c.py").write_text("from .sub import a\n\na._hidden()\nfrom . import _core\n")
+    files = {"gpsins": pkg / "__init__.py", "gpsins.sub": pkg / "sub" / "__init__.py",
+             "gpsins.sub.a": pkg / "sub" / "a.py", "gpsins.b": pkg / "b.py", "gpsins.c": pkg / "c.py"}
+    assert private_names_used_across_modules(files) == ["gpsins.sub.a:_hidden <- gpsins.b",
+                                                       "gpsins.sub.a:_hidden <- gpsins.c"]

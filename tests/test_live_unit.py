@@ -20,7 +20,7 @@ def test_the_unit_runs_a_live_command_the_cli_accepts_on_the_loggers_root():
     argv = shlex.split(u["ExecStart"][0])
     assert Path(argv[0]).name == "gpsins"
     args = cli.build_parser().parse_args(argv[1:])
-    assert args.func is commands._cmd_live and args.follow_root
+    assert args.func is commands.cmd_live and args.follow_root
     root = tomllib.loads((LOGGER / "logger.example.toml").read_text())["session"]["root"]
     assert Path(args.session) == Path(root)
     # Its output is its own state directory, outside what the logger writes.

@@ -421,7 +421,7 @@ def test_no_panel_is_left_empty(figs, walk_figs):
 
 
 def test_the_smoothed_run_draws_and_counts_no_innovations(walk, walk_figs):
-    names = {r.name for r in report_data._load_all([walk[0]])}
+    names = {r.name for r in report_data.load_all([walk[0]])}
     assert names == {"loose", "loose smoothed"}
     for name in ("innovations.png", "consistency.png"):
         for ax in walk_figs[name].axes:

@@ -142,7 +142,7 @@ def test_numpy_window_minimum_and_lower_hull_equal_scipys():
             pad = np.full(ww, np.inf)
             r = minimum_filter1d(np.concatenate([pad, y, pad]), size=ww, mode="constant", cval=np.inf,
                                  origin=-(ww // 2))
-            left, right = envelope._running_min(y, w)
+            left, right = envelope.running_min(y, w)
             np.testing.assert_array_equal(left, r[:n])
             np.testing.assert_array_equal(right, r[ww:ww + n])
     for trial in range(60):
@@ -173,10 +173,10 @@ def test_block_by_block_stamp_statistics_equal_the_whole_series(monkeypatch):
     direct = np.median([(y[j] - y[i]) / (x[j] - x[i]) for i in range(n)
                         for j in [np.searchsorted(x, x[i] + 40.0)] if j < n])
     stamps = y - x / 64.0  # as align gives it: the counter's trend removed
-    whole = [envelope._damaged_low(stamps, w, 0.02) for w in (8, 64)]
+    whole = [envelope.damaged_low(stamps, w, 0.02) for w in (8, 64)]
     monkeypatch.setattr(envelope, "DAMAGE_BLOCK", 97)
     monkeypatch.setattr(envelope, "SLOPE_BLOCK", 97)
-    assert envelope._median_slope(x, y, 40.0) == direct
+    assert envelope.median_slope(x, y, 40.0) == direct
     for w, expected in zip((8, 64), whole):
-        got = envelope._damaged_low(stamps, w, 0.02)
+        got = envelope.damaged_low(stamps, w, 0.02)
         assert np.array_equal(got, expected) and 4 <= got.sum() <= 8

@@ -15,9 +15,9 @@ import sys
 
 from . import __version__
 from .errors import CommandError
-from .commands import (_cmd_allan, _cmd_batch, _cmd_calibrate, _cmd_check, _cmd_dataset_init, _cmd_dump, _cmd_emulate,
-                       _cmd_lab, _cmd_live, _cmd_montecarlo, _cmd_replay, _cmd_report, _cmd_run, _cmd_score, _cmd_sim,
-                       _cmd_spp)
+from .commands import (cmd_allan, cmd_batch, cmd_calibrate, cmd_check, cmd_dataset_init, cmd_dump, cmd_emulate,
+                       cmd_lab, cmd_live, cmd_montecarlo, cmd_replay, cmd_report, cmd_run, cmd_score, cmd_sim,
+                       cmd_spp)
 
 
 EXIT_USAGE = 2
@@ -45,7 +45,7 @@ def _montecarlo_options(p: argparse.ArgumentParser) -> None:
                    help="what stays in --out besides the tables: sessions and replay results (all, default), "
                         "replay results only, or none")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.set_defaults(func=_cmd_montecarlo)
+    p.set_defaults(func=cmd_montecarlo)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -61,14 +61,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--speed", type=float, default=1.0, help="time scale of the emulated drive (4 = four times faster)")
     p.add_argument("--device", choices=("superstar2", "ublox"), default="superstar2",
                    help="GPS hardware: the report's Superstar II + BP3010, or an F9R-like u-blox with its own IMU")
-    p.set_defaults(func=_cmd_run)
+    p.set_defaults(func=cmd_run)
 
     p = sub.add_parser("dump", help="summarise a session directory or a raw device capture")
     p.add_argument("path", help="session directory, or with --raw a capture file")
     p.add_argument("--raw", choices=("superstar2", "bp3010"), help="PATH is a raw byte stream of this device")
     p.add_argument("--csv", action="store_true", help="list every record as CSV on stdout")
     p.add_argument("--format", choices=("text", "json"), default="text")
-    p.set_defaults(func=_cmd_dump)
+    p.set_defaults(func=cmd_dump)
 
     p = sub.add_parser("sim", help="simulate a drive: truth + session files")
     p.add_argument("--scenario", default="default", help="built-in name or a TOML file (default: default)")
@@ -79,7 +79,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="also write a data set (IMU CSV, receiver .pos, truth .pos, dataset.toml) in OUT/dataset")
     p.add_argument("--block-s", type=float, help="simulate and write in blocks of about this many seconds "
                    "(default 60; memory grows with the block, not the drive; the output is the same for any block)")
-    p.set_defaults(func=_cmd_sim)
+    p.set_defaults(func=cmd_sim)
 
     p = sub.add_parser("emulate", help="serve a scenario or a recorded session on pty serial devices")
     src = p.add_mutually_exclusive_group()
@@ -93,7 +93,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--baud", type=int, default=460800, help="u-blox: line rate (default 460800)")
     p.add_argument("--bp3010", action="store_true", help="u-blox: no ESF-RAW; a BP3010 IMU at DIR/imu instead")
     p.add_argument("--config-fault", choices=("nak", "silent"), help="u-blox: refuse or ignore configuration")
-    p.set_defaults(func=_cmd_emulate)
+    p.set_defaults(func=cmd_emulate)
 
     p = sub.add_parser("replay", help="replay a logger session or a data set through the filter")
     p.add_argument("session", help="session directory, or a data-set file (DATASET.toml)")
@@ -128,14 +128,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--gps-latency", type=float, default=0.0205, help="GPS epoch to ID 23 stamp, s (default 0.0205)")
     p.add_argument("--imu-latency", type=float, default=0.0005, help="IMU sample to stamp, s (default 0.0005)")
     p.add_argument("--no-truth", action="store_true", help="ignore a truth file next to the session")
-    p.set_defaults(func=_cmd_replay)
+    p.set_defaults(func=cmd_replay)
 
     p = sub.add_parser("report", help="figures and a summary page from replay results")
     p.add_argument("results", nargs="+", metavar="[NAME=]RESULTS",
                    help="results directories of gpsins replay --out or gpsins score (one per run, or one holding "
                         "its runs per mode and stretch), each named NAME on the figures and tables if given")
     p.add_argument("--out", help="report directory (default: RESULTS/report)")
-    p.set_defaults(func=_cmd_report)
+    p.set_defaults(func=cmd_report)
 
     p = sub.add_parser("allan", help="Allan deviation, PSD and noise terms of IMU data")
     p.add_argument("source", help="session directory, or a CSV/NPY of rate samples (columns: axes)")
@@ -148,7 +148,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--start-s", type=float, help="analyse from this many seconds into the record")
     p.add_argument("--end-s", type=float, help="... up to this many seconds")
     p.add_argument("--estimator", choices=("overlapping", "non-overlapping"), default="overlapping")
-    p.set_defaults(func=_cmd_allan)
+    p.set_defaults(func=cmd_allan)
 
     p = sub.add_parser("lab", help="IMU lab workflow from a lab plan: calibration, noise, filter preset, report")
     p.add_argument("plan", nargs="?", help="lab plan TOML (sessions: up-down, rate table, drift run)")
@@ -158,7 +158,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--speed", type=float, help="with --simulate: record through the pty emulators and the logger "
                                                "at this many times real time")
-    p.set_defaults(func=_cmd_lab)
+    p.set_defaults(func=cmd_lab)
 
     p = sub.add_parser("calibrate", help="deterministic calibration: accelerometer up-down, gyro rate table")
     p.add_argument("kind", choices=("accel-updown", "gyro-rate-table"))
@@ -168,7 +168,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--height-m", type=float, default=30.0)
     p.add_argument("--axis-up", action="store_true", help="the gyro axis points up (Earth rate along it)")
     p.add_argument("--drift-bias", type=float, help="gyro bias from a drift test, rad/s (else fitted)")
-    p.set_defaults(func=_cmd_calibrate)
+    p.set_defaults(func=cmd_calibrate)
 
     p = sub.add_parser("dataset", help="data sets: `dataset init IMU_FILE GNSS_FILE` writes a first data-set TOML")
     dsub = p.add_subparsers(dest="dataset_command", required=True)
@@ -177,7 +177,7 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("gnss_file", help="RTKLIB .pos, a UBX stream or a RINEX observation file")
     q.add_argument("--out", default="dataset.toml", help="the data-set file to write (default dataset.toml)")
     q.add_argument("--force", action="store_true", help="replace the file if it exists")
-    q.set_defaults(func=_cmd_dataset_init)
+    q.set_defaults(func=cmd_dataset_init)
 
     p = sub.add_parser("batch", help="two configurations or estimators over many recordings, paired, on Dask")
     p.add_argument("sources", nargs="+", help="directories searched for sessions and data sets, lists, or files")
@@ -189,7 +189,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--scheduler", help="a running Dask scheduler (address or scheduler file); default: local")
     p.add_argument("--workers", type=int, help="local cluster workers (default: one per core)")
     p.add_argument("--out", required=True, help="output directory: batch.csv, paired.json, paired.png, the runs")
-    p.set_defaults(func=_cmd_batch)
+    p.set_defaults(func=cmd_batch)
 
     p = sub.add_parser("live", help="navigate live beside the logger: follow a session as it is written")
     p.add_argument("session", help="the session directory the logger is writing (read only); with --follow-root "
@@ -211,7 +211,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "came since the last")
     p.add_argument("--gps-latency", type=float, default=0.0, help="as replay's")
     p.add_argument("--imu-latency", type=float, default=0.0, help="as replay's")
-    p.set_defaults(func=_cmd_live)
+    p.set_defaults(func=cmd_live)
 
     p = sub.add_parser("score", help="score a solution computed elsewhere against a session or data set")
     p.add_argument("solution", help="RTKLIB .pos or KF-GINS navigation result")
@@ -229,13 +229,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--outages", metavar="FIRST:LENGTH:PERIOD[:END]", help="the outages to score the drift over")
     p.add_argument("--reference", help="reference trajectory (RTKLIB .pos) at the antenna point")
     p.add_argument("--reference-q", type=int, nargs="+", default=[1], metavar="Q")
-    p.set_defaults(func=_cmd_score)
+    p.set_defaults(func=cmd_score)
 
     p = sub.add_parser("check", help="the data-set doctor: the data against what the data set declares")
     p.add_argument("dataset", help="data-set TOML")
     p.add_argument("--mode", choices=("loose", "tight", "both", "ins"), default="loose",
                    help="the filter mode to check the content for (default loose)")
-    p.set_defaults(func=_cmd_check)
+    p.set_defaults(func=cmd_check)
 
     p = sub.add_parser("spp", help="single-point positioning from pseudoranges (session, raw capture or RINEX)")
     p.add_argument("session", nargs="?", help="session directory")
@@ -247,7 +247,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--mask-deg", type=float, default=15.0, help="elevation mask (default 15)")
     p.add_argument("--no-iono", action="store_true")
     p.add_argument("--no-trop", action="store_true")
-    p.set_defaults(func=_cmd_spp)
+    p.set_defaults(func=cmd_spp)
 
     p = sub.add_parser("montecarlo", help="Monte Carlo: simulate + replay per seed as Dask tasks, aggregate NEES/NIS")
     _montecarlo_options(p)

@@ -20,13 +20,13 @@ def _session_dir(path: str) -> str:
     return path
 
 
-def _cmd_run(args: argparse.Namespace) -> int:
+def cmd_run(args: argparse.Namespace) -> int:
     from . import mainjob
 
     return mainjob.run(args)
 
 
-def _cmd_dump(args: argparse.Namespace) -> int:
+def cmd_dump(args: argparse.Namespace) -> int:
     from .session import dump
 
     if not args.raw:
@@ -34,13 +34,13 @@ def _cmd_dump(args: argparse.Namespace) -> int:
     return dump.main(args)
 
 
-def _cmd_sim(args: argparse.Namespace) -> int:
+def cmd_sim(args: argparse.Namespace) -> int:
     from .sim import cli as sim_cli
 
     return sim_cli.run_sim(args)
 
 
-def _cmd_emulate(args: argparse.Namespace) -> int:
+def cmd_emulate(args: argparse.Namespace) -> int:
     from .devices import cli as devices_cli
 
     if getattr(args, "device", "superstar2") == "ublox":
@@ -50,7 +50,7 @@ def _cmd_emulate(args: argparse.Namespace) -> int:
     return devices_cli.run_emulate(args)
 
 
-def _cmd_replay(args: argparse.Namespace) -> int:
+def cmd_replay(args: argparse.Namespace) -> int:
     from .replay import inputs as replay_inputs
     from .nav import config as nav_config
 
@@ -134,7 +134,7 @@ def _replay_one(args: argparse.Namespace, inp, out: Path, mode: str, overrides: 
     memory.trim()
 
 
-def _cmd_dataset_init(args: argparse.Namespace) -> int:
+def cmd_dataset_init(args: argparse.Namespace) -> int:
     from .dataset import init
 
     out = Path(args.out)
@@ -148,7 +148,7 @@ def _cmd_dataset_init(args: argparse.Namespace) -> int:
     return 0
 
 
-def _cmd_batch(args: argparse.Namespace) -> int:
+def cmd_batch(args: argparse.Namespace) -> int:
     from .montecarlo import batch
     from .montecarlo.runner import open_client
 
@@ -169,7 +169,7 @@ def _cmd_batch(args: argparse.Namespace) -> int:
     return 0
 
 
-def _cmd_live(args: argparse.Namespace) -> int:
+def cmd_live(args: argparse.Namespace) -> int:
     from .live import service
     from .nav import config as nav_config
 
@@ -203,7 +203,7 @@ def _cmd_live(args: argparse.Namespace) -> int:
     return 0
 
 
-def _cmd_score(args: argparse.Namespace) -> int:
+def cmd_score(args: argparse.Namespace) -> int:
     from .report import data as report_data
     from .report import terminal as report_terminal
     from .replay import score
@@ -222,7 +222,7 @@ def _cmd_score(args: argparse.Namespace) -> int:
     return 0
 
 
-def _cmd_check(args: argparse.Namespace) -> int:
+def cmd_check(args: argparse.Namespace) -> int:
     from .dataset import load, doctor
 
     if not Path(args.dataset).is_file():
@@ -234,7 +234,7 @@ def _cmd_check(args: argparse.Namespace) -> int:
     return 2 if diagnosis.errors() else 0
 
 
-def _cmd_report(args: argparse.Namespace) -> int:
+def cmd_report(args: argparse.Namespace) -> int:
     from .report import data as report_data
     from .report import page as report_page
     from .report import terminal as report_terminal
@@ -257,25 +257,25 @@ def _cmd_report(args: argparse.Namespace) -> int:
     return 0
 
 
-def _cmd_allan(args: argparse.Namespace) -> int:
+def cmd_allan(args: argparse.Namespace) -> int:
     from .imu import cli as imu_cli
 
     return imu_cli.run_allan(args)
 
 
-def _cmd_calibrate(args: argparse.Namespace) -> int:
+def cmd_calibrate(args: argparse.Namespace) -> int:
     from .imu import cli as imu_cli
 
     return imu_cli.run_calibrate(args)
 
 
-def _cmd_lab(args: argparse.Namespace) -> int:
+def cmd_lab(args: argparse.Namespace) -> int:
     from .imu import cli as imu_cli
 
     return imu_cli.run_lab(args)
 
 
-def _cmd_spp(args: argparse.Namespace) -> int:
+def cmd_spp(args: argparse.Namespace) -> int:
     from .gnss import spp
 
     if args.session:
@@ -283,7 +283,7 @@ def _cmd_spp(args: argparse.Namespace) -> int:
     return spp.main(args)
 
 
-def _cmd_montecarlo(args: argparse.Namespace) -> int:
+def cmd_montecarlo(args: argparse.Namespace) -> int:
     from .montecarlo import cli as mc_cli
 
     return mc_cli.run(args)

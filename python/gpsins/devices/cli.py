@@ -9,7 +9,7 @@ from pathlib import Path
 from gpsins_logger import bp3010
 
 from ..sim import simulate
-from ..sim.cli import _scenario
+from ..sim.cli import scenario_from_args
 
 
 def run_emulate(args) -> int:
@@ -21,7 +21,7 @@ def run_emulate(args) -> int:
         source = SessionSource(args.session)
         what = f"session {args.session}"
     else:
-        sc = _scenario(args, "emulate")
+        sc = scenario_from_args(args, "emulate")
         if sc is None:
             return 2
         if not any(sc.imu.rate_hz % r == 0 for r in bp3010.RATES_HZ):

@@ -25,7 +25,7 @@ from gpsins_logger import superstar2 as ss2
 from gpsins_logger.framing import FrameFinder
 
 from ..formats.messages import MessageSource
-from .pty import BITS_PER_BYTE, DRAIN_POLL_S, DRAIN_WAIT_S, Faults, PtyLink, SentFrame, _tight_timers
+from .pty import BITS_PER_BYTE, DRAIN_POLL_S, DRAIN_WAIT_S, Faults, PtyLink, SentFrame, tight_timers
 
 
 class DeviceEmulator(threading.Thread):
@@ -200,7 +200,7 @@ class DeviceEmulator(threading.Thread):
         pass
 
     def run(self) -> None:
-        _tight_timers()
+        tight_timers()
         self._start_mono = time.monotonic() if self.start_mono is None else self.start_mono
         self._mono_to_real = time.time() - time.monotonic()
         self._line_free = self._start_mono

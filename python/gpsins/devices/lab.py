@@ -11,7 +11,7 @@ import numpy as np
 
 from gpsins_logger import bp3010
 
-from ..sim.lab import LabDay, Session, _truth_doc, plan_text
+from ..sim.lab import LabDay, Session, truth_doc, plan_text
 
 
 class LabSessionSource:
@@ -82,7 +82,7 @@ def record_through_logger(day: LabDay, directory: str | Path, speed: float = 1.0
                     proc.kill()
                     proc.wait()
                 em.stop()
-    (directory / "truth.json").write_text(json.dumps(_truth_doc(day), indent=1, default=list) + "\n",
+    (directory / "truth.json").write_text(json.dumps(truth_doc(day), indent=1, default=list) + "\n",
                                           encoding="utf-8")
     plan = directory / "lab_plan.toml"
     plan.write_text(plan_text(day, [s.name for s in chosen]), encoding="utf-8")

@@ -125,7 +125,7 @@ class PtyLink:
             raise
 
 
-def _tight_timers() -> None:
+def tight_timers() -> None:
     """This thread's sleeps end on time (Linux: timer slack 1 us instead of 50 us). A device that
     wakes late delays its bytes, which a drive served S times faster shows S times larger."""
     try:

@@ -36,7 +36,7 @@ import numpy as np
 from ..replay import results
 from . import noise_fit, records
 from .records import AXES, RecordError
-from .lab_plan import DEFAULT_REPEATABILITY, Plan, PlanError, _load, load_plan, noise_analysis
+from .lab_plan import DEFAULT_REPEATABILITY, Plan, PlanError, load, load_plan, noise_analysis
 from .lab_calibration import drift_test, rate_table, updown
 
 
@@ -50,7 +50,7 @@ def run_plan(plan: Plan) -> dict:
     noise = drift_rec = None
     window = None
     if plan.drift:
-        drift_rec = _load(plan, plan.drift)
+        drift_rec = load(plan, plan.drift)
         warnings.extend(f"{drift_rec.name}: {n}" for n in drift_rec.notes)
         st = records.steady_windows(drift_rec.rates, drift_rec.rate_hz, min_s=10.0)
         msg = records.motion_warning(st, drift_rec.duration_s)

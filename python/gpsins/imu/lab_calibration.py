@@ -9,7 +9,7 @@ import math
 import numpy as np
 
 from . import calibration, noise_fit, records
-from .lab_plan import OMEGA_E, Plan, _load, _noise_value
+from .lab_plan import OMEGA_E, Plan, load, noise_value
 
 
 def _window_stats(y: np.ndarray, rate_hz: float, white: dict | None = None) -> tuple[float, float, int]:
@@ -33,7 +33,7 @@ def updown(plan: Plan, noise: dict | None, warnings: list) -> dict:
     g = calibration.local_gravity_mps2(plan.lat_rad, plan.height_m)
     positions = []  # (axis, sign, mean, sigma_white, n, start_s on the common line, length_s, source, window)
     for entry in plan.updown:
-        rec = _load(plan, entry)
+        rec = load(plan, entry)
         warnings.extend(f"{rec.name}: {n}" for n in rec.notes)
         st = records.steady_windows(rec.rates, rec.rate_hz)
         t0 = rec.start_unix_s or 0.0
@@ -48,7 +48,7 @@ def updown(plan: Plan, noise: dict | None, warnings: list) -> dict:
                 warnings.append(f"{rec.name}: window {a / rec.rate_hz:.0f}-{b / rec.rate_hz:.0f} s: accel {'xyz'[i]} "
                                 f"is {math.degrees(tilt):.1f} deg off the vertical (not levelled): skipped")
                 continue
-            m, s, n = _window_stats(rec.rates[a:b, 3 + i], rec.rate_hz, _noise_value(noise, f"accel_{'xyz'[i]}"))
+            m, s, n = _window_stats(rec.rates[a:b, 3 + i], rec.rate_hz, noise_value(noise, f"accel_{'xyz'[i]}"))
             positions.append(dict(axis=i, sign=sign, mean=m, sigma=s, n=n, start=t0 + a / rec.rate_hz,
                                   length=(b - a) / rec.rate_hz, source=rec.name, window_s=[a / rec.rate_hz,
                                                                                             b / rec.rate_hz],
@@ -65,7 +65,7 @@ def updown(plan: Plan, noise: dict | None, warnings: list) -> dict:
         u, d = min(((u, d) for u in ups for d in dns), key=lambda ud: abs(ud[0]["start"] - ud[1]["start"]))
         c = calibration.accel_up_down(u["mean"], d["mean"], g)
         sig_b = 0.5 * math.hypot(u["sigma"], d["sigma"])
-        value = _noise_value(noise, f"accel_{a}")
+        value = noise_value(noise, f"accel_{a}")
         white = math.hypot(u["sigma"], d["sigma"]) ** 2
         if value is not None:
             first, second = sorted((u, d), key=lambda p: p["start"])
@@ -141,7 +141,7 @@ def _table_rate(entry: dict) -> tuple[float, float]:
 def rate_table(plan: Plan, noise: dict | None, drift_bias: dict | None, warnings: list) -> dict:
     runs = {a: [] for a in "xyz"}
     for entry in plan.rate_table:
-        rec = _load(plan, entry)
+        rec = load(plan, entry)
         warnings.extend(f"{rec.name}: {n}" for n in rec.notes)
         a = entry["axis"]
         i = "xyz".index(a)
@@ -151,7 +151,7 @@ def rate_table(plan: Plan, noise: dict | None, drift_bias: dict | None, warnings
             continue
         lo, hi = max(st.windows, key=lambda w: w[1] - w[0])
         w, w_sig = _table_rate(entry)
-        m, s, n = _window_stats(rec.rates[lo:hi, i], rec.rate_hz, _noise_value(noise, f"gyro_{a}"))
+        m, s, n = _window_stats(rec.rates[lo:hi, i], rec.rate_hz, noise_value(noise, f"gyro_{a}"))
         if np.sign(m) != np.sign(w) and abs(w) > 0.05:
             warnings.append(f"{rec.name}: gyro {a} reads {m:+.4f} rad/s against a table rate of {w:+.4f}: check "
                             f"the axis and the sign convention")
@@ -167,7 +167,7 @@ def rate_table(plan: Plan, noise: dict | None, drift_bias: dict | None, warnings
         w_ex = calibration.earth_rate_component(plan.lat_rad, rs[0]["axis_up"]) if rs[0]["axis_up"] else 0.0
         x = np.array([r["rate"] for r in rs]) + w_ex
         y = np.array([r["mean"] for r in rs])
-        value = _noise_value(noise, f"gyro_{a}")
+        value = noise_value(noise, f"gyro_{a}")
         t0 = min(r["start"] for r in rs)
         t1 = max(r["start"] + r["length"] for r in rs)
         # Each run's mean about the mean over all runs of the axis: white noise and the bias's wander,
@@ -220,7 +220,7 @@ def drift_test(plan: Plan, rec: records.Record, window: tuple[int, int], scale: 
     out = {}
     a0, a1 = window
     for i, a in enumerate("xyz"):
-        m, s, n = _window_stats(rec.rates[a0:a1, i], rec.rate_hz, _noise_value(noise, f"gyro_{a}"))
+        m, s, n = _window_stats(rec.rates[a0:a1, i], rec.rate_hz, noise_value(noise, f"gyro_{a}"))
         sf = scale.get(a, 0.0)
         out[a] = {"bias_rad_per_s": m - (1 + sf) * w_b[i], "bias_sigma_rad_per_s": s, "mean_output_rad_per_s": m,
                   "earth_rate_rad_per_s": float(w_b[i]), "window_s": [a0 / rec.rate_hz, a1 / rec.rate_hz]}

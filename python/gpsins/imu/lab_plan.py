@@ -88,7 +88,7 @@ def load_plan(path: str | Path) -> Plan:
                 data.get("rate_table", []), drift, analysis)
 
 
-def _load(plan: Plan, entry: dict) -> records.Record:
+def load(plan: Plan, entry: dict) -> records.Record:
     src = Path(entry["session"])
     if not src.is_absolute():
         src = plan.path.parent / src
@@ -124,5 +124,5 @@ def noise_analysis(rec: records.Record, analysis: dict) -> dict:
     return out
 
 
-def _noise_value(noise: dict | None, name: str) -> dict | None:
+def noise_value(noise: dict | None, name: str) -> dict | None:
     return None if noise is None or name not in noise else noise[name]["fit"].value

@@ -244,7 +244,7 @@ class Follower:
         t_end = float(rows[-1, 0])
         fx = fixes[(fixes[:, 0] > self.fix_fed) & (fixes[:, 0] <= t_end)]
         if self.filter is None:
-            setup = flt._setup(rows[:0], fixes[:0], self.cfg, self.mode, [], iono,
+            setup = flt.setup_run(rows[:0], fixes[:0], self.cfg, self.mode, [], iono,
                                self.week * gpstime.SECONDS_PER_WEEK)
             self.filter, self.scale_factors = setup.core_filter, setup.scale_factors
         for e in ephemerides:

@@ -65,7 +65,7 @@ class NmeaServer:
         self._sock.close()
 
 
-def _nis(updates: dict) -> dict:
+def nis_per_source(updates: dict) -> dict:
     """This round's accepted updates per source: mean NIS per degree of freedom, and the 95 % band of
     that mean for white innovations of that many degrees of freedom (chi-square)."""
     from scipy.stats import chi2

@@ -37,7 +37,7 @@ from ..nav import runs as flt
 from ..formats import gpstime
 from ..formats import nmea
 from ..replay import results, solution
-from .outputs import NmeaServer, _nis
+from .outputs import NmeaServer, nis_per_source
 from .follower import Follower
 
 
@@ -158,7 +158,7 @@ def _status(fol: Follower, sol: flt.Solution, a: dict) -> dict:
             "imu_fed": fol.n_imu, "fixes_fed": fol.n_fix, "pseudoranges_fed": fol.n_pr,
             "counters": {c: fol.counters.get(c) for c in ("fixes_accepted", "fixes_rejected", "gnss_resets",
                                                           "imu_gap_restarts", "pseudoranges_used", "diverged")},
-            "nis_per_dof": _nis(sol.updates), "warnings": fol.warnings}
+            "nis_per_dof": nis_per_source(sol.updates), "warnings": fol.warnings}
 
 
 def _send_nmea(server: NmeaServer, fol: Follower, sol: flt.Solution, a: dict, every: int) -> None:

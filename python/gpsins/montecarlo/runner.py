@@ -49,9 +49,9 @@ class Plan:
     def overrides_for(self, value) -> dict:
         if self.sweep_key is None:
             return dict(self.overrides)
-        from ..nav.config import _merge, parse_overrides
+        from ..nav.config import merge, parse_overrides
 
-        return _merge(self.overrides, parse_overrides([f"{self.sweep_key}={value}"]))
+        return merge(self.overrides, parse_overrides([f"{self.sweep_key}={value}"]))
 
     def session_dir(self, seed: int) -> Path:
         return self.out / f"seed-{seed:04d}" / "session"
@@ -107,7 +107,7 @@ def _warm() -> str:
     from .. import sim  # noqa: F401
     from ..sim import session  # noqa: F401
 
-    return tasks._where()
+    return tasks.worker_place()
 
 
 def _preload_outputs() -> None:

@@ -43,7 +43,7 @@ def _run_series(out_dir: Path) -> dict:
     return {k: z[k] for k in names}
 
 
-def _where() -> str:
+def worker_place() -> str:
     return f"{socket.gethostname()}:{os.getpid()}"
 
 
@@ -62,7 +62,7 @@ def simulate_task(scenario, seed: int, directory: str) -> dict:
     except Exception as e:  # a seed that does not simulate is a result of the Monte Carlo
         return {"seed": seed, "error": f"simulate: {_failure(e)}"}
     return {"seed": seed, "session": str(session), "simulate_s": time.perf_counter() - t0,
-            "simulate_cpu_s": time.process_time() - c0, "sim_worker": _where()}
+            "simulate_cpu_s": time.process_time() - c0, "sim_worker": worker_place()}
 
 
 def replay_task(simulated: dict, run: dict, grid_s: float) -> dict:
@@ -90,7 +90,7 @@ def replay_task(simulated: dict, run: dict, grid_s: float) -> dict:
     out["wall"] = {"simulate_s": simulated["simulate_s"], **res.summary["wall_time_s"],
                    "task_s": time.perf_counter() - t0, "simulate_cpu_s": simulated["simulate_cpu_s"],
                    "task_cpu_s": time.process_time() - c0}
-    out["worker"] = _where()
+    out["worker"] = worker_place()
     return out
 
 

@@ -85,10 +85,10 @@ def _preset(name: str) -> dict:
     return tomllib.loads(text)
 
 
-def _merge(base: dict, over: dict) -> dict:
+def merge(base: dict, over: dict) -> dict:
     out = dict(base)
     for k, v in over.items():
-        out[k] = _merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+        out[k] = merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
         # A value given in radians replaces the preset's degrees (and the other way round).
         twin = _DEGREE_KEYS.get(k) or next((d for d, r in _DEGREE_KEYS.items() if r == k), None)
         if twin and twin in out and twin not in over:
@@ -121,12 +121,12 @@ def load_config(source: str | Path | dict | None = None, overrides: dict | None 
             raise ConfigError(f"{path}: not valid TOML ({e})") from e
         data = data.get("filter", data)
         where = str(path)
-    cfg = _merge(_preset(data.get("preset", "default")), data)
+    cfg = merge(_preset(data.get("preset", "default")), data)
     cfg["preset"] = data.get("preset", "default")
     check_config(cfg, where)
     if overrides:
-        check_config(_merge(cfg, overrides), "--set", only=overrides)
-        cfg = _merge(cfg, overrides)
+        check_config(merge(cfg, overrides), "--set", only=overrides)
+        cfg = merge(cfg, overrides)
     given = set(data) | set(overrides or {})
     for key, value in PLATFORM_DEFAULTS.get(cfg.get("platform", "vehicle"), {}).items():
         if key not in given:
@@ -299,7 +299,7 @@ def describe_keys(source=None, overrides: dict | None = None, title: str | None 
     return "\n".join(lines)
 
 
-def _vec3(value, key: str) -> np.ndarray:
+def as_vec3(value, key: str) -> np.ndarray:
     v = np.broadcast_to(np.asarray(value, dtype=float), (3,)) if np.ndim(value) <= 1 else None
     if v is None or not np.all(np.isfinite(v)):
         raise ConfigError(f"{key}: expected one or three finite numbers, got {value!r}")
@@ -317,8 +317,8 @@ def bias_models(noise: dict, tau_s: float) -> tuple[dict, dict, np.ndarray, np.n
     out, sig = [], []
     for b_key, k_key in (("gyro_bias_instability_rad_per_s", "gyro_rrw_rad_per_s_sqrt_s"),
                          ("accel_bias_instability_mps2", "accel_rrw_mps2_per_sqrt_s")):
-        s_bi = FLAT_PER_B / GM_PEAK_PER_SIGMA * _vec3(noise.get(b_key, 0.0), b_key)
-        k = _vec3(noise.get(k_key, 0.0), k_key)
+        s_bi = FLAT_PER_B / GM_PEAK_PER_SIGMA * as_vec3(noise.get(b_key, 0.0), b_key)
+        k = as_vec3(noise.get(k_key, 0.0), k_key)
         drive = k ** 2 + 2.0 * s_bi ** 2 / tau_s
         out.append({"model": "random_walk", "random_walk_per_sqrt_s": np.sqrt(drive).tolist()})
         sig.append(s_bi)
@@ -365,14 +365,14 @@ def core_config(cfg: dict) -> _core.InsConfig:
         table.setdefault("accel_vrw_mps_per_sqrt_s", noise.get("accel_vrw_mps_per_sqrt_s"))
         for white, b_key in (("gyro_flicker_white_rad_per_sqrt_s", "gyro_bias_instability_rad_per_s"),
                              ("accel_flicker_white_mps_per_sqrt_s", "accel_bias_instability_mps2")):
-            b = _vec3(noise.get(b_key, 0.0), b_key)
+            b = as_vec3(noise.get(b_key, 0.0), b_key)
             table.setdefault(white, np.sqrt(flicker_white_var(b, tau)).tolist())
         table["gyro_bias"] = {**gb, **table.get("gyro_bias", {})}
         table["accel_bias"] = {**ab, **table.get("accel_bias", {})}
         if gyro_residual is not None:
-            table.setdefault("gyro_bias_sigma_rad_per_s", np.hypot(_vec3(gyro_residual, "gyro"), g_sig).tolist())
+            table.setdefault("gyro_bias_sigma_rad_per_s", np.hypot(as_vec3(gyro_residual, "gyro"), g_sig).tolist())
         if accel_residual is not None:
-            table.setdefault("accel_bias_sigma_mps2", np.hypot(_vec3(accel_residual, "accel"), a_sig).tolist())
+            table.setdefault("accel_bias_sigma_mps2", np.hypot(as_vec3(accel_residual, "accel"), a_sig).tolist())
     else:
         if gyro_residual is not None:
             table.setdefault("gyro_bias_sigma_rad_per_s", gyro_residual)
@@ -396,13 +396,13 @@ def core_config(cfg: dict) -> _core.InsConfig:
                     except AttributeError:
                         raise ConfigError(f"[{key}] model: unknown '{bv}' (random_walk, gauss_markov, constant)") from None
                 else:
-                    setattr(b, bk, _vec3(bv, f"[{key}] {bk}"))
+                    setattr(b, bk, as_vec3(bv, f"[{key}] {bk}"))
             setattr(c, key, b)
             continue
         current = getattr(c, key)
         try:
             if isinstance(current, np.ndarray):
-                setattr(c, key, _vec3(value, key))
+                setattr(c, key, as_vec3(value, key))
             elif isinstance(current, bool):
                 if not isinstance(value, bool):
                     raise ConfigError(f"{key}: expected true or false, got {value!r}")

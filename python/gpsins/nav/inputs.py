@@ -104,12 +104,12 @@ def pr_table(prs) -> np.ndarray:
     return a.reshape(-1, width)
 
 
-def _pr_table(prs):
+def pseudorange_table(prs):
     """Pseudoranges as floats (``pr_table``); a ``PseudorangeColumns`` stays by columns."""
     if prs is None or isinstance(prs, PseudorangeColumns):
         return prs
     return pr_table(prs)
 
 
-def _imu_table(imu) -> np.ndarray:
+def imu_table(imu) -> np.ndarray:
     return imu.table() if isinstance(imu, ImuColumns) else np.ascontiguousarray(imu, dtype=float)

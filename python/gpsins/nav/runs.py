@@ -12,8 +12,8 @@ import numpy as np
 
 from .. import _core
 # The configuration language lives in filter_config; these are the names callers reach through here.
-from .config import _merge, _vec3, core_config, load_config
-from .inputs import _imu_table, _pr_table, pr_table
+from .config import merge, as_vec3, core_config, load_config
+from .inputs import imu_table, pseudorange_table, pr_table
 
 
 # The core's names of its event and update kinds (one list, cpp/include/gpsins/filter_names.hpp).
@@ -139,8 +139,8 @@ def run(imu: np.ndarray, fixes: np.ndarray, config=None, *, mode: str | None = N
     attitude: (j, 5) [t, yaw, pitch (NaN: none), sigma yaw, sigma pitch] (rad) of a dual-antenna
     receiver whose baseline is ``antenna_baseline_body``.
     """
-    imu = _imu_table(imu)
-    setup = _setup(imu, fixes, config, mode, ephemerides, klobuchar, gps_time_offset_s)
+    imu = imu_table(imu)
+    setup = setup_run(imu, fixes, config, mode, ephemerides, klobuchar, gps_time_offset_s)
     f, fixes = setup.core_filter, setup.fixes
     prs = None if pseudoranges is None else pr_table(pseudoranges[:])
     out = f.run(imu, fixes, prs, output_every, covariance, smooth, smooth_chunk_mb,
@@ -168,7 +168,7 @@ class _Setup:
     search: dict | None
 
 
-def _setup(imu, fixes, config, mode, ephemerides, klobuchar, gps_time_offset_s) -> _Setup:
+def setup_run(imu, fixes, config, mode, ephemerides, klobuchar, gps_time_offset_s) -> _Setup:
     """The core filter of a run: configuration, heading search (handheld), ephemerides, ionosphere."""
     cfg = config if isinstance(config, dict) and "preset" in config else load_config(config)
     mode = mode or cfg.get("mode", "loose")
@@ -177,7 +177,7 @@ def _setup(imu, fixes, config, mode, ephemerides, klobuchar, gps_time_offset_s) 
         fixes = fixes.reshape(-1, 10)
     search = None
     if needs_heading_search(cfg):
-        search = search_heading(_imu_table(imu), fixes, cfg)
+        search = search_heading(imu_table(imu), fixes, cfg)
         if search["yaw_deg"] is not None:
             cfg = starting_at_yaw(cfg, search["yaw_deg"], search["sigma_deg"])
     core = core_config(cfg)
@@ -211,9 +211,9 @@ class ChunkedRun:
         if chunk_rows < 1:
             raise ValueError("chunk_rows must be >= 1")
         self.imu = imu
-        self._setup = _setup(imu, fixes, config, mode, ephemerides, klobuchar, gps_time_offset_s)
+        self._setup = setup_run(imu, fixes, config, mode, ephemerides, klobuchar, gps_time_offset_s)
         self.fixes = self._setup.fixes
-        self.prs = _pr_table(pseudoranges)
+        self.prs = pseudorange_table(pseudoranges)
         self.attitude = _attitude_table(attitude)
         self.mode, self.output_every, self.record = self._setup.mode, output_every, record
         self.smooth_chunk_mb, self.chunk_rows, self.overlap = smooth_chunk_mb, chunk_rows, overlap
@@ -299,12 +299,12 @@ def starting_at_yaw(cfg: dict, yaw_deg: float, sigma_deg: float) -> dict:
     """The configuration with the initial yaw and its sigma: the yaw's part of the initial attitude
     sigma (a configured initial yaw otherwise starts at attitude_sigma's yaw, 180 deg in the preset)."""
     if "attitude_sigma_deg" in cfg:
-        att = _vec3(cfg["attitude_sigma_deg"], "attitude_sigma_deg")
+        att = as_vec3(cfg["attitude_sigma_deg"], "attitude_sigma_deg")
     else:
         rad = cfg.get("attitude_sigma_rad", _core.InsConfig().attitude_sigma_rad)
-        att = np.degrees(_vec3(rad, "attitude_sigma_rad"))
+        att = np.degrees(as_vec3(rad, "attitude_sigma_rad"))
     cfg = {k: v for k, v in cfg.items() if k not in ("attitude_sigma_rad", "initial_yaw_rad")}
-    return _merge(cfg, {"initial_yaw_deg": float(yaw_deg), "attitude_sigma_deg": [att[0], att[1], float(sigma_deg)]})
+    return merge(cfg, {"initial_yaw_deg": float(yaw_deg), "attitude_sigma_deg": [att[0], att[1], float(sigma_deg)]})
 
 
 def needs_heading_search(cfg: dict) -> bool:

@@ -17,7 +17,7 @@ from ..nav import runs as flt
 from ..session import layouts
 from . import results, solution
 from .plan import Plan, lever_arm_body_m
-from .scoring import Target, _Scored, _score_stream
+from .scoring import Target, Scored, score_stream
 
 STAT_COLUMNS = ("kind", "dof", "nis", "accepted", "r_scale", "innovation", "innovation_sigma")
 
@@ -140,7 +140,7 @@ def forward(run, output: Output, p: Plan) -> Forward:
     return Forward(stream, events, update_kinds, sources, run.counters, time_offset, write_s)
 
 
-def smooth(run, output: Output, target: Target, score_sched: np.ndarray, p: Plan) -> tuple[dict, _Scored]:
+def smooth(run, output: Output, target: Target, score_sched: np.ndarray, p: Plan) -> tuple[dict, Scored]:
     """The fixed-interval smoother's pass (newest block first) into smoothed.parquet and smoothed.pos:
     run.json's "smoothed" and its scoring against the reference."""
     ts = time.perf_counter()
@@ -152,7 +152,7 @@ def smooth(run, output: Output, target: Target, score_sched: np.ndarray, p: Plan
     smoothed_summary = {"info": info}
     if back.score is not None and back.score.summary():
         smoothed_summary["errors"] = back.score.summary()
-    sm_scored = _score_stream(back, target.ref, score_sched, results.SMOOTH_PREFIX)
+    sm_scored = score_stream(back, target.ref, score_sched, results.SMOOTH_PREFIX)
     if sm_scored.summary:
         smoothed_summary["scoring"] = sm_scored.summary
     return smoothed_summary, sm_scored

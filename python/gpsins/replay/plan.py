@@ -19,7 +19,7 @@ from ..nav import constraint_noise, mounting, noise_from_data
 from ..nav import runs as flt
 from ..session import layouts
 from .inputs import Inputs
-from .scoring import _reference_system, heading_aiding
+from .scoring import reference_system, heading_aiding
 
 MODES = ("loose", "tight", "ins")
 POINTS = ("antenna", "imu")
@@ -121,7 +121,7 @@ def plan(inp: Inputs, *, mode: str, overrides: dict | None, outages, point: str,
         # The constraint's own errors (a car's ride above all), measured with the mounting known.
         cfg, constraint_fit = constraint_noise.fit_constraint(inp.imu, fixes, cfg)
 
-    ref_system = _reference_system(source)
+    ref_system = reference_system(source)
     attitude = None
     if aid_heading:
         if ref_system is None:

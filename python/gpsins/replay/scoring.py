@@ -22,7 +22,7 @@ TRUTH_SCORING_HZ = 10.0  # a simulated truth scored as the reference is taken at
 POS_TIME_RESOLUTION_S = 0.001  # an RTKLIB .pos reference's epochs are printed to the millisecond
 
 
-def _score_reference_system(ref, week: int, rows: dict) -> dict:
+def score_reference_system(ref, week: int, rows: dict) -> dict:
     """Errors against the session's own reference system (RTK position and dual-antenna heading
     and pitch, ``reference.csv`` beside the session), as a real campaign scores without truth;
     ``rows``: the solution rows that bracket its epochs (``solution.Brackets``)."""
@@ -73,7 +73,7 @@ def _truth_reference(truth: evaluate.Truth, system_epochs: np.ndarray) -> tuple:
 _REFERENCE_SYSTEM: dict = {}  # the last reference system read, under its file's (path, mtime, size)
 
 
-def _reference_system(source: Path):
+def reference_system(source: Path):
     """A session's reference system (``reference.csv``), if it has one; read once for the modes of one
     replay (--mode both read and parsed it twice: 0.03-0.06 s each for the default drive's)."""
     path = source / reference_mod.FILE_NAME
@@ -106,22 +106,22 @@ def reference_scores(t: np.ndarray, r_score: np.ndarray, ref: tuple, schedule: n
 
 
 @dataclass
-class _Scored:
+class Scored:
     """What a solution stream's brackets give against a reference."""
 
     arrays: dict
     summary: dict
 
 
-def _score_stream(stream, ref, schedule, prefix: str = "") -> _Scored:
+def score_stream(stream, ref, schedule, prefix: str = "") -> Scored:
     rows = stream.brackets.rows()
     if ref is None or not len(ref[0]) or len(rows.get("t", ())) < 1:
-        return _Scored({}, {})
+        return Scored({}, {})
     same_instant = 0.0 if stream.truth is not None and ref[2] == "truth.npz" else POS_TIME_RESOLUTION_S
     arrays, scoring, use = reference_scores(rows["t"], rows["r_score"], ref, schedule, rows.get("v"),
                                             stream.update_times(), same_instant)
     arrays.update(ref_t=ref[0][use], ref_r_ecef=ref[1][use], ref_outage=outages_mod.outage_index(ref[0][use], schedule))
-    return _Scored({prefix + k: v for k, v in arrays.items()}, scoring)
+    return Scored({prefix + k: v for k, v in arrays.items()}, scoring)
 
 
 @dataclass

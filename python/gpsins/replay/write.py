@@ -20,12 +20,12 @@ from ..nav import runs as flt
 from . import results
 from .forward import Forward
 from .plan import Plan
-from .scoring import HEADING_AIDING_INTERVAL_S, Target, _Scored, _score_reference_system, _score_stream
+from .scoring import HEADING_AIDING_INTERVAL_S, Target, Scored, score_reference_system, score_stream
 from .summary import health_lines
 
 
 def write(out: Path, inp, p: Plan, run, fwd: Forward, target: Target, score_sched: np.ndarray, *, point: str,
-          lever: np.ndarray, free_from: float | None, smoothed: tuple[dict, _Scored] | None, estimator) -> dict:
+          lever: np.ndarray, free_from: float | None, smoothed: tuple[dict, Scored] | None, estimator) -> dict:
     """Scores the forward pass, writes results.npz, config.toml and run.json; returns run.json's summary."""
     t4 = time.perf_counter()
     mode, forward, clock = p.mode, fwd.stream, p.clock
@@ -35,7 +35,7 @@ def write(out: Path, inp, p: Plan, run, fwd: Forward, target: Target, score_sche
         small.update({k: v for k, v in target.truth[1].items() if k != "simulation"})  # arrays only
     scoring = {}
     if target.has_ref:
-        scored = _score_stream(forward, target.ref, score_sched)
+        scored = score_stream(forward, target.ref, score_sched)
         small.update(scored.arrays)
         scoring = {"reference": str(target.ref[2]), "point": target.point,
                    "n_reference_epochs": int(len(scored.arrays.get("ref_t", ()))), **scored.summary}
@@ -44,7 +44,7 @@ def write(out: Path, inp, p: Plan, run, fwd: Forward, target: Target, score_sche
     if smoothed is not None:
         small.update(smoothed[1].arrays)
     np.savez(out / results.SMALL, **small)
-    reference_system = _score_reference_system(p.ref_system, inp.week, forward.brackets.rows())
+    reference_system = score_reference_system(p.ref_system, inp.week, forward.brackets.rows())
     config_text = nav_config.to_toml(p.cfg)
     (out / "config.toml").write_text(config_text, encoding="utf-8")
     clock["write_s"] = fwd.write_s + time.perf_counter() - t4

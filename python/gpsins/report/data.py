@@ -110,7 +110,7 @@ def smoothed_companion(r: Result) -> Result | None:
     return Result(f"{r.name} smoothed", r.path, a, run, "tab:cyan", r.config)
 
 
-def _load_all(paths) -> list[Result]:
+def load_all(paths) -> list[Result]:
     """Results from directories, (directory, name) pairs or loaded Results."""
     results = [p if isinstance(p, Result) else load(p[0], name=p[1]) if isinstance(p, tuple) else load(p)
                for p in paths]
@@ -148,7 +148,7 @@ def receiver_errors(r: Result) -> tuple[np.ndarray, np.ndarray]:
     return f[:, 0], np.einsum("nji,nj->ni", c, f[:, 1:4] - ref)
 
 
-def _stats(e: np.ndarray) -> dict:
+def stats(e: np.ndarray) -> dict:
     if len(e) == 0:
         return {}
     h = np.hypot(e[:, 0], e[:, 1])
@@ -190,7 +190,7 @@ def segment_table(r: Result) -> list[dict]:
         fm = (f_t >= t0) & (f_t < t1)
         row = {"segment": str(label), "sats_min": int(sats[fm].min()) if fm.any() else 0,
                "sats_max": int(sats[fm].max()) if fm.any() else 0, "t0": float(t0), "t1": float(t1)}
-        row.update(_stats(e[m]))
+        row.update(stats(e[m]))
         if "nees9" in r.a:  # the segment's mean 9-state NEES (a lap's consistency)
             n9 = r.a["nees9"][m]
             n9 = n9[np.isfinite(n9)]
@@ -204,7 +204,7 @@ def receiver_segment_table(r: Result) -> list[dict]:
     if not r.has_truth or "seg_t" not in r.a:
         return []
     t, e = receiver_errors(r)
-    return [{"segment": str(label), **_stats(e[(t >= t0) & (t < t1)])}
+    return [{"segment": str(label), **stats(e[(t >= t0) & (t < t1)])}
             for label, (t0, t1) in zip(r.a["seg_labels"], r.a["seg_t"])]
 
 
@@ -233,7 +233,7 @@ def innovation_intervals(r: Result, k: float = 3.0) -> list[dict]:
     return sorted(rows, key=lambda x: x["t_start"])
 
 
-def _truth_file(r: Result) -> dict | None:
+def truth_file(r: Result) -> dict | None:
     s = r.session
     if s is None:
         return None

@@ -29,7 +29,7 @@ class TimeAxis(NamedTuple):
     label: str
 
 
-def _mark_segments(axs, base: Result, t0: float, letters: bool = True) -> None:
+def mark_segments(axs, base: Result, t0: float, letters: bool = True) -> None:
     """Segment starts as faint vertical lines on every time axis, their letters on the top one."""
     if "seg_t" not in base.a:
         return
@@ -41,25 +41,25 @@ def _mark_segments(axs, base: Result, t0: float, letters: bool = True) -> None:
                         ha="center", va="bottom", color="0.35")
 
 
-def _band_handles(results, alpha: float = BAND_ALPHA) -> list:
+def band_handles(results, alpha: float = BAND_ALPHA) -> list:
     """One swatch per run drawn like its band (the run's colour and the band's alpha)."""
     return [Patch(facecolor=r.color, alpha=alpha, lw=0, label=f"{r.name} 3-sigma") for r in results]
 
 
-def _mode_handles(results, band: bool = False, alpha: float = BAND_ALPHA) -> list:
+def mode_handles(results, band: bool = False, alpha: float = BAND_ALPHA) -> list:
     h = [Line2D([], [], color=r.color, lw=1.2, label=r.name) for r in results]
-    return h + (_band_handles(results, alpha) if band else [])
+    return h + (band_handles(results, alpha) if band else [])
 
 
-def _axis_handles(names=("north", "east", "down")) -> list:
+def axis_handles(names=("north", "east", "down")) -> list:
     return [Line2D([], [], color="k", ls=ls, lw=1, label=n) for ls, n in zip(AXIS_STYLES, names)]
 
 
-def _beyond_handle() -> Line2D:
+def beyond_handle() -> Line2D:
     return Line2D([], [], color="k", marker="^", ls="", label="beyond the axis (at its edge)")
 
 
-def _band(ax, t, s, color, alpha=BAND_ALPHA):
+def sigma_band(ax, t, s, color, alpha=BAND_ALPHA):
     ax.fill_between(t, -3 * s, 3 * s, color=color, alpha=alpha, lw=0)
 
 
@@ -69,27 +69,27 @@ def _broken(t: np.ndarray, y: np.ndarray, cut_after: np.ndarray) -> tuple[np.nda
     return np.insert(np.asarray(t, float), cut, np.nan), np.insert(np.asarray(y, float), cut, np.nan)
 
 
-def _gapped(t: np.ndarray, y: np.ndarray, gap_s: float = GAP_S) -> tuple[np.ndarray, np.ndarray]:
+def gapped(t: np.ndarray, y: np.ndarray, gap_s: float = GAP_S) -> tuple[np.ndarray, np.ndarray]:
     """Break a line where the samples are further apart than gap_s (no bridges across outages)."""
     return _broken(t, y, np.diff(t) > gap_s)
 
 
-def _wrap_broken(t: np.ndarray, deg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def wrap_broken(t: np.ndarray, deg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Break an angle's line where it wraps (a step over half a turn), not draw a vertical across the axis."""
     return _broken(t, deg, np.abs(np.diff(deg)) > 180.0)
 
 
-def _bound(ax, t: np.ndarray, s3: np.ndarray, color) -> None:
+def bound(ax, t: np.ndarray, s3: np.ndarray, color) -> None:
     """+-3 sigma as lines broken at gaps, and a tick at each update with no neighbour to draw a line to."""
     for sgn in (1, -1):
-        ax.plot(*_gapped(t, sgn * s3), "-", color=color, lw=0.6)
+        ax.plot(*gapped(t, sgn * s3), "-", color=color, lw=0.6)
     far = np.diff(t) > GAP_S
     lone = np.r_[True, far] & np.r_[far, True]
     if lone.any():
         ax.plot(np.r_[t[lone], t[lone]], np.r_[s3[lone], -s3[lone]], "_", color=color, ms=7, mew=0.8, ls="")
 
 
-def _clip_limit(values: np.ndarray, bounds: np.ndarray) -> float:
+def clip_limit(values: np.ndarray, bounds: np.ndarray) -> float:
     """A symmetric y limit showing the usual values and bounds; outliers are marked at the edge."""
     v, b = np.abs(values[np.isfinite(values)]), np.abs(bounds[np.isfinite(bounds)])
     if len(v) == 0 and len(b) == 0:
@@ -98,7 +98,7 @@ def _clip_limit(values: np.ndarray, bounds: np.ndarray) -> float:
     return 1.2 * lim if lim > 0 else 1.0
 
 
-def _log_limits(values: np.ndarray, keep: tuple[float, float]) -> tuple[float, float]:
+def log_limits(values: np.ndarray, keep: tuple[float, float]) -> tuple[float, float]:
     """A log y range for the bulk of the values that still shows `keep` (a band): one value near 0 would
     otherwise squash the rest into a line. The bulk: within three interquartile ranges of the quartiles
     of log10 (Tukey's far-out fences), which a few outliers do not move."""
@@ -112,7 +112,7 @@ def _log_limits(values: np.ndarray, keep: tuple[float, float]) -> tuple[float, f
     return lo / 2, hi * 2
 
 
-def _mark_beyond(ax, t, y, lo: float, hi: float, color, points: bool = False) -> bool:
+def mark_beyond(ax, t, y, lo: float, hi: float, color, points: bool = False) -> bool:
     """A triangle at the axis edge for each stretch of values beyond [lo, hi] (each value, for `points`),
     at the stretch's extreme; returns whether any were drawn."""
     t, y = np.asarray(t, float), np.asarray(y, float)
@@ -131,9 +131,9 @@ def _mark_beyond(ax, t, y, lo: float, hi: float, color, points: bool = False) ->
     return drawn
 
 
-def _limit_and_mark(ax, lo: float, hi: float, series) -> bool:
+def limit_and_mark(ax, lo: float, hi: float, series) -> bool:
     """Set the y limits and mark what of each series ((t, y, colour, points) each) they leave out;
     returns whether anything was."""
     ax.set_ylim(lo, hi)
-    marked = [_mark_beyond(ax, t, y, lo, hi, c, points) for t, y, c, points in series]
+    marked = [mark_beyond(ax, t, y, lo, hi, c, points) for t, y, c, points in series]
     return any(marked)

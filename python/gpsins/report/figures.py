@@ -11,13 +11,13 @@ from __future__ import annotations
 from pathlib import Path
 
 
-from .data import (_load_all, KIND_PR, KIND_RR, Result, _truth_file, sky_data, time_origin, time_origin_text,
+from .data import (load_all, KIND_PR, KIND_RR, Result, truth_file, sky_data, time_origin, time_origin_text,
                    true_residual_biases)
 from .draw import TimeAxis, plt
-from .figures_gnss import (_fig_clock, _fig_gnss, _fig_innovations, _fig_satellite_innovations, _fig_skyplot,
-                           _fig_visibility, pseudorange_nis_note)
-from .figures_solution import (_fig_attitude, _fig_bias_sigma, _fig_biases, _fig_consistency, _fig_outage_drift,
-                               _fig_position_error, _fig_sigma, _fig_trajectory)
+from .figures_gnss import (fig_clock, fig_gnss, fig_innovations, fig_satellite_innovations, fig_skyplot,
+                           fig_visibility, pseudorange_nis_note)
+from .figures_solution import (fig_attitude, fig_bias_sigma, fig_biases, fig_consistency, fig_outage_drift,
+                               fig_position_error, fig_sigma, fig_trajectory)
 
 
 def _time_axis(base: Result) -> TimeAxis:
@@ -27,39 +27,39 @@ def _time_axis(base: Result) -> TimeAxis:
 def build_figures(results: list) -> dict:
     """Every figure of the report, by file name (matplotlib Figures), from results directories, (directory,
     name) pairs or loaded results; the caller saves or inspects and closes them."""
-    return _build(_load_all(results))
+    return _build(load_all(results))
 
 
 def _build(results: list[Result]) -> dict:
     """Every figure of the report from loaded results."""
     base = results[0]
     tx = _time_axis(base)
-    truth = _truth_file(base) if base.has_truth else None  # replay --no-truth: none in the figures either
-    figs = {"trajectory.png": _fig_trajectory(results, base, tx)}
+    truth = truth_file(base) if base.has_truth else None  # replay --no-truth: none in the figures either
+    figs = {"trajectory.png": fig_trajectory(results, base, tx)}
     if base.has_truth:
-        figs["position_error.png"] = _fig_position_error(results, base, tx)
-    figs["attitude.png"] = _fig_attitude(results, base, tx)
-    figs["sigma.png"] = _fig_sigma(results, base, tx)
-    figs["biases.png"] = _fig_biases(results, base, tx, true_residual_biases(base, truth))
-    figs["bias_sigma.png"] = _fig_bias_sigma(results, base, tx)
-    figs["innovations.png"] = _fig_innovations(results, base, tx)
-    figs["pseudorange.png"] = _fig_satellite_innovations(results, base, tx, KIND_PR)
-    figs["range_rate.png"] = _fig_satellite_innovations(results, base, tx, KIND_RR)
-    figs["gnss.png"] = _fig_gnss(results, base, tx)
-    figs["consistency.png"] = _fig_consistency(results, base, tx)
-    figs["clock.png"] = _fig_clock(results, base, tx, truth)
-    figs["outage_drift.png"] = _fig_outage_drift(results, tx)
+        figs["position_error.png"] = fig_position_error(results, base, tx)
+    figs["attitude.png"] = fig_attitude(results, base, tx)
+    figs["sigma.png"] = fig_sigma(results, base, tx)
+    figs["biases.png"] = fig_biases(results, base, tx, true_residual_biases(base, truth))
+    figs["bias_sigma.png"] = fig_bias_sigma(results, base, tx)
+    figs["innovations.png"] = fig_innovations(results, base, tx)
+    figs["pseudorange.png"] = fig_satellite_innovations(results, base, tx, KIND_PR)
+    figs["range_rate.png"] = fig_satellite_innovations(results, base, tx, KIND_RR)
+    figs["gnss.png"] = fig_gnss(results, base, tx)
+    figs["consistency.png"] = fig_consistency(results, base, tx)
+    figs["clock.png"] = fig_clock(results, base, tx, truth)
+    figs["outage_drift.png"] = fig_outage_drift(results, tx)
     sky = sky_data(base)
     if sky is not None and len(sky.obs):
-        figs["visibility.png"] = _fig_visibility(sky, base, tx)
-        figs["skyplot.png"] = _fig_skyplot(sky)
+        figs["visibility.png"] = fig_visibility(sky, base, tx)
+        figs["skyplot.png"] = fig_skyplot(sky)
     return {k: v for k, v in figs.items() if v is not None}
 
 
 def figures(results: list, out: Path) -> list[str]:
     """Write every figure as PNG into `out` (results as for ``build_figures``); returns the file names."""
     names = []
-    for name, fig in _build(_load_all(results)).items():
+    for name, fig in _build(load_all(results)).items():
         fig.tight_layout()
         fig.savefig(out / name, dpi=110)
         plt.close(fig)

@@ -10,8 +10,8 @@ import numpy as np
 from .. import _core
 from .data import KIND_FIX2, KIND_FIX3, KIND_NAMES, KIND_PR, RECEIVER_COLOR, Result, SkyData
 from ..formats.gpstime import SECONDS_PER_WEEK
-from .draw import (Line2D, _band, _band_handles, _beyond_handle, _bound, _clip_limit, _limit_and_mark, _log_limits,
-                   _mark_beyond, _mark_segments, chi2, plt)
+from .draw import (Line2D, sigma_band, band_handles, beyond_handle, bound, clip_limit, limit_and_mark, log_limits,
+                   mark_beyond, mark_segments, chi2, plt)
 
 
 # The fix innovations' panels: a 3D fix's innovation is in ECEF, a 2D fix's in north and east (its update
@@ -20,7 +20,7 @@ FIX_PANELS = {KIND_FIX3: ("x", "y", "z"), KIND_FIX2: ("north", "east")}
 FIX_MARKERS = {KIND_FIX3: (".", 3.0, 6.0), KIND_FIX2: ("s", 2.5, 3.0)}  # marker, size, size in the legend
 
 
-def _fig_innovations(results, base, tx):
+def fig_innovations(results, base, tx):
     panels = [(kind, i) for kind, axes in FIX_PANELS.items()
               if any((r.a["upd_kind"] == kind).any() for r in results) for i in range(len(axes))]
     if not panels:
@@ -28,7 +28,7 @@ def _fig_innovations(results, base, tx):
     fig, axs = plt.subplots(len(panels), 1, figsize=(10, 2.5 * len(panels)), sharex=True, squeeze=False)
     for ax, (kind, i) in zip(axs[:, 0], panels):
         runs = [(r, r.a["upd_kind"] == kind) for r in results if (r.a["upd_kind"] == kind).any()]
-        lim = _clip_limit(np.concatenate([r.a["upd_innovation"][k, i] for r, k in runs]),
+        lim = clip_limit(np.concatenate([r.a["upd_innovation"][k, i] for r, k in runs]),
                           np.concatenate([3 * r.a["upd_innovation_sigma"][k, i] for r, k in runs]))
         marker, ms, legend_ms = FIX_MARKERS[kind]
         clipped = False
@@ -37,16 +37,16 @@ def _fig_innovations(results, base, tx):
             nu, s3 = r.a["upd_innovation"][k, i], 3 * r.a["upd_innovation_sigma"][k, i]
             inside = ~(np.abs(nu) > lim)
             ax.plot(t[inside], nu[inside], marker, color=r.color, ms=ms, ls="", label=f"{r.name} {KIND_NAMES[kind]}")
-            clipped |= _mark_beyond(ax, t, nu, -lim, lim, r.color, points=True)
-            _bound(ax, t, s3, r.color)
+            clipped |= mark_beyond(ax, t, nu, -lim, lim, r.color, points=True)
+            bound(ax, t, s3, r.color)
         ax.set_ylim(-lim, lim)
         ax.set_ylabel(f"{KIND_NAMES[kind]} {FIX_PANELS[kind][i]} (m)")
         if i == 0:  # each kind's first panel names its runs
             handles = [Line2D([], [], color=r.color, marker=marker, ms=legend_ms, ls="",
                               label=f"{r.name} {KIND_NAMES[kind]}")
                        for r, _ in runs] + [Line2D([], [], color="k", lw=0.6, label="+-3 sigma")]
-            ax.legend(handles=handles + ([_beyond_handle()] if clipped else []), fontsize=8, ncol=3, loc="upper left")
-    _mark_segments(axs[:, 0], base, tx.t0)
+            ax.legend(handles=handles + ([beyond_handle()] if clipped else []), fontsize=8, ncol=3, loc="upper left")
+    mark_segments(axs[:, 0], base, tx.t0)
     axs[0, 0].set_title("Fix innovations with 3-sigma (3D fixes: ECEF x, y, z; 2D fixes: north, east); "
                         "axis clipped at high DOP", pad=14)
     axs[-1, 0].set_xlabel(tx.label)
@@ -89,7 +89,7 @@ def pseudorange_nis_note(r: Result) -> tuple[str, str] | None:
                    f"wide as their sigma would give {chi2.ppf(0.5, 1):.2f}): {why}.")
 
 
-def _fig_satellite_innovations(results, base, tx, kind):
+def fig_satellite_innovations(results, base, tx, kind):
     """A tight filter's per-satellite updates (pseudoranges or range rates): innovations over their sigma, NIS."""
     name = KIND_NAMES[kind]
     tight = [r for r in results if (r.a["upd_kind"] == kind).any()]
@@ -128,17 +128,17 @@ def _fig_satellite_innovations(results, base, tx, kind):
     axs[0].set_ylabel("innovation / sigma")
     axs[0].legend(fontsize=7, ncol=6, loc="upper left", markerscale=2)
     axs[1].set_ylabel("NIS (1 dof)")
-    y_lo, y_hi = _log_limits(np.concatenate([n for _, n, _ in all_nis]), (lo, max(hi, gate ** 2)))
-    if _limit_and_mark(axs[1], y_lo, y_hi, [(t, n, c, True) for t, n, c in all_nis]):
+    y_lo, y_hi = log_limits(np.concatenate([n for _, n, _ in all_nis]), (lo, max(hi, gate ** 2)))
+    if limit_and_mark(axs[1], y_lo, y_hi, [(t, n, c, True) for t, n, c in all_nis]):
         axs[1].plot([], [], "v", color="k", label="beyond the axis (at its edge)")
     axs[1].legend(fontsize=8, loc="lower right")
-    _mark_segments(axs, base, tx.t0)
+    mark_segments(axs, base, tx.t0)
     axs[0].set_title(f"Tight filter: normalised {name} innovations per satellite, and their NIS", pad=14)
     axs[-1].set_xlabel(tx.label)
     return fig
 
 
-def _fig_gnss(results, base, tx):
+def fig_gnss(results, base, tx):
     f = base.a["fixes"]
     fig, axs = plt.subplots(2, 1, figsize=(10, 5.5), sharex=True)
     axs[0].step(f[:, 0] - tx.t0, base.a["fix_sats"], where="post", color=RECEIVER_COLOR, label="receiver fix")
@@ -155,13 +155,13 @@ def _fig_gnss(results, base, tx):
                     label="VDOP (3D fixes)")
     axs[1].set_ylabel("DOP (log)")
     axs[1].legend(fontsize=8, loc="upper left")
-    _mark_segments(axs, base, tx.t0)
+    mark_segments(axs, base, tx.t0)
     axs[0].set_title("GNSS: satellites used and dilution of precision", pad=14)
     axs[-1].set_xlabel(tx.label)
     return fig
 
 
-def _fig_clock(results, base, tx, truth):
+def fig_clock(results, base, tx, truth):
     tight = [r for r in results if "clock" in r.a]
     if not tight:
         return None
@@ -185,14 +185,14 @@ def _fig_clock(results, base, tx, truth):
             ax.plot(t, est, color=r.color, lw=0.9, label=f"{r.name} estimate")
             lo, hi = np.nanmin(est[settled]), np.nanmax(est[settled])
             pad = 3 * np.nanmedian(sig[settled]) + 0.05 * (hi - lo)
-            clipped[i, 0] |= _limit_and_mark(ax, lo - pad, hi + pad, [(t, est, r.color, False)])
+            clipped[i, 0] |= limit_and_mark(ax, lo - pad, hi + pad, [(t, est, r.color, False)])
             if true_clock:
                 ref = np.interp(r.a["t"], true_clock[0], true_clock[1 + i])
                 ax = axs[i, 1]
-                _band(ax, t, sig, r.color, 0.2)
+                sigma_band(ax, t, sig, r.color, 0.2)
                 ax.plot(t, est - ref, color=r.color, lw=0.9, label=f"{r.name} estimate - truth")
-                lim = _clip_limit((est - ref)[settled], 3 * sig[settled])
-                clipped[i, 1] |= _limit_and_mark(ax, -lim, lim, [(t, est - ref, r.color, False)])
+                lim = clip_limit((est - ref)[settled], 3 * sig[settled])
+                clipped[i, 1] |= limit_and_mark(ax, -lim, lim, [(t, est - ref, r.color, False)])
     if true_clock:
         tt, b, d = true_clock
         keep = (tt >= base.a["t"][0]) & (tt <= base.a["t"][-1])
@@ -203,16 +203,16 @@ def _fig_clock(results, base, tx, truth):
     axs[0, 0].set_ylabel("clock bias (m)")
     axs[1, 0].set_ylabel("clock drift (m/s)")
     for ax, cut in zip(axs.ravel(), clipped.ravel()):
-        ax.legend(handles=ax.get_legend_handles_labels()[0] + _band_handles(tight, 0.2) +
-                  ([_beyond_handle()] if cut else []), fontsize=8, loc="upper left")
-    _mark_segments(axs.ravel(), base, tx.t0, letters=False)
+        ax.legend(handles=ax.get_legend_handles_labels()[0] + band_handles(tight, 0.2) +
+                  ([beyond_handle()] if cut else []), fontsize=8, loc="upper left")
+    mark_segments(axs.ravel(), base, tx.t0, letters=False)
     for ax in axs[-1]:
         ax.set_xlabel(tx.label)
     fig.suptitle("Receiver clock bias and drift with 3-sigma (Fig 7.27)")
     return fig
 
 
-def _fig_visibility(sky: SkyData, base, tx):
+def fig_visibility(sky: SkyData, base, tx):
     fig, ax = plt.subplots(figsize=(10, 5))
     prns = np.unique(sky.obs[:, 1]).astype(int)
     row = {p: j for j, p in enumerate(prns)}
@@ -221,13 +221,13 @@ def _fig_visibility(sky: SkyData, base, tx):
     fig.colorbar(sc, ax=ax, label="C/N0 (dB-Hz)")
     ax.set_yticks(range(len(prns)), [f"PRN {p}" for p in prns])
     ax.set_xlabel(tx.label)
-    _mark_segments([ax], base, tx.t0)
+    mark_segments([ax], base, tx.t0)
     ax.legend(fontsize=8, loc="lower left")
     ax.set_title("Satellites tracked by the receiver (Fig 6.3)", pad=14)
     return fig
 
 
-def _fig_skyplot(sky: SkyData):
+def fig_skyplot(sky: SkyData):
     if not sky.tracks:
         return None
     fig = plt.figure(figsize=(6.5, 6.5))

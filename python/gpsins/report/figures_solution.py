@@ -10,11 +10,11 @@ import numpy as np
 
 from .. import _core, evaluate
 from .data import AXIS_STYLES, KIND_FIX2, KIND_FIX3, KIND_NAMES, RECEIVER_COLOR, Result, receiver_errors, truth_ecef
-from .draw import (BAND_ALPHA, Line2D, Patch, _axis_handles, _band, _beyond_handle, _clip_limit, _gapped,
-                   _limit_and_mark, _log_limits, _mark_segments, _mode_handles, _wrap_broken, chi2, plt)
+from .draw import (BAND_ALPHA, Line2D, Patch, axis_handles, sigma_band, beyond_handle, clip_limit, gapped,
+                   limit_and_mark, log_limits, mark_segments, mode_handles, wrap_broken, chi2, plt)
 
 
-def _fig_trajectory(results, base, tx):
+def fig_trajectory(results, base, tx):
     origin = base.a["llh"][0]
     c = evaluate.c_en(np.array([origin[0]]), np.array([origin[1]]))[0]
     o = _core.geodetic_to_ecef(origin)
@@ -42,13 +42,13 @@ def _fig_trajectory(results, base, tx):
     return fig
 
 
-def _fig_position_error(results, base, tx):
+def fig_position_error(results, base, tx):
     fig, axs = plt.subplots(3, 1, figsize=(10, 7.5), sharex=True)
     for r in results:
         t = r.a["t"] - tx.t0
         e, s = r.a["err_ned_m"], r.a["sigma_ned_m"]
         for ax, i, sign in zip(axs, (1, 0, 2), (1, 1, -1)):
-            _band(ax, t, s[:, i], r.color)
+            sigma_band(ax, t, s[:, i], r.color)
             ax.plot(t, sign * e[:, i], color=r.color, lw=0.8, label=r.name)
     tf, ef = receiver_errors(base)
     clipped = False
@@ -57,51 +57,51 @@ def _fig_position_error(results, base, tx):
             ax.plot(tf - tx.t0, sign * ef[:, i], ".", color=RECEIVER_COLOR, ms=3, label="receiver fixes")
         ax.set_ylabel(f"{lab} (m)")
         vals = np.concatenate([r.a["err_ned_m"][:, i] for r in results] + [ef[:, i]])
-        lim = _clip_limit(vals, np.concatenate([3 * r.a["sigma_ned_m"][:, i] for r in results]))
+        lim = clip_limit(vals, np.concatenate([3 * r.a["sigma_ned_m"][:, i] for r in results]))
         series = [(r.a["t"] - tx.t0, sign * r.a["err_ned_m"][:, i], r.color, False) for r in results]
-        clipped |= _limit_and_mark(ax, -lim, lim, series + [(tf - tx.t0, sign * ef[:, i], RECEIVER_COLOR, True)])
-    _mark_segments(axs, base, tx.t0)
-    axs[0].legend(handles=_mode_handles(results, band=True) + (
+        clipped |= limit_and_mark(ax, -lim, lim, series + [(tf - tx.t0, sign * ef[:, i], RECEIVER_COLOR, True)])
+    mark_segments(axs, base, tx.t0)
+    axs[0].legend(handles=mode_handles(results, band=True) + (
         [Line2D([], [], marker=".", ls="", color=RECEIVER_COLOR, label="receiver fixes")] if len(tf) else []) + (
-        [_beyond_handle()] if clipped else []), fontsize=8, ncol=4, loc="upper left")
+        [beyond_handle()] if clipped else []), fontsize=8, ncol=4, loc="upper left")
     axs[0].set_title("Position error (estimate - truth) with 3-sigma bounds", pad=14)
     axs[-1].set_xlabel(tx.label)
     return fig
 
 
-def _fig_attitude(results, base, tx):
+def fig_attitude(results, base, tx):
     fig, axs = plt.subplots(3, 1, figsize=(10, 7), sharex=True)
     key = "err_ypr_deg" if base.has_truth else "ypr_deg"
     for r in results:
         t = r.a["t"] - tx.t0
         for ax, i, s_i, lab in zip(axs, (0, 1, 2), (2, 1, 0), ("yaw", "pitch", "roll")):
             y = r.a[key][:, i]
-            ax.plot(*(_wrap_broken(t, y) if i == 0 else (t, y)), color=r.color, lw=0.8, label=r.name)
+            ax.plot(*(wrap_broken(t, y) if i == 0 else (t, y)), color=r.color, lw=0.8, label=r.name)
             if base.has_truth:
-                _band(ax, t, r.a["sigma_ypr_deg"][:, s_i], r.color)
+                sigma_band(ax, t, r.a["sigma_ypr_deg"][:, s_i], r.color)
             ax.set_ylabel(f"{lab} error (deg)" if base.has_truth else f"{lab} (deg)")
     unknown = ~base.a["heading_known"]
     clipped = False
     if base.has_truth:
         for ax, i, s_i in zip(axs, (0, 1, 2), (2, 1, 0)):
             # The scale comes from the time the heading is known; before that the yaw error is anything.
-            lim = _clip_limit(np.concatenate([r.a["err_ypr_deg"][r.a["heading_known"], i] for r in results]),
+            lim = clip_limit(np.concatenate([r.a["err_ypr_deg"][r.a["heading_known"], i] for r in results]),
                               np.concatenate([3 * r.a["sigma_ypr_deg"][r.a["heading_known"], s_i] for r in results]))
-            clipped |= _limit_and_mark(ax, -lim, lim, [(r.a["t"] - tx.t0, r.a["err_ypr_deg"][:, i], r.color, False)
+            clipped |= limit_and_mark(ax, -lim, lim, [(r.a["t"] - tx.t0, r.a["err_ypr_deg"][:, i], r.color, False)
                                                        for r in results])
-    handles = _mode_handles(results, band=base.has_truth) + ([_beyond_handle()] if clipped else [])
+    handles = mode_handles(results, band=base.has_truth) + ([beyond_handle()] if clipped else [])
     if unknown.any():
         t_known = base.a["t"][np.argmax(~unknown)] if (~unknown).any() else base.a["t"][-1]
         axs[0].axvspan(base.a["t"][0] - tx.t0, t_known - tx.t0, color="0.85", zorder=0)
         handles.append(Patch(color="0.85", label="heading not yet known"))
-    _mark_segments(axs, base, tx.t0)
+    mark_segments(axs, base, tx.t0)
     axs[0].legend(handles=handles, fontsize=8, ncol=4, loc="upper left")
     axs[0].set_title("Attitude" + (" error with 3-sigma bounds" if base.has_truth else ""), pad=14)
     axs[-1].set_xlabel(tx.label)
     return fig
 
 
-def _fig_sigma(results, base, tx):
+def fig_sigma(results, base, tx):
     fig, axs = plt.subplots(3, 1, figsize=(10, 7.5), sharex=True)
     for r in results:
         t = r.a["t"] - tx.t0
@@ -114,14 +114,14 @@ def _fig_sigma(results, base, tx):
     for ax, lab in zip(axs, ("attitude (deg)", "velocity (m/s)", "position (m)")):
         ax.set_ylabel(lab)
         ax.set_yscale("log")
-    _mark_segments(axs, base, tx.t0)
-    axs[0].legend(handles=_mode_handles(results) + _axis_handles(), fontsize=8, ncol=5, loc="upper right")
+    mark_segments(axs, base, tx.t0)
+    axs[0].legend(handles=mode_handles(results) + axis_handles(), fontsize=8, ncol=5, loc="upper right")
     axs[0].set_title("Standard deviations in NED (attitude about the N, E, D axes)", pad=14)
     axs[-1].set_xlabel(tx.label)
     return fig
 
 
-def _fig_biases(results, base, tx, truth):
+def fig_biases(results, base, tx, truth):
     fig, axs = plt.subplots(2, 3, figsize=(13, 6.5), sharex=True)
     scale = (np.degrees(1.0) * 3600.0, 1.0)
     for r in results:
@@ -144,8 +144,8 @@ def _fig_biases(results, base, tx, truth):
         axs[0, i].set_title(f"gyro {'xyz'[i]} (deg/h)")
         axs[1, i].set_title(f"accelerometer {'xyz'[i]} (m/s^2)")
     fig.supxlabel(tx.label, fontsize=10)  # once: three panels are too narrow for it each
-    _mark_segments(axs.ravel(), base, tx.t0, letters=False)
-    handles = _mode_handles(results, band=True)
+    mark_segments(axs.ravel(), base, tx.t0, letters=False)
+    handles = mode_handles(results, band=True)
     if truth is not None:
         handles.append(Line2D([], [], color="k", ls="--", label="truth (less the calibration)"))
     axs[0, 0].legend(handles=handles, fontsize=7, loc="best")
@@ -153,7 +153,7 @@ def _fig_biases(results, base, tx, truth):
     return fig
 
 
-def _fig_bias_sigma(results, base, tx):
+def fig_bias_sigma(results, base, tx):
     fig, axs = plt.subplots(2, 1, figsize=(10, 6), sharex=True)
     for r in results:
         if r.a["sigma"].shape[1] < 15:  # a plug-in that states no bias sigmas
@@ -166,8 +166,8 @@ def _fig_bias_sigma(results, base, tx):
     axs[1].set_ylabel("accel bias sigma (m/s^2)")
     for ax in axs:
         ax.set_yscale("log")
-    _mark_segments(axs, base, tx.t0)
-    axs[0].legend(handles=_mode_handles(results) + _axis_handles(("x", "y", "z")), fontsize=8, ncol=5)
+    mark_segments(axs, base, tx.t0)
+    axs[0].legend(handles=mode_handles(results) + axis_handles(("x", "y", "z")), fontsize=8, ncol=5)
     axs[0].set_title("Bias standard deviations (Figs 7.23-7.26)", pad=14)
     axs[-1].set_xlabel(tx.label)
     return fig
@@ -183,14 +183,14 @@ def _chi2_panel(ax, series, dof: int, ylabel: str, line: bool = False) -> None:
             ax.semilogy(t, v, ".", color=color, ms=3, label=label)
     lo, hi = chi2.ppf([0.025, 0.975], dof)
     ax.axhspan(lo, hi, color="grey", alpha=0.2, label=f"95 % band, {dof} dof")
-    y_lo, y_hi = _log_limits(np.concatenate([v for _, v, _, _ in series]), (lo, hi))
-    if _limit_and_mark(ax, y_lo, y_hi, [(t, v, c, not line) for t, v, c, _ in series]):
+    y_lo, y_hi = log_limits(np.concatenate([v for _, v, _, _ in series]), (lo, hi))
+    if limit_and_mark(ax, y_lo, y_hi, [(t, v, c, not line) for t, v, c, _ in series]):
         ax.plot([], [], "v", color="k", ls="", label="beyond the axis (at its edge)")
     ax.set_ylabel(ylabel)
     ax.legend(fontsize=8, loc="upper right")
 
 
-def _fig_consistency(results, base, tx):
+def fig_consistency(results, base, tx):
     """The NIS of each fix kind that has updates, and the NEES with a truth: no panel without data."""
     panels = []
     for kind, dof in ((KIND_FIX3, 3), (KIND_FIX2, 2)):
@@ -206,7 +206,7 @@ def _fig_consistency(results, base, tx):
     fig, axs = plt.subplots(len(panels), 1, figsize=(10, 2.6 * len(panels) + 1), sharex=True, squeeze=False)
     for ax, (series, dof, ylabel, line, _) in zip(axs[:, 0], panels):
         _chi2_panel(ax, series, dof, ylabel, line)
-    _mark_segments(axs[:, 0], base, tx.t0)
+    mark_segments(axs[:, 0], base, tx.t0)
     axs[0, 0].set_title("Consistency: " + ", ".join(p[4] for p in panels), pad=14)
     axs[-1, 0].set_xlabel(tx.label)
     return fig
@@ -224,7 +224,7 @@ def _outage_spans(r: Result) -> np.ndarray:
     return np.asarray(r.a.get("outages", np.zeros((0, 2))), float).reshape(-1, 2)
 
 
-def _fig_outage_drift(results, tx):
+def fig_outage_drift(results, tx):
     """Drift vs time in outage (one line per outage and run), and the error against the reference over time
     with the outages shaded."""
     scored = [r for r in results if _has_drift(r)]
@@ -238,12 +238,12 @@ def _fig_outage_drift(results, tx):
             ax.plot(r.a["drift_t_s"][m], r.a["drift_h_m"][m], "-", color=r.color, lw=1.0)
             ax.plot(r.a["drift_t_s"][m], r.a["drift_v_m"][m], ":", color=r.color, lw=1.0)
         e = r.a["ref_err_ned_m"]
-        bx.plot(*_gapped(r.a["ref_t"] - tx.t0, np.hypot(e[:, 0], e[:, 1])), "-", color=r.color, lw=0.8)
+        bx.plot(*gapped(r.a["ref_t"] - tx.t0, np.hypot(e[:, 0], e[:, 1])), "-", color=r.color, lw=0.8)
     for a, b in _outage_spans(scored[0]):
         bx.axvspan(a - tx.t0, b - tx.t0, color="0.85", zorder=0)
     ax.set_xlabel("time since the outage began (s)")
     ax.set_ylabel("drift (m)")
-    ax.legend(handles=_mode_handles(scored) + [Line2D([], [], color="k", ls="-", label="horizontal"),
+    ax.legend(handles=mode_handles(scored) + [Line2D([], [], color="k", ls="-", label="horizontal"),
                                                Line2D([], [], color="k", ls=":", label="vertical")],
               fontsize=8, loc="upper left")
     ref = scored[0].run["scoring"]
@@ -251,6 +251,6 @@ def _fig_outage_drift(results, tx):
     bx.set_yscale("log")
     bx.set_xlabel(tx.label)
     bx.set_ylabel("horizontal error (m)")
-    bx.legend(handles=_mode_handles(scored) + [Patch(color="0.85", label="outage")], fontsize=8, loc="upper left")
+    bx.legend(handles=mode_handles(scored) + [Patch(color="0.85", label="outage")], fontsize=8, loc="upper left")
     bx.set_title("Horizontal error against the reference")
     return fig

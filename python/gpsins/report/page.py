@@ -11,11 +11,11 @@ from pathlib import Path
 
 from ..nav import noise_from_data
 from .figures import figures
-from .data import (Result, _load_all, _stats, innovation_intervals, receiver_errors, receiver_segment_table,
+from .data import (Result, load_all, stats, innovation_intervals, receiver_errors, receiver_segment_table,
                    segment_table, shows_outage_table, time_origin, time_origin_text)
 
 
-def _fmt(x, d=2):
+def fmt(x, d=2):
     return "-" if x is None else f"{x:.{d}f}"
 
 
@@ -34,9 +34,9 @@ def page_tables(results: list[Result]) -> list[tuple[str, list[str], list[list[s
             cells = [row["segment"], f"{row['sats_min']}-{row['sats_max']}"]
             for _, tab in segs + ([("receiver", rec)] if rec else []):
                 rr = tab[i]
-                cells += [f"{_fmt(rr.get('h_rms'))} / {_fmt(rr.get('h_max'))}",
-                          f"{_fmt(rr.get('v_rms'))} / {_fmt(rr.get('v_max'))}"]
-            cells += [_fmt(tab[i].get("nees9_mean")) for _, tab in segs]
+                cells += [f"{fmt(rr.get('h_rms'))} / {fmt(rr.get('h_max'))}",
+                          f"{fmt(rr.get('v_rms'))} / {fmt(rr.get('v_max'))}"]
+            cells += [fmt(tab[i].get("nees9_mean")) for _, tab in segs]
             rows.append(cells)
         tables.append(("Errors per segment (Table 6.1)", head, rows))
     t0 = time_origin(results[0])
@@ -66,13 +66,13 @@ def outage_page_table(scored: list[Result], t0: float):
         for r in scored:
             po = r.run["scoring"]["per_outage"]
             oo = po[j] if j < len(po) else {}
-            cells += [_fmt(oo.get("max_h_m")), _fmt(oo.get("max_v_m"))]
+            cells += [fmt(oo.get("max_h_m")), fmt(oo.get("max_v_m"))]
         rows.append(cells)
     for stat in ("mean", "worst", "rms"):
-        rows.append([stat, "", "", ""] + [_fmt(r.run["scoring"][f"{c}_m"][stat])
+        rows.append([stat, "", "", ""] + [fmt(r.run["scoring"][f"{c}_m"][stat])
                                           for r in scored for c in ("horizontal", "vertical")])
     rows.append(["outside RMS", "", "", str(scored[0].run["scoring"]["outside"]["n"])] +
-                [_fmt(r.run["scoring"]["outside"][f"rms_{c}_m"], 3) for r in scored for c in ("h", "v")])
+                [fmt(r.run["scoring"]["outside"][f"rms_{c}_m"], 3) for r in scored for c in ("h", "v")])
     ref = scored[0].run["scoring"]
     what = "free navigation (--mode ins)" if "ins_free_from" in ref else "per outage"
     return (f"Drift {what} against {Path(ref['reference']).name} ({ref['point']} point)", head, rows)
@@ -97,10 +97,10 @@ def _run_lines(r: Result) -> list[str]:
     e = run.get("errors") or {}
     if e:
         inside = e.get("inside_3_sigma")
-        lines.append(f"errors vs truth: horizontal RMS {_fmt(e.get('horizontal_rms_m'))} m "
-                     f"(max {_fmt(e.get('horizontal_max_m'))}), vertical RMS {_fmt(e.get('vertical_rms_m'))} m "
-                     f"(max {_fmt(e.get('vertical_max_m'))}), mean NEES {_fmt(e.get('nees9_mean'))} (9 dof), "
-                     f"inside 3 sigma {_fmt(None if inside is None else 100 * inside, 1)} %")
+        lines.append(f"errors vs truth: horizontal RMS {fmt(e.get('horizontal_rms_m'))} m "
+                     f"(max {fmt(e.get('horizontal_max_m'))}), vertical RMS {fmt(e.get('vertical_rms_m'))} m "
+                     f"(max {fmt(e.get('vertical_max_m'))}), mean NEES {fmt(e.get('nees9_mean'))} (9 dof), "
+                     f"inside 3 sigma {fmt(None if inside is None else 100 * inside, 1)} %")
     sc = run.get("scoring") or {}
     if shows_outage_table(run):
         lines.append(f"against {Path(sc['reference']).name} ({sc['point']} point): RMS of the per-outage maximum "
@@ -117,7 +117,7 @@ def _warning_lines(results: list[Result]) -> list[str]:
 
 def _receiver_line(r: Result) -> str | None:
     _, e = receiver_errors(r)
-    s = _stats(e)
+    s = stats(e)
     if not s:
         return None
     return (f"receiver's own fixes vs truth: horizontal RMS {s['h_rms']:.2f} m (max {s['h_max']:.2f}), "
@@ -137,7 +137,7 @@ def _captions(results: list[Result], figs: list[str]) -> list[tuple[str, str, st
 
 
 def summary_markdown(results: list[Result], figs: list[str]) -> str:
-    results = _load_all(results)
+    results = load_all(results)
     lines = ["# gpsins replay report", ""]
     lines += [f"**WARNING: {w}**" for w in _warning_lines(results)] + ([""] if _warning_lines(results) else [])
     for r in results:
@@ -158,7 +158,7 @@ def summary_markdown(results: list[Result], figs: list[str]) -> str:
 
 def summary_html(results: list[Result], figs: list[str], fig_dir: Path) -> str:
     """One self-contained page: the same text and tables, every figure embedded as base64 PNG."""
-    results = _load_all(results)
+    results = load_all(results)
     esc = html.escape
     parts = ["<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8"><title>gpsins replay report</title>',
              "<style>body{font-family:sans-serif;max-width:1200px;margin:auto;padding:1em}"
@@ -188,7 +188,7 @@ def summary_html(results: list[Result], figs: list[str], fig_dir: Path) -> str:
 
 def make_report(paths: list[str | Path], out: str | Path) -> Path:
     """Figures, report.md and the self-contained report.html in `out`; returns the Markdown page."""
-    results = _load_all(paths)
+    results = load_all(paths)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     figs = figures(results, out)

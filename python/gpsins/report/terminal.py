@@ -8,8 +8,8 @@ import sys
 from pathlib import Path
 
 
-from .data import Result, _load_all, _stats, receiver_errors, receiver_segment_table, segment_table
-from .page import _fmt
+from .data import Result, load_all, stats, receiver_errors, receiver_segment_table, segment_table
+from .page import fmt
 
 
 def comparison_tables(results: list[Result]) -> list:
@@ -22,16 +22,16 @@ def comparison_tables(results: list[Result]) -> list:
     for r in results:
         totals.add_column(r.name, justify="right")
     _, rec_e = receiver_errors(results[0])
-    rec = _stats(rec_e)
+    rec = stats(rec_e)
     if rec:
         totals.add_column("receiver", justify="right")
     for key, lab, rkey in (("horizontal_rms_m", "H RMS (m)", "h_rms"), ("horizontal_max_m", "H max (m)", "h_max"),
                            ("vertical_rms_m", "V RMS (m)", "v_rms"), ("vertical_max_m", "V max (m)", "v_max"),
                            ("nees9_mean", "mean NEES", None), ("inside_3_sigma", "inside 3 sigma (%)", None)):
         scale = 100.0 if key == "inside_3_sigma" else 1.0
-        cells = [_fmt(None if (v := (r.run.get("errors") or {}).get(key)) is None else scale * v) for r in results]
+        cells = [fmt(None if (v := (r.run.get("errors") or {}).get(key)) is None else scale * v) for r in results]
         if rec:
-            cells.append(_fmt(rec.get(rkey)) if rkey else "")
+            cells.append(fmt(rec.get(rkey)) if rkey else "")
         totals.add_row(lab, *cells)
     tables = [totals] if any(r.run.get("errors") for r in results) else []
     segs = [segment_table(r) for r in results]
@@ -55,9 +55,9 @@ def _segment_rich_table(title: str, rows: list[dict], nees: bool):
         t.add_column(name, justify="left" if name == "segment" else "right")
     for row in rows:
         sats = f"{row['sats_min']}-{row['sats_max']}" if "sats_min" in row else ""
-        t.add_row(row["segment"], sats, f"{_fmt(row.get('h_rms'))} ({_fmt(row.get('h_max'))})",
-                  f"{_fmt(row.get('v_rms'))} ({_fmt(row.get('v_max'))})",
-                  *([_fmt(row.get("nees9_mean"))] if nees else []))
+        t.add_row(row["segment"], sats, f"{fmt(row.get('h_rms'))} ({fmt(row.get('h_max'))})",
+                  f"{fmt(row.get('v_rms'))} ({fmt(row.get('v_max'))})",
+                  *([fmt(row.get("nees9_mean"))] if nees else []))
     return t
 
 
@@ -82,14 +82,14 @@ def outage_table(summary: dict, title: str | None = None):
     for j, o in enumerate(sc["per_outage"]):
         s_o = sm["per_outage"][j] if sm is not None else {}
         t.add_row(*both([str(j + 1), f"{o['start'] - t0:.1f}", f"{o['end'] - t0:.1f}", str(o["n_ref"]),
-                         _fmt(o["max_h_m"]), _fmt(o["max_v_m"])],
-                        [_fmt(s_o.get("max_h_m")), _fmt(s_o.get("max_v_m"))]))
+                         fmt(o["max_h_m"]), fmt(o["max_v_m"])],
+                        [fmt(s_o.get("max_h_m")), fmt(s_o.get("max_v_m"))]))
     for stat in ("mean", "worst", "rms"):
-        t.add_row(*both([stat, "", "", "", _fmt(sc["horizontal_m"][stat]), _fmt(sc["vertical_m"][stat])],
-                        [_fmt(sm["horizontal_m"][stat]), _fmt(sm["vertical_m"][stat])] if sm else []))
-    t.add_row(*both(["outside RMS", "", "", str(sc["outside"]["n"]), _fmt(sc["outside"]["rms_h_m"], 3),
-                     _fmt(sc["outside"]["rms_v_m"], 3)],
-                    [_fmt(sm["outside"]["rms_h_m"], 3), _fmt(sm["outside"]["rms_v_m"], 3)] if sm else []))
+        t.add_row(*both([stat, "", "", "", fmt(sc["horizontal_m"][stat]), fmt(sc["vertical_m"][stat])],
+                        [fmt(sm["horizontal_m"][stat]), fmt(sm["vertical_m"][stat])] if sm else []))
+    t.add_row(*both(["outside RMS", "", "", str(sc["outside"]["n"]), fmt(sc["outside"]["rms_h_m"], 3),
+                     fmt(sc["outside"]["rms_v_m"], 3)],
+                    [fmt(sm["outside"]["rms_h_m"], 3), fmt(sm["outside"]["rms_v_m"], 3)] if sm else []))
     return t
 
 
@@ -111,7 +111,7 @@ def print_outage_table(summary: dict, file=None) -> None:
 def print_comparison(paths: list[str | Path], file=None) -> None:
     """The totals and the per-segment tables on the terminal (or `file`)."""
     console = _console(file)
-    for table in comparison_tables(_load_all(paths)):
+    for table in comparison_tables(load_all(paths)):
         console.print(table)
 
 

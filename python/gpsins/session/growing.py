@@ -105,7 +105,7 @@ class GpsStream:
                 elif msg_id == ss2.ID_NAV_USER:
                     u = ss2.NavUser.decode(payload)
                     self._nav_user.append((st, u))
-                    self._user_utc.extend([measurements._utc_seconds(u)])
+                    self._user_utc.extend([measurements.utc_seconds(u)])
                 elif msg_id == ss2.ID_NAV_ECEF:
                     e = ss2.NavEcef.decode(payload)
                     self._nav_ecef.append((st, e))
@@ -222,14 +222,14 @@ class ImuStream:
         body = scan.frame_data.reshape(-1, bp3010.FRAME_LEN)[:, 1:15]
         dth, dv = np.empty((m, 3), np.int16), np.empty((m, 3), np.int16)
         st, ct = np.empty(m, np.uint8), np.empty(m, np.uint8)
-        log_stream._decode_bp3010(body, dth, dv, st, ct)
+        log_stream.decode_bp3010(body, dth, dv, st, ct)
         n0 = self.n
         self.stamps.extend(scan.stamps)
         self.dtheta.extend(dth)
         self.dv.extend(dv)
         self.status.extend(st)
         self.counter.extend(ct)
-        bad = measurements._bad_imu(st)
+        bad = measurements.bad_imu(st)
         if bad.any():
             self.skipped["imu: frames flagged invalid, over range or test failure"] += int(bad.sum())
         self._bad.extend(bad)

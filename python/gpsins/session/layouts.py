@@ -61,7 +61,7 @@ UBX_RAW = Layout("ublox", ubx.SYNC1, ubx.HEADER_LEN, False)
 LAYOUTS = {"superstar2": SS2_RECORDS, "bp3010": BP_RECORDS, "ublox": UBX_RECORDS}
 
 
-def _cut_header(buf: np.ndarray, layout: Layout, start: int, size: int) -> int | None:
+def cut_header(buf: np.ndarray, layout: Layout, start: int, size: int) -> int | None:
     """The first sync byte at or after start whose header the end of the data cuts: the streaming
     finder keeps such bytes as the truncated tail (it cannot tell them from a record's start)."""
     lo = max(start, size - layout.header_len + 1)

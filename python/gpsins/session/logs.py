@@ -30,9 +30,9 @@ import numpy as np
 
 from gpsins_logger import bp3010
 from gpsins_logger.recorder import RAW_HEADER
-from .stream import BLOCK_BYTES, _FrameColumns, _ImuColumns, _decode_bp3010, _file_size, _stream
+from .stream import BLOCK_BYTES, FrameColumns, ImuColumns, decode_bp3010, file_size, stream_blocks
 from .layouts import ImuLog, LAYOUTS, LogError, Scan, bp3010_lsb
-from .stamps import StampLimits, _first_backwards, reject_bad_stamps, stamp_limits
+from .stamps import StampLimits, first_backwards, reject_bad_stamps, stamp_limits
 
 
 def read_record_file(path: str | Path, device: str, limits: StampLimits | None = None,
@@ -49,13 +49,13 @@ def read_record_file(path: str | Path, device: str, limits: StampLimits | None =
     limits = limits or StampLimits()
     try:
         with open(path, "rb", buffering=0) as f:
-            size = _file_size(f)
-            columns = _FrameColumns(lay, size) if imu_rate_hz is None else _ImuColumns(lay, size, imu_rate_hz)
-            out = columns.scan(str(path), _stream(f, lay, limits, columns, block_bytes))
+            size = file_size(f)
+            columns = FrameColumns(lay, size) if imu_rate_hz is None else ImuColumns(lay, size, imu_rate_hz)
+            out = columns.scan(str(path), stream_blocks(f, lay, limits, columns, block_bytes))
     except OSError as e:
         raise LogError(f"{path}: cannot read: {e.strerror}") from None
     out = reject_bad_stamps(out, limits)
-    count, first = _first_backwards(out.stamps)
+    count, first = first_backwards(out.stamps)
     out.stats["stamps_backwards"] = count
     out.stats["first_backwards_offset"] = int(out.starts[first]) if first is not None else None
     return out
@@ -76,7 +76,7 @@ def imu_log(s: Scan, rate_hz: int = bp3010.NOMINAL_RATE_HZ) -> ImuLog:
                  np.empty(n, np.uint8), rate_hz, bp3010_lsb(rate_hz))
     for a in range(0, n, IMU_DECODE_ROWS):
         r = slice(a, a + IMU_DECODE_ROWS)
-        _decode_bp3010(frames[r, 1:15], out.dtheta[r], out.dv[r], out.status[r], out.counter[r])
+        decode_bp3010(frames[r, 1:15], out.dtheta[r], out.dv[r], out.status[r], out.counter[r])
     return out
 
 

@@ -78,7 +78,7 @@ class Decoded:
     directory: Path | None = None
 
 
-def _bad_imu(status: np.ndarray) -> np.ndarray:
+def bad_imu(status: np.ndarray) -> np.ndarray:
     return ((status & bp3010.STATUS_VALID) == 0) | ((status & (bp3010.STATUS_GYRO_OVERRANGE | bp3010.STATUS_ACCEL_OVERRANGE
                                                                         | bp3010.STATUS_BIT_FAILURE)) != 0)
 
@@ -243,7 +243,7 @@ def implausible_tows(tow: np.ndarray, stamps: np.ndarray) -> np.ndarray:
     return bad
 
 
-def _utc_seconds(u: ss2.NavUser) -> float:
+def utc_seconds(u: ss2.NavUser) -> float:
     """UTC of an ID 20 as seconds since the GPS epoch (no leap seconds); NaN if its date is not valid."""
     try:
         day = np.datetime64(f"{u.year:04d}-{u.month:02d}-{u.day:02d}", "ms")
@@ -259,7 +259,7 @@ def _nav_user_times(nav_user: list, nav_ecef: list, ecef_t: np.ndarray, leap: in
     """GPS time of each ID 20 in the fixes' time base. Without a leap-second count from the
     receiver (ID 75/113): the whole number of seconds that lines most ID 20s up with the ID 21
     nearest by stamp (the receiver sends the pair together; a clock step mispairs only a few)."""
-    utc = np.array([_utc_seconds(u) for _, u in nav_user]).reshape(-1) - week * SECONDS_PER_WEEK
+    utc = np.array([utc_seconds(u) for _, u in nav_user]).reshape(-1) - week * SECONDS_PER_WEEK
     if np.isnan(utc).any():
         skipped["ID 20 with an invalid date (not paired)"] += int(np.isnan(utc).sum())
     if leap is None and len(utc) and len(ecef_t):
@@ -329,7 +329,7 @@ def valid_imu(session: logs.SessionLog, skipped: Counter) -> layouts.ImuLog:
     their test (counted). The session lets go of its IMU, so no second copy is held."""
     imu = session.imu()
     del session.sensors["imu"]
-    bad = _bad_imu(imu.status)
+    bad = bad_imu(imu.status)
     if bad.any():
         skipped["imu: frames flagged invalid, over range or test failure"] += int(bad.sum())
     moved = out_of_place_imu(imu.counter, imu.stamps, imu.rate_hz) & ~bad

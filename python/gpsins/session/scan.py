@@ -11,11 +11,11 @@ import numpy as np
 from gpsins_logger import bp3010
 from gpsins_logger import superstar2 as ss2
 from gpsins_logger import ubx
-from .layouts import Layout, STAMP_BYTES, STAMP_MAX, STAMP_MIN, Scan, _cut_header
+from .layouts import Layout, STAMP_BYTES, STAMP_MAX, STAMP_MIN, Scan, cut_header
 from .stamps import StampLimits
 
 
-def _gather(buf: np.ndarray, offsets: np.ndarray, width: int) -> np.ndarray:
+def gather(buf: np.ndarray, offsets: np.ndarray, width: int) -> np.ndarray:
     """(n, width) uint8 rows of buf starting at offsets, without an (n, width) index array."""
     if len(buf) < width:
         return np.zeros((0, width), np.uint8)
@@ -27,13 +27,13 @@ def _check_stamps(buf: np.ndarray, pc: np.ndarray, lay: Layout, lo: float, hi: f
     """(valid, checksum-valid but with an impossible stamp) for complete candidates at pc."""
     if not lay.stamped:
         return good, np.zeros(len(good), dtype=bool)
-    st = _gather(buf, pc + lay.header_len, STAMP_BYTES).view("<f8").reshape(-1)
+    st = gather(buf, pc + lay.header_len, STAMP_BYTES).view("<f8").reshape(-1)
     with np.errstate(invalid="ignore"):
         plausible = np.isfinite(st) & (st > lo) & (st < hi)
     return good & plausible, good & ~plausible
 
 
-def _candidates(buf: np.ndarray, lay: Layout, lo: float = STAMP_MIN, hi: float = STAMP_MAX
+def header_candidates(buf: np.ndarray, lay: Layout, lo: float = STAMP_MIN, hi: float = STAMP_MAX
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """All header-valid candidates: positions, lengths, checksum/stamp validity,
     and which pass the checksum but carry an impossible stamp."""
@@ -67,7 +67,7 @@ def _candidates(buf: np.ndarray, lay: Layout, lo: float = STAMP_MIN, hi: float =
         # One length: the 14 body bytes of each candidate summed modulo 256 (faster than running sums).
         body = pc + 1 + sl
         end = pc + lc - 1
-        good = _gather(buf, body, bp3010.FRAME_LEN - 2).sum(axis=1, dtype=np.uint8) == buf[end]
+        good = gather(buf, body, bp3010.FRAME_LEN - 2).sum(axis=1, dtype=np.uint8) == buf[end]
     if len(pc):
         ok[complete], bad_stamp[complete] = _check_stamps(buf, pc, lay, lo, hi, good)
     return p, length, ok, bad_stamp
@@ -121,9 +121,9 @@ def scan(buf: np.ndarray | bytes, layout: Layout, path: str = "<bytes>", limits:
     buf = np.frombuffer(buf, dtype=np.uint8) if isinstance(buf, (bytes, bytearray, memoryview)) else buf
     size = len(buf)
     lo, hi = (limits.lo, limits.hi) if limits is not None else (STAMP_MIN, STAMP_MAX)
-    p, length, ok, bad_stamp = _candidates(buf, layout, lo, hi)
+    p, length, ok, bad_stamp = header_candidates(buf, layout, lo, hi)
     vp, vl = p[ok], length[ok]
-    chosen = _follow(vp, vl, 0)  # the greedy chain from the start
+    chosen = follow_chain(vp, vl, 0)  # the greedy chain from the start
     starts, lengths = vp[chosen], vl[chosen]
     # The tail: the first incomplete header-valid candidate after the last
     # accepted record. An incomplete candidate earlier than that was a false
@@ -134,7 +134,7 @@ def scan(buf: np.ndarray | bytes, layout: Layout, path: str = "<bytes>", limits:
     if len(inc):
         tail_offset = int(inc[0])
     else:
-        tail_offset = _cut_header(buf, layout, last_end, size)
+        tail_offset = cut_header(buf, layout, last_end, size)
     tail = size - tail_offset if tail_offset is not None else 0
     covered = int(lengths.sum())
     # Where each covered stretch ends vs where the next begins: the first mismatch is the first discarded byte.
@@ -164,23 +164,23 @@ def scan(buf: np.ndarray | bytes, layout: Layout, path: str = "<bytes>", limits:
         "first_discarded_offset": first_discarded,
         "resyncs": int(np.count_nonzero(np.diff(starts) != lengths[:-1])) if len(starts) > 1 else 0,
     }
-    return Scan(path, layout, starts, lengths.astype(np.int32), _stamps_at(buf, starts, layout),
-                _frame_bytes(buf, starts, lengths, layout), stats)
+    return Scan(path, layout, starts, lengths.astype(np.int32), stamps_at(buf, starts, layout),
+                frame_bytes(buf, starts, lengths, layout), stats)
 
 
-def _stamps_at(buf: np.ndarray, starts: np.ndarray, lay: Layout) -> np.ndarray:
+def stamps_at(buf: np.ndarray, starts: np.ndarray, lay: Layout) -> np.ndarray:
     if not lay.stamped:
         return np.full(len(starts), np.nan)
-    return _gather(buf, starts + lay.header_len, STAMP_BYTES).view("<f8").reshape(-1)
+    return gather(buf, starts + lay.header_len, STAMP_BYTES).view("<f8").reshape(-1)
 
 
-def _frame_bytes(buf: np.ndarray, starts: np.ndarray, lengths: np.ndarray, lay: Layout) -> np.ndarray:
+def frame_bytes(buf: np.ndarray, starts: np.ndarray, lengths: np.ndarray, lay: Layout) -> np.ndarray:
     """The records at starts (non-overlapping, sorted) without their stamps, back to back:
     a +1/-1 step at each record's and stamp's ends, summed, marks the bytes to keep."""
     if not len(starts):
         return np.zeros(0, np.uint8)
     if lay.device == "bp3010":  # one length: rows of the record, the stamp's columns left out
-        rows = _gather(buf, starts, bp3010.FRAME_LEN + lay.stamp_len)
+        rows = gather(buf, starts, bp3010.FRAME_LEN + lay.stamp_len)
         h = lay.header_len
         return np.concatenate((rows[:, :h], rows[:, h + lay.stamp_len:]), axis=1).reshape(-1)
     step = np.zeros(len(buf) + 1, np.int8)
@@ -193,7 +193,7 @@ def _frame_bytes(buf: np.ndarray, starts: np.ndarray, lengths: np.ndarray, lay: 
     return buf[np.cumsum(step[:-1], dtype=np.int8) > 0]
 
 
-def _follow(vp: np.ndarray, vl: np.ndarray, k: int) -> np.ndarray:
+def follow_chain(vp: np.ndarray, vl: np.ndarray, k: int) -> np.ndarray:
     """Which of the valid candidates (positions vp, lengths vl) the chain takes from candidate k on:
     after a record ending at e, the first valid candidate at or after e."""
     n = len(vp)

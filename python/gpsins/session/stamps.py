@@ -115,7 +115,7 @@ def _out_of_line(t: np.ndarray, back: float) -> np.ndarray:
     return out
 
 
-def _first_backwards(st: np.ndarray) -> tuple[int, int | None]:
+def first_backwards(st: np.ndarray) -> tuple[int, int | None]:
     """How many stamps run back from the one before, and the index of the first."""
     count, first = 0, None
     for a in range(0, len(st) - 1, OUTLIER_ROWS):

@@ -10,9 +10,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .layouts import ImuLog, LAYOUTS, Layout, Scan, _cut_header, bp3010_lsb
+from .layouts import ImuLog, LAYOUTS, Layout, Scan, cut_header, bp3010_lsb
 from .stamps import StampLimits, stamp_outliers
-from .scan import _candidates, _follow, _frame_bytes, _gather, _stamps_at
+from .scan import header_candidates, follow_chain, frame_bytes, gather, stamps_at
 
 
 BLOCK_BYTES = 4 << 20  # read size: the transient arrays of one block are a few times this
@@ -44,7 +44,7 @@ class _Growing:
         return self.a
 
 
-class _FrameColumns:
+class FrameColumns:
     """What a Scan keeps of each record: offset, length, stamp, frame bytes."""
 
     def __init__(self, lay: Layout, size: int):
@@ -57,8 +57,8 @@ class _FrameColumns:
         self.starts.extend(p + base)
         if self.lengths is not None:
             self.lengths.extend(length)
-        self.stamps.extend(_stamps_at(buf, p, self.lay))
-        self.frames.extend(_frame_bytes(buf, p, length, self.lay))
+        self.stamps.extend(stamps_at(buf, p, self.lay))
+        self.frames.extend(frame_bytes(buf, p, length, self.lay))
 
     def scan(self, path: str, stats: dict) -> Scan:
         starts = self.starts.take()
@@ -71,7 +71,7 @@ def _same_lengths(lay: Layout, n: int) -> np.ndarray:
     return np.broadcast_to(np.int32(lay.fixed_len), (n,))
 
 
-class _ImuColumns:
+class ImuColumns:
     """BP3010 records decoded as they are read: offset, stamp, increments, status, counter."""
 
     def __init__(self, lay: Layout, size: int, rate_hz: int):
@@ -83,8 +83,8 @@ class _ImuColumns:
 
     def add(self, buf: np.ndarray, p: np.ndarray, length: np.ndarray, base: int) -> None:
         self.starts.extend(p + base)
-        self.stamps.extend(_stamps_at(buf, p, self.lay))
-        _decode_bp3010(_gather(buf, p + (1 + self.lay.stamp_len), 14), self.dtheta.reserve(len(p)),
+        self.stamps.extend(stamps_at(buf, p, self.lay))
+        decode_bp3010(gather(buf, p + (1 + self.lay.stamp_len), 14), self.dtheta.reserve(len(p)),
                        self.dv.reserve(len(p)), self.status.reserve(len(p)), self.counter.reserve(len(p)))
 
     def scan(self, path: str, stats: dict) -> Scan:
@@ -94,7 +94,7 @@ class _ImuColumns:
         return Scan(path, self.lay, starts, _same_lengths(self.lay, len(starts)), imu.stamps, None, stats, imu)
 
 
-def _decode_bp3010(body: np.ndarray, dtheta: np.ndarray, dv: np.ndarray, status: np.ndarray,
+def decode_bp3010(body: np.ndarray, dtheta: np.ndarray, dv: np.ndarray, status: np.ndarray,
                    counter: np.ndarray) -> None:
     """(n, 14) frame bodies (after the sync, without the checksum) into the given outputs (counts)."""
     counts = np.ascontiguousarray(body[:, :12]).view("<i2")
@@ -130,14 +130,14 @@ class _Chain:
     def block(self, buf: np.ndarray, base: int, final: bool) -> int:
         """Decide what buf (at file offset base) decides; returns how many of its bytes are done."""
         size, lay = len(buf), self.lay
-        p, length, ok, bad_stamp = _candidates(buf, lay, self.lo, self.hi)
+        p, length, ok, bad_stamp = header_candidates(buf, lay, self.lo, self.hi)
         incomplete = p + length > size
         u = size
         if not final:
             u = max(0, min([size - lay.header_len + 1, *p[incomplete][:1].tolist()]))
         decided = ok & (p < u)
         vp, vl = p[decided], length[decided]
-        chosen = _follow(vp, vl, int(np.searchsorted(vp, self.last_end - base)))
+        chosen = follow_chain(vp, vl, int(np.searchsorted(vp, self.last_end - base)))
         starts, lengths = vp[chosen], vl[chosen]
         ends = starts + lengths
         if len(starts):
@@ -172,7 +172,7 @@ class _Chain:
         if len(inc):
             tail_offset = base + int(inc[0])
         else:
-            cut = _cut_header(buf, self.lay, max(self.last_end - base, 0), size)
+            cut = cut_header(buf, self.lay, max(self.last_end - base, 0), size)
             tail_offset = base + cut if cut is not None else None
         tail = total - tail_offset if tail_offset is not None else 0
         if self.first_discarded is None and self.last_end != total - tail:
@@ -191,7 +191,7 @@ class _Chain:
         }
 
 
-def _stream(f, layout: Layout, limits: StampLimits, columns, block_bytes: int) -> dict:
+def stream_blocks(f, layout: Layout, limits: StampLimits, columns, block_bytes: int) -> dict:
     """Feed the chain block by block from a binary file object; returns the damage counts."""
     chain = _Chain(layout, limits, columns)
     carry, base = np.zeros(0, np.uint8), 0
@@ -227,8 +227,8 @@ class RecordTail:
         self.records = self.bad_stamps = 0
 
     def add(self, buf: np.ndarray, p: np.ndarray, length: np.ndarray, base: int) -> None:  # the chain's columns
-        self._new.append((p + base, np.asarray(length, np.int64), _stamps_at(buf, p, self.layout),
-                          _frame_bytes(buf, p, length, self.layout)))
+        self._new.append((p + base, np.asarray(length, np.int64), stamps_at(buf, p, self.layout),
+                          frame_bytes(buf, p, length, self.layout)))
 
     @property
     def size(self) -> int:
@@ -271,7 +271,7 @@ class RecordTail:
         return out
 
 
-def _file_size(f) -> int:
+def file_size(f) -> int:
     try:
         here = f.tell()
         end = f.seek(0, 2)
@@ -287,5 +287,5 @@ def scan_stream(f, layout: Layout, path: str = "<stream>", limits: "StampLimits 
     binary file object f, read in blocks of block_bytes: memory is the result's
     columns plus a few blocks, whatever the file's size."""
     limits = limits or StampLimits()
-    columns = _FrameColumns(layout, _file_size(f))
-    return columns.scan(path, _stream(f, layout, limits, columns, block_bytes))
+    columns = FrameColumns(layout, file_size(f))
+    return columns.scan(path, stream_blocks(f, layout, limits, columns, block_bytes))

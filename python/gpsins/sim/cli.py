@@ -13,7 +13,7 @@ from .scenario import load
 from .scenario import ScenarioError, with_imu_rate
 
 
-def _scenario(args, command: str):
+def scenario_from_args(args, command: str):
     """The scenario of the command line, at --imu-rate when given; None after printing the error."""
     try:
         sc = load(args.scenario)
@@ -26,7 +26,7 @@ def _scenario(args, command: str):
 
 
 def run_sim(args) -> int:
-    sc = _scenario(args, "sim")
+    sc = scenario_from_args(args, "sim")
     if sc is None:
         return 2
     out = Path(args.out)

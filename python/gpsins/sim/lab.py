@@ -284,14 +284,14 @@ def write_lab_day(day: LabDay, directory: str | Path, plan_name: str = "lab_plan
             f.write("realtime,monotonic\n")
             for tt in np.arange(t[0], t[-1], 10.0):
                 f.write(f"{cfg.start_unix_s + tt!r},{1000.0 + tt!r}\n")
-    (directory / "truth.json").write_text(json.dumps(_truth_doc(day), indent=1, default=list) + "\n",
+    (directory / "truth.json").write_text(json.dumps(truth_doc(day), indent=1, default=list) + "\n",
                                           encoding="utf-8")
     plan = directory / plan_name
     plan.write_text(plan_text(day), encoding="utf-8")
     return plan
 
 
-def _truth_doc(day: LabDay) -> dict:
+def truth_doc(day: LabDay) -> dict:
     return {"seed": day.seed, "config": {k: v for k, v in asdict(day.config).items() if k != "imu"},
             "imu_model": {k: v for k, v in day.config.imu.__dict__.items()}, "unit": day.truth(),
             "sessions": [{"name": s.name, "kind": s.kind, "axis": s.axis, "rate_rad_per_s": s.rate_rad_per_s,

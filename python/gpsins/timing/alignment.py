@@ -9,8 +9,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from . import (AlignmentError, DAMAGE_SHARE, IMU_WINDOW_S, LATE_S, MARGIN_S, MEDIAN_FRAMES, METHODS, MIN_RATE_SPAN_S,
                OUTLIER_TOL_S, OVERLAP_SLACK_S, PIECE_GAP_S, RATE_MISMATCH, UNWRAP_WINDOW_S)
-from .clock import ClockMap, _counter_steps, fit_gps_clock, unwrap_counter
-from .envelope import _damaged_low, _median_slope, lower_envelope
+from .clock import ClockMap, counter_steps, fit_gps_clock, unwrap_counter
+from .envelope import damaged_low, median_slope, lower_envelope
 
 
 def _median_ahead(x: np.ndarray, m: int = MEDIAN_FRAMES) -> np.ndarray:
@@ -201,14 +201,14 @@ def align(gps_tow: np.ndarray, gps_stamps: np.ndarray, week: int, imu_stamps: np
         raise AlignmentError(f"the IMU stamps (system time {imu_lo:.1f} to {imu_hi:.1f} s) do not overlap the GPS "
                              f"stamps ({g.min():.1f} to {g.max():.1f} s): the two files were not recorded together")
     # Damaged IMU stamps: far below both neighbourhoods once the counter's trend is removed.
-    nc = _counter_steps(imu_counter)
+    nc = counter_steps(imu_counter)
     w = max(8, int(IMU_WINDOW_S * rate_hz))
     # (Slopes over at most 10 s, as for the frame period below: over longer spans, the pairs that
     # straddle a gap the counter cannot count or a clock step bias it, and its residual slope
     # shows in the floors beside a step.)
-    trend = (_median_slope(nc.astype(float), s, max(1.0, min(0.25 * float(np.ptp(nc)), 10.0 * rate_hz)))
+    trend = (median_slope(nc.astype(float), s, max(1.0, min(0.25 * float(np.ptp(nc)), 10.0 * rate_hz)))
              if np.ptp(nc) > 0 else period)
-    usable = ~_damaged_low(s - trend * nc, w, OUTLIER_TOL_S * float(clock.rate[0]), 1 + w // DAMAGE_SHARE)
+    usable = ~damaged_low(s - trend * nc, w, OUTLIER_TOL_S * float(clock.rate[0]), 1 + w // DAMAGE_SHARE)
 
     # Stage 2: each clock step's cut in the IMU stream, coarse first.
     n_seg = len(clock.starts)
@@ -222,7 +222,7 @@ def align(gps_tow: np.ndarray, gps_stamps: np.ndarray, week: int, imu_stamps: np
     # The frame period as the stamps show it: a configured rate that is wrong would count
     # the wrong number of counter periods across a gap.
     if np.ptp(nc) > 0:
-        seen = _median_slope(nc.astype(float), mapped, min(0.25 * float(np.ptp(nc)), 10.0 * rate_hz))
+        seen = median_slope(nc.astype(float), mapped, min(0.25 * float(np.ptp(nc)), 10.0 * rate_hz))
         if abs(seen * rate_hz - 1.0) > RATE_MISMATCH:
             warnings.append(f"the IMU frames come at {1.0 / seen:.2f} Hz, not the configured {rate_hz:g} Hz: "
                             f"the stamps' rate is used")
@@ -245,8 +245,8 @@ def align(gps_tow: np.ndarray, gps_stamps: np.ndarray, week: int, imu_stamps: np
     # are one flat series (GPS seconds): damage right beside a gap or a step, which the test on the
     # stamps could only compare with one side, shows here.
     if np.ptp(n) > 0:
-        flat = _median_slope(n.astype(float), mapped, max(1.0, min(0.25 * float(np.ptp(n)), 10.0 * rate_hz)))
-        usable &= ~_damaged_low(mapped - flat * n, w, OUTLIER_TOL_S, 1 + w // DAMAGE_SHARE)
+        flat = median_slope(n.astype(float), mapped, max(1.0, min(0.25 * float(np.ptp(n)), 10.0 * rate_hz)))
+        usable &= ~damaged_low(mapped - flat * n, w, OUTLIER_TOL_S, 1 + w // DAMAGE_SHARE)
     t, p, pieces = _fit_imu_clock(n, mapped, usable, period, int(PIECE_GAP_S / period))
     if np.any(np.diff(t) <= 0):
         i = int(np.flatnonzero(np.diff(t) <= 0)[0]) + 1

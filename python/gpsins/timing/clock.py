@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from . import AlignmentError, DAMAGE_SHARE, GPS_WINDOW, MIN_SIDE, OUTLIER_TOL_S, STALL_MAX_S
-from .envelope import _damaged_low, _median_slope, _running_min, joint_lower_envelope
+from .envelope import damaged_low, median_slope, running_min, joint_lower_envelope
 
 
 def _steps(values: np.ndarray, threshold_s: float, window: int = GPS_WINDOW) -> tuple[np.ndarray, float]:
@@ -17,7 +17,7 @@ def _steps(values: np.ndarray, threshold_s: float, window: int = GPS_WINDOW) -> 
     on against the minimum of the window before it. An upward step is found at the start of
     the run where the difference is large, a downward one at its end. Also returns the
     threshold used (raised when the delays are large)."""
-    left, right = _running_min(values, window)
+    left, right = running_min(values, window)
     # The minimum of m delays exceeds 7/m of their mean once in a thousand (exponential
     # delays; queueing behind other frames makes it more often): below 10/m, a step cannot
     # be told from a window that happened to be delayed throughout.
@@ -100,7 +100,7 @@ def fit_gps_clock(tow: np.ndarray, stamps: np.ndarray, latency_s: float, step_th
     t_ref = float(tow[good][0])
     x = tow - t_ref
     order = np.argsort(x[good], kind="stable")
-    rate0 = _median_slope(x[good][order], s[good][order], min(10.0, 0.25 * np.ptp(x[good])))
+    rate0 = median_slope(x[good][order], s[good][order], min(10.0, 0.25 * np.ptp(x[good])))
     if not np.isfinite(rate0) or rate0 <= 0:
         raise AlignmentError(f"the GPS stamps do not advance with GPS time (rate {rate0:.3g}): the ID 23 stamps "
                              f"or times of week are unusable")
@@ -108,7 +108,7 @@ def fit_gps_clock(tow: np.ndarray, stamps: np.ndarray, latency_s: float, step_th
     damaged = ~good
     # The tolerance is what a damaged stamp left in may cost in GPS time: served S times faster,
     # a system second is S GPS seconds.
-    damaged[good] = _damaged_low(lag[good], GPS_WINDOW, OUTLIER_TOL_S * rate0, 1 + GPS_WINDOW // DAMAGE_SHARE)
+    damaged[good] = damaged_low(lag[good], GPS_WINDOW, OUTLIER_TOL_S * rate0, 1 + GPS_WINDOW // DAMAGE_SHARE)
     keep = np.flatnonzero(~damaged)
     if len(keep) < 3:
         raise AlignmentError(f"only {len(keep)} GPS measurement blocks have a usable stamp")
@@ -139,7 +139,7 @@ def unwrap_counter(counter: np.ndarray, times: np.ndarray, period_s: float, usab
     c = np.asarray(counter, dtype=np.int64)
     t = np.asarray(times, dtype=float)
     ok = np.ones(len(c), dtype=bool) if usable is None else np.asarray(usable, dtype=bool)
-    n = _counter_steps(c)
+    n = counter_steps(c)
     e = t - period_s * n  # flat except at gaps of whole counter periods (and delays)
     e_ok = np.where(ok, e, np.inf)
     cand = np.flatnonzero((np.diff(e) / period_s) > 128) + 1
@@ -157,7 +157,7 @@ def unwrap_counter(counter: np.ndarray, times: np.ndarray, period_s: float, usab
     return n + 256 * np.cumsum(extra)
 
 
-def _counter_steps(counter: np.ndarray) -> np.ndarray:
+def counter_steps(counter: np.ndarray) -> np.ndarray:
     step = np.diff(np.asarray(counter, dtype=np.int64)) % 256
     step[step == 0] = 256
     return np.concatenate([[0], np.cumsum(step)])

@@ -134,7 +134,7 @@ def _window_min(x: np.ndarray, w: int) -> np.ndarray:
     return np.minimum(suffix[:n - w + 1], prefix[w - 1:n])  # slices, not index arrays: no n-long temporaries
 
 
-def _running_min(y: np.ndarray, w: int) -> tuple[np.ndarray, np.ndarray]:
+def running_min(y: np.ndarray, w: int) -> tuple[np.ndarray, np.ndarray]:
     """Minimum of the w values before i (i excluded) and of the w values from i on; inf where empty."""
     n = len(y)
     w = max(1, min(int(w), n))
@@ -143,7 +143,7 @@ def _running_min(y: np.ndarray, w: int) -> tuple[np.ndarray, np.ndarray]:
     return m[:n], m[w:w + n]
 
 
-DAMAGE_BLOCK = 1 << 18  # values per block of _damaged_low
+DAMAGE_BLOCK = 1 << 18  # values per block of damaged_low
 DAMAGE_SWEEPS = 8  # repeats of the damaged-stamp test with the damage found left out
 DAMAGE_SUBBLOCKS = 4  # sub-blocks per neighbourhood of the damaged-stamp test
 
@@ -159,7 +159,7 @@ def _poisson_quantile(k: int, p: float = 1e-3) -> float:
     return hi
 
 
-def _damaged_low(y: np.ndarray, w: int, tol: float, order: int = 1) -> np.ndarray:
+def damaged_low(y: np.ndarray, w: int, tol: float, order: int = 1) -> np.ndarray:
     """Values below the floors of the w values before and after them by more than tol, each floor
     the `order`-th smallest of those values (up to order - 1 damaged values among them do not
     lower it). Delays only ever raise a stamp and a clock step moves all later ones: stamps below
@@ -214,10 +214,10 @@ def _damaged_low(y: np.ndarray, w: int, tol: float, order: int = 1) -> np.ndarra
     return bad
 
 
-SLOPE_BLOCK = 1 << 18  # points per block of _median_slope: a day's IMU stamps without day-long temporaries
+SLOPE_BLOCK = 1 << 18  # points per block of median_slope: a day's IMU stamps without day-long temporaries
 
 
-def _median_slope(x: np.ndarray, y: np.ndarray, span: float) -> float:
+def median_slope(x: np.ndarray, y: np.ndarray, span: float) -> float:
     """Median of the slopes between each point and the first one at least `span` later in x
     (x ascending), worked out block by block into one array of slopes."""
     n = len(x)
