@@ -127,7 +127,8 @@ def main() -> int:
             for r in run(seed, a.duration, a.smooth, Path(tmp), a.ride, a.warmup, a.mismatch):
                 rows.append(r)
                 extra = f"  smoothed {r['smoothed_drift_rms_h_m']:.2f} m" if "smoothed_drift_rms_h_m" in r else ""
-                print(f"seed {r['seed']}  {r['case']:<18} {r['outages']:>2} outages ({100 * r['moving_share']:.0f} % moving)  drift RMS {r['drift_rms_h_m']:6.2f} m"
+                print(f"seed {r['seed']}  {r['case']:<18} {r['outages']:>2} outages "
+                      f"({100 * r['moving_share']:.0f} % moving)  drift RMS {r['drift_rms_h_m']:6.2f} m"
                       f"  worst {r['drift_max_h_m']:6.2f} m  outside RMS {r['outside_rms_h_m']:.3f} m{extra}"
                       f"  resets {r['gnss_resets']}", flush=True)
                 nis = ", ".join(f"{k} {v:.2f}" for k, v in r["nis_per_dof"].items() if v is not None)

@@ -62,7 +62,8 @@ def speed(repeats: int) -> None:
           f"{sol.counters['zero_velocity_updates']} ZUPT, {sol.counters['fixes_accepted']} fixes per run)")
     n = 1_000_000
     imu, fixes = synthetic(n)
-    cfg2 = nav_config.load_config(None, {"initial_yaw_deg": 0.0, "zero_velocity_updates": False, "gate_probability": 0.0})
+    cfg2 = nav_config.load_config(None, {"initial_yaw_deg": 0.0, "zero_velocity_updates": False,
+                                         "gate_probability": 0.0})
     before = peak_mb()
     t0, c0 = time.perf_counter(), time.process_time()
     sol = flt.run(imu, fixes, cfg2, output_every=64)

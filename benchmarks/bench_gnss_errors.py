@@ -43,7 +43,8 @@ def by_geometry(sims) -> float:
     for s in sims:
         for f in s.gnss.fixes:
             if f.mode in (2, 3):
-                d = earth.ecef_to_ned_matrix(f.llh[0], f.llh[1]).T @ (f.r_ecef - s.truth.position_at(np.array([f.t]))[0])
+                truth = s.truth.position_at(np.array([f.t]))[0]
+                d = earth.ecef_to_ned_matrix(f.llh[0], f.llh[1]).T @ (f.r_ecef - truth)
                 rows.append((f.mode, f.hdop, f.vdop, *d))
     r = np.array(rows)
     for name, sel in (("3D, HDOP <= 2", (r[:, 0] == 2) & (r[:, 1] <= 2)),
@@ -137,7 +138,8 @@ def main() -> None:
     # fast part goes to the states and the slow one to a white R.
     fast_h, slow_h = (np.hypot(two[k][0], two[k][1]) / np.sqrt(2) for k in ("fast", "slow"))
     print(f"preset mapping: fix_error_gm_sigma_m ~ {np.round(two['fast'], 2).tolist()}, fix_error_gm_tau_s ~ "
-          f"{two['tau_fast']:.1f}, fix_error_fast_sigma_m ~ {np.round(two['slow'], 2).tolist()}, fix_error_fast_tau_s = 0; "
+          f"{two['tau_fast']:.1f}, fix_error_fast_sigma_m ~ {np.round(two['slow'], 2).tolist()}, "
+          "fix_error_fast_tau_s = 0; "
           f"fix_uere_2d_m ~ {np.sqrt(max(f['2D'] ** 2 - fast_h ** 2 - slow_h ** 2, 0.0)):.2f}")
     pseudorange_errors(sc, seeds)
     if "--sources" not in sys.argv:

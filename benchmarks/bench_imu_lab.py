@@ -94,7 +94,8 @@ def main() -> None:
     comp = []
     for seed, p in enumerate(presets):
         s = sim.simulate(drive, seed=seed)
-        comp.append((horizontal_rms(s, nav_config.load_config("default")), horizontal_rms(s, nav_config.load_config(None, p))))
+        comp.append((horizontal_rms(s, nav_config.load_config("default")),
+                     horizontal_rms(s, nav_config.load_config(None, p))))
         print(f"  seed {seed}: default {comp[-1][0]:.3f} m, generated {comp[-1][1]:.3f} m", flush=True)
     comp = np.array(comp)
     print(f"\ndefault drive, horizontal position RMS (m) over {len(comp)} seeds:")

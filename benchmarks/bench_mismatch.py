@@ -80,7 +80,8 @@ def main(seeds: int = 20, mode: str = "loose", preset: bool = False, sis: bool =
               f"{'  DIVERGED' if sol.counters['diverged'] else ''}")
     lo, hi = evaluate.nees_band(9, seeds)
     avg = float(np.mean(nees))
-    print(f"{mode} ({'preset' if preset else 'ReceiverErrors'} GNSS errors): average NEES over {seeds} seeds {avg:.2f}, "
+    print(f"{mode} ({'preset' if preset else 'ReceiverErrors'} GNSS errors): "
+          f"average NEES over {seeds} seeds {avg:.2f}, "
           f"95 % band {lo:.2f}..{hi:.2f}: "
           f"{'inside' if lo <= avg <= hi else 'OUTSIDE'} ({time.time() - start:.0f} s)")
 

@@ -121,9 +121,10 @@ def main() -> int:
         n, hk = g["nees9"], g["nees9_heading_known"]
         print(f"{g['mode']}: {g['succeeded']} runs; 9-state NEES averaged over runs, {100 * (1 - n['alpha']):.0f} % "
               f"band {n['band_all_runs'][0]:.2f}..{n['band_all_runs'][1]:.2f}: {100 * n['fraction_inside']:.1f} % of "
-              f"{n['epochs']} epochs inside ({100 * n['fraction_below']:.1f} % below, {100 * n['fraction_above']:.1f} % "
-              f"above), time average {n['time_averaged']:.2f}; from the known heading on {100 * hk['fraction_inside']:.1f} "
-              f"% inside, time average {hk['time_averaged']:.2f}; horizontal RMS "
+              f"{n['epochs']} epochs inside ({100 * n['fraction_below']:.1f} % below, "
+              f"{100 * n['fraction_above']:.1f} % above), time average {n['time_averaged']:.2f}; "
+              f"from the known heading on {100 * hk['fraction_inside']:.1f} % inside, "
+              f"time average {hk['time_averaged']:.2f}; horizontal RMS "
               f"{g['errors']['horizontal_rms_m']['mean']:.2f} m")
         for kind, s in g["nis"].items():
             print(f"    NIS {kind}: mean per dof {s['mean_per_dof']:.2f} (band {s['band_mean_per_dof'][0]:.2f}.."

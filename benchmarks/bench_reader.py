@@ -86,7 +86,8 @@ def run_case(case: str, path: Path, block_mb: float) -> dict:
         n = len(logs.imu_log(logs.read_record_file(path, "bp3010", block_bytes=block, imu_rate_hz=64)))
     elif case == "whole":
         limits = stamps.StampLimits()
-        s = stamps.reject_bad_stamps(log_scan.scan(np.fromfile(path, np.uint8), layouts.BP_RECORDS, str(path), limits), limits)
+        scanned = log_scan.scan(np.fromfile(path, np.uint8), layouts.BP_RECORDS, str(path), limits)
+        s = stamps.reject_bad_stamps(scanned, limits)
         n = len(logs.imu_log(s))
     else:
         raise SystemExit(f"unknown case {case!r} (one of {', '.join(CASES)})")

@@ -88,7 +88,8 @@ def main() -> None:
         row["sim_s"] = round(sim_s, 2)
         rows.append(row)
         print(f"{row['scenario']:10s} {row['log_mb']:8.1f} MB log  replay --mode {row['mode']}: "
-              f"{row['replay_wall_s_best']:.3f} s best of {row['replay_wall_s']}, peak {row['replay_peak_rss_mb']:.0f} MB,"
+              f"{row['replay_wall_s_best']:.3f} s best of {row['replay_wall_s']}, "
+              f"peak {row['replay_peak_rss_mb']:.0f} MB,"
               f" {row['wall_s_per_logged_hour']} s per logged hour (sim {row['sim_s']} s)", flush=True)
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=2) + "\n")

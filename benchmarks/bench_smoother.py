@@ -6,14 +6,15 @@
     python benchmarks/bench_smoother.py nees [SEEDS] imu|fixes # only the IMU's, or only the fixes' model
     python benchmarks/bench_smoother.py segments [SEEDS] [matched|imu|fixes]  # per segment, forward vs smoothed
 
-Speed: the default drive (18 k IMU epochs, output and covariance at every epoch),
-loose (18 states with the preset's fix-error states) and tight (29 states with the signal-in-space slots, the preset's 10 Hz pseudoranges): the forward pass without
-the smoother, the forward pass recording for it, and the backward pass, in IMU epochs/s
-(thread CPU times measured in C++: the machine may be
-shared, and wall time then counts the waits for a core); the tape's bytes per epoch; a run spilled to a
-temporary file in 1 MiB chunks; the walk data set replayed with --smooth (18 states,
-chunked forward run, smoothed blocks streamed to the results files; the time the results
-writer takes is left out of the backward figure).
+Speed: the default drive (18 k IMU epochs, output and covariance at every epoch), loose
+(18 states with the preset's fix-error states) and tight (29 states with the
+signal-in-space slots, the preset's 10 Hz pseudoranges): the forward pass without the
+smoother, the forward pass recording for it, and the backward pass, in IMU epochs/s
+(thread CPU times measured in C++: the machine may be shared, and wall time then counts
+the waits for a core); the tape's bytes per epoch; a run spilled to a temporary file in
+1 MiB chunks; the walk data set replayed with --smooth (18 states, chunked forward run,
+smoothed blocks streamed to the results files; the time the results writer takes is left
+out of the backward figure).
 
 NEES: the 9 navigation states' NEES (from the first known heading on), forward and
 smoothed, averaged over SEEDS runs epoch by epoch, against the two-sided 95 % band
@@ -248,7 +249,8 @@ def segments(seeds: int, matched_imu: bool = False, matched_fixes: bool = False)
               f"vertical {rms[k, 1]:5.2f} / {rms[k, 3]:5.2f} ({worse_v[k]:2d})")
     print(f"segments whose seed-RMS is worse smoothed: horizontal {int((rms[:, 2] > rms[:, 0]).sum())}, vertical "
           f"{int((rms[:, 3] > rms[:, 1]).sum())} of {len(labels)}; single drives: horizontal "
-          f"{100 * worse_h.sum() / (seeds * len(labels)):.1f} %, vertical {100 * worse_v.sum() / (seeds * len(labels)):.1f} %")
+          f"{100 * worse_h.sum() / (seeds * len(labels)):.1f} %, "
+          f"vertical {100 * worse_v.sum() / (seeds * len(labels)):.1f} %")
 
 
 if __name__ == "__main__":

@@ -116,7 +116,8 @@ def test_set_reaches_nested_keys_and_radians_replace_degrees():
     from gpsins.nav import config as nav_config
 
     cfg = nav_config.load_config(None, nav_config.parse_overrides(["imu_noise.gyro_arw_rad_per_sqrt_s=2e-3",
-                                                                   "heading_sigma_rad=0.1", "lever_arm_body_m=[0.1, 0, -0.5]"]))
+                                                                   "heading_sigma_rad=0.1",
+                                                                   "lever_arm_body_m=[0.1, 0, -0.5]"]))
     assert cfg["imu_noise"]["gyro_arw_rad_per_sqrt_s"] == 2e-3
     assert cfg["imu_noise"]["bias_tau_s"] == 100.0  # the rest of the table stays
     assert "heading_sigma_deg" not in cfg  # the preset's degrees would otherwise win
@@ -177,7 +178,8 @@ def test_spp_compares_with_the_truth_next_to_the_session(capsys, session):
 
 
 def test_report_on_a_missing_results_directory(capsys, tmp_path):
-    _one_line(capsys, ["report", tmp_path / "nope"], "nope: no solution.parquet, results.npz and run.json; give a directory written by")
+    _one_line(capsys, ["report", tmp_path / "nope"],
+              "nope: no solution.parquet, results.npz and run.json; give a directory written by")
 
 
 def test_calibrate_missing_table(capsys, tmp_path):

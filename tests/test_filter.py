@@ -302,7 +302,8 @@ def test_gyro_noise_model_covers_the_simulated_bias_instability():
         e = sim_imu.draw_errors(m, n, rng)
         r = allan.oadev(e.gyro_bias_drift + rng.normal(size=(n, 3)) * arw * math.sqrt(rate), rate, taus="octave")
         avar = avar + r.adev ** 2 / 4
-    noise = {"gyro_arw_rad_per_sqrt_s": list(arw), "gyro_bias_instability_rad_per_s": list(m.gyro_bias_instability_rad_per_s),
+    noise = {"gyro_arw_rad_per_sqrt_s": list(arw),
+             "gyro_bias_instability_rad_per_s": list(m.gyro_bias_instability_rad_per_s),
              "gyro_rrw_rad_per_s_sqrt_s": list(m.gyro_rrw_rad_per_s_sqrt_s)}
     c = nav_config.core_config(nav_config.load_config(None, {"imu_noise": noise}))
     tau = r.tau[:, None]

@@ -101,7 +101,8 @@ def test_correlated_pseudorange_variance_makes_the_confidence_independent_of_the
 
     ratio = {}
     # White: the elevation model's variance. Correlated: a small white part (0.3 m) and 1 m correlated.
-    for name, over in (("white", {"pseudorange_error_gm_sigma_m": 0.0}), ("correlated", {"pseudorange_sigma_m": 0.3, "pseudorange_error_gm_sigma_m": 1.0})):
+    for name, over in (("white", {"pseudorange_error_gm_sigma_m": 0.0}),
+                       ("correlated", {"pseudorange_sigma_m": 0.3, "pseudorange_error_gm_sigma_m": 1.0})):
         ratio[name] = horizontal_sigma(pseudorange_decimation=10, **over) / horizontal_sigma(pseudorange_decimation=1,
                                                                                               **over)
     print(f"position sigma 1 Hz / 10 Hz: white {ratio['white']:.2f}, correlated {ratio['correlated']:.2f}")
@@ -157,7 +158,8 @@ def test_fast_fix_error_weighs_like_its_inflated_variance(stop_and_go, tau_s):
             "fix_error_gm_dop_scaled": True}
     fast = flt.run(imu, fixes, nav_config.load_config(None, {**base, "fix_uere_m": 1.0, "fix_error_fast_sigma_m": 0.7,
                                                               "fix_error_fast_tau_s": tau_s}))
-    grown = flt.run(imu, fixes, nav_config.load_config(None, {**base, "fix_uere_m": np.sqrt(1.0 + 0.49 * (1 + a) / (1 - a))}))
+    grown_uere = np.sqrt(1.0 + 0.49 * (1 + a) / (1 - a))
+    grown = flt.run(imu, fixes, nav_config.load_config(None, {**base, "fix_uere_m": grown_uere}))
     plain = flt.run(imu, fixes, nav_config.load_config(None, {**base, "fix_uere_m": 1.0}))
     late = fast.t > fast.t[0] + 30.0  # past the first fix, the only one without a predecessor
     np.testing.assert_allclose(fast.r_ecef[late], grown.r_ecef[late], rtol=0, atol=1e-3)
@@ -195,8 +197,8 @@ def test_correlated_signal_in_space_variance_makes_the_confidence_independent_of
                    pseudorange_sis_sigma_m=1.0, **over)["tight"]
         return float(np.median(np.hypot(sol.sigma[sol.heading_known, 6], sol.sigma[sol.heading_known, 7])))
 
-    ratio = {name: horizontal_sigma(pseudorange_decimation=10, pseudorange_sis_tau_s=tau, pseudorange_sis_states=states) /
-             horizontal_sigma(pseudorange_decimation=1, pseudorange_sis_tau_s=tau, pseudorange_sis_states=states)
+    ratio = {name: horizontal_sigma(pseudorange_decimation=10, pseudorange_sis_tau_s=tau, pseudorange_sis_states=states)
+             / horizontal_sigma(pseudorange_decimation=1, pseudorange_sis_tau_s=tau, pseudorange_sis_states=states)
              for name, tau, states in (("white", 0.0, False), ("correlated", 20.0, False), ("states", 0.0, True))}
     print(f"position sigma 1 Hz / 10 Hz: white {ratio['white']:.2f}, correlated {ratio['correlated']:.2f}, "
           f"states {ratio['states']:.2f}")
@@ -239,5 +241,6 @@ def test_signal_in_space_sigma_from_the_broadcast_ura(stop_and_go, index, ura_m)
         return flt.run(imu, sim.fix_table(s), nav_config.load_config(None, {**base, **over}), **inputs).r_ecef
 
     ura = run(pseudorange_sis_use_ura=True, pseudorange_sis_sigma_m=0.1)
-    np.testing.assert_allclose(ura, run(pseudorange_sis_use_ura=False, pseudorange_sis_sigma_m=ura_m), rtol=0, atol=1e-6)
+    np.testing.assert_allclose(ura, run(pseudorange_sis_use_ura=False, pseudorange_sis_sigma_m=ura_m),
+                               rtol=0, atol=1e-6)
     assert np.abs(ura - run(pseudorange_sis_use_ura=False, pseudorange_sis_sigma_m=0.1)).max() > 0.05

@@ -261,7 +261,8 @@ def _walk_yaw_from_rtk():
     ok = (q[i0 - 1] == 1) & (q[i0] == 1) & (q[i1] == 1) & (q[i1 + 1] == 1) & (tow_pos[i0] > tow_imu[k0])
     ok &= np.abs(tow_pos[i1] - tow_pos[i0] - 1.0) < 1e-3
     dv_rtk = (v_ne[i1] - v_ne[i0])[ok]
-    dv_imu = np.column_stack([np.interp(tow_pos[i1], tow_imu, steps[:, j]) - np.interp(tow_pos[i0], tow_imu, steps[:, j])
+    dv_imu = np.column_stack([np.interp(tow_pos[i1], tow_imu, steps[:, j])
+                              - np.interp(tow_pos[i0], tow_imu, steps[:, j])
                               for j in range(2)])[ok]
     cross = dv_imu[:, 0] * dv_rtk[:, 1] - dv_imu[:, 1] * dv_rtk[:, 0]
     dot = np.sum(dv_imu * dv_rtk, axis=1)

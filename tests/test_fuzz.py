@@ -60,7 +60,8 @@ def test_a_single_bit_flip_is_caught_or_harmless(corpus):
     for bit in rng.choice(8 * len(data), 400, replace=False):
         d = data.copy()
         d[bit // 8] ^= np.uint8(1 << (bit % 8))
-        s = stamps_mod.reject_bad_stamps(log_scan.scan(d.tobytes(), layouts.LAYOUTS[corpus.device], limits=limits), limits)
+        scanned = log_scan.scan(d.tobytes(), layouts.LAYOUTS[corpus.device], limits=limits)
+        s = stamps_mod.reject_bad_stamps(scanned, limits)
         assert s.count >= len(corpus.recs) - 1
         for k in range(s.count):
             f = s.frame(k)

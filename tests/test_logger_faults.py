@@ -209,7 +209,8 @@ def test_replug_is_noticed_within_half_a_second(tmp_path):
         proc.wait_for_state("imu", "absent")
         unplug(em.gps, 2.5)
         for name in ("gps", "imu"):
-            proc.wait_for(lambda name=name: proc.count(name, "reconnects") == 1 and proc.port_state(name).get("state") == "open",
+            proc.wait_for(lambda name=name: (proc.count(name, "reconnects") == 1
+                                             and proc.port_state(name).get("state") == "open"),
                           f"the {name} port reopened after its unplug")
         assert not (em.gps.done.is_set() or em.imu.done.is_set()), "the streams ended before both ports were back"
 

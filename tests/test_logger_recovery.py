@@ -346,11 +346,12 @@ def test_sigkill_just_after_sighup_leaves_every_record_listed(tmp_path, when):
             with daemons() as ds:
                 d = Daemon(cfg, session, tmp_path / f"daemon{k}.log")
                 ds.append(d)
-                wait_for(lambda session=session: file_size(session / "imu-000.bin") >= 10 * IMU_RECORD, 30, "IMU records")
+                wait_for(lambda session=session: file_size(session / "imu-000.bin") >= 10 * IMU_RECORD, 30,
+                         "IMU records")
                 d.proc.send_signal(signal.SIGHUP)
                 if when == "as_the_new_part_appears":
-                    wait_until(lambda session=session: any((session / f"{n}-001.bin").exists() for n in ("gps", "imu")), 10,
-                               step=0.0002)
+                    wait_until(lambda session=session: any((session / f"{n}-001.bin").exists() for n in ("gps", "imu")),
+                               10, step=0.0002)
                 else:
                     time.sleep(rng.uniform(0.0, 0.03))
                 d.proc.kill()

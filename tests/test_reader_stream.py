@@ -123,7 +123,8 @@ def test_imu_decoded_while_reading_equals_the_frames_decoded_one_by_one(tmp_path
     limits = stamps_mod.StampLimits(STAMP_T0, STAMP_T0 + 60)
     framed = logs.read_record_file(path, "bp3010", limits)
     # The whole-buffer scan of the same bytes, then the stamp test: the same records and counts.
-    whole = stamps_mod.reject_bad_stamps(log_scan.scan(path.read_bytes(), layouts.BP_RECORDS, str(path), limits), limits)
+    scanned = log_scan.scan(path.read_bytes(), layouts.BP_RECORDS, str(path), limits)
+    whole = stamps_mod.reject_bad_stamps(scanned, limits)
     assert_same_scan(framed, whole)
     assert framed.stats["bad_stamps"] == 1 and framed.stats["truncated_tail_bytes"] == 17
     for block in (64, 1000):

@@ -365,11 +365,13 @@ def test_rtklib_pos_columns_as_printed():
     assert f.t_abs[0] // 604800 == WEEK
 
 
-POS_ECEF = """% program   : hand-written
-%  GPST                      x-ecef(m)      y-ecef(m)      z-ecef(m)   Q  ns   sdx(m)   sdy(m)   sdz(m)  sdxy(m)  sdyz(m)  sdzx(m) age(s)  ratio
-2381 408639.750   -1283585.1234  -4726890.9876   4079493.5000   5  9   3.0000   0.0000   0.0000   0.0000   0.0000   0.0000   0.00    0.0
-2381 408640.000   -1283585.2234  -4726891.0876   4079493.4000   2  9   0.0000   0.0000   0.0000   0.0000   0.0000   0.0000   0.00    0.0
-"""
+POS_ECEF = ("% program   : hand-written\n"
+            "%  GPST                      x-ecef(m)      y-ecef(m)      z-ecef(m)   Q  ns"
+            "   sdx(m)   sdy(m)   sdz(m)  sdxy(m)  sdyz(m)  sdzx(m) age(s)  ratio\n"
+            "2381 408639.750   -1283585.1234  -4726890.9876   4079493.5000   5  9"
+            "   3.0000   0.0000   0.0000   0.0000   0.0000   0.0000   0.00    0.0\n"
+            "2381 408640.000   -1283585.2234  -4726891.0876   4079493.4000   2  9"
+            "   0.0000   0.0000   0.0000   0.0000   0.0000   0.0000   0.00    0.0\n")
 
 
 def test_rtklib_pos_ecef_week_seconds_and_errors(tmp_path):
@@ -441,7 +443,8 @@ def write_rinex3_obs(path: Path, obs: rinex.ObsFile) -> None:
     for t, prns, values in obs.epochs:
         c = gpstime.GPS_EPOCH + dt.timedelta(seconds=t)
         sec = c.second + c.microsecond * 1e-6
-        lines.append(f"> {c.year:4d} {c.month:02d} {c.day:02d} {c.hour:02d} {c.minute:02d}{sec:11.7f}  0{len(prns) + 1:3d}")
+        lines.append(f"> {c.year:4d} {c.month:02d} {c.day:02d} {c.hour:02d} {c.minute:02d}{sec:11.7f}"
+                     f"  0{len(prns) + 1:3d}")
         for prn, v in zip(prns, values):
             v = list(v) + [-1000.5 + prn]
             lines.append(f"G{prn:02d}" + "".join("".ljust(16) if np.isnan(a) else f"{a:14.3f}  " for a in v).rstrip())
@@ -600,8 +603,8 @@ def test_rtklib_pos_utc_times_and_dms_angles(tmp_path):
     # 17:30:39.749 GPST is 17:30:21.749 UTC (18 leap seconds); 40.0966916 deg = 40 05 48.08976,
     # -105.1471665 deg = -105 08 49.79940.
     p = tmp_path / "u.pos"
-    p.write_text("%  UTC                   latitude(d'\")   longitude(d'\")  height(m)   Q  ns   sdn(m)   sde(m)   sdu(m)\n"
-                 "2025/08/28 17:30:21.749   40 05 48.08976 -105 08 49.79940  1580.0480   1  25   0.0099   0.0099   0.0100\n")
+    p.write_text("%  UTC                   latitude(d'\")   longitude(d'\")  height(m)   Q  ns   sdn(m)   sde(m)   sdu(m)\n"  # noqa: E501
+                 "2025/08/28 17:30:21.749   40 05 48.08976 -105 08 49.79940  1580.0480   1  25   0.0099   0.0099   0.0100\n")  # noqa: E501
     f = rtklib_pos.read(p)
     ref = rtklib_pos.read(POS_FILE, GEOID_M)
     assert f.t_abs[0] == pytest.approx(ref.t_abs[0], abs=1e-6)

@@ -229,8 +229,9 @@ def test_everything_at_once(tmp_path):
     rewrite(d, "imu", stamps=st)
     k = sample_index(d)  # the reader may drop the damaged record
     dec = measurements.decode_session(d)
-    al = alignment.align(dec.gps.tow, dec.gps.stamps, dec.gps.week, dec.imu.stamps, dec.imu.counter, 1.3 * s.imu_rate_hz,
-                         gps_latency_s=GPS_LAT + messages.MEASUREMENT_DELAY_S, imu_latency_s=IMU_LAT)
+    al = alignment.align(dec.gps.tow, dec.gps.stamps, dec.gps.week, dec.imu.stamps, dec.imu.counter,
+                         1.3 * s.imu_rate_hz, gps_latency_s=GPS_LAT + messages.MEASUREMENT_DELAY_S,
+                         imu_latency_s=IMU_LAT)
     check(al, al.imu_t - (s.scenario.start.gps_tow_s + s.imu_t[k]), "everything at once")
     assert len(al.steps_s) == 1 and abs(al.steps_s[0] + 4.0) < 5e-3
     dropped_by_reader = dec.skipped.get("imu: records with impossible stamps (their bytes are counted above)", 0)

@@ -51,8 +51,8 @@ def _whole_and_chunked(inp, chunk_rows, output_every=2, overlap=True):
 def test_chunked_run_equals_one_call(tight_inputs, chunk_rows, overlap):
     inp = tight_inputs
     if chunk_rows == 1:  # one sample per call over the first 1500 samples is enough to show the seams
-        inp = replay_inputs.Inputs(inp.source, inp.kind, inp.week, inp.imu[:1500], inp.fixes, inp.fix_sats, inp.gnss_span,
-                                   inp.pseudoranges, inp.ephemerides, inp.klobuchar)
+        inp = replay_inputs.Inputs(inp.source, inp.kind, inp.week, inp.imu[:1500], inp.fixes, inp.fix_sats,
+                                   inp.gnss_span, inp.pseudoranges, inp.ephemerides, inp.klobuchar)
     whole, run, chunks, blocks = _whole_and_chunked(inp, chunk_rows, overlap=overlap)
     cat = lambda parts, name: np.concatenate([getattr(p, name) for p in parts])  # noqa: E731
     for name in ("t", "r_ecef", "v_ecef", "q_eb", "sigma", "clock", "covariance", "heading_known"):

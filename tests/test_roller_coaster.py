@@ -240,8 +240,8 @@ def test_gnss_errors_measured_at_the_station_make_both_filters_consistent(statio
     lo, hi = chi2.ppf([0.025, 0.975], 9 * n_independent) / n_independent
     nees = {}
     for name, over in (("preset", {}), ("measured", fix_scatter.filter_overrides(est, mode))):
-        cfg = nav_config.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), "mode": mode, "doppler_sigma_mps": 0.0,
-                                            **over})
+        cfg = nav_config.load_config(None, {**sim.imu_noise_truth(s.scenario.imu), "mode": mode,
+                                            "doppler_sigma_mps": 0.0, **over})
         sol = flt.run(sim.imu_table(s), fixes, cfg, covariance=True, **extra)
         assert not sol.counters["diverged"], (mode, name)
         err = evaluate.nav_errors(sol, truth)
@@ -287,7 +287,8 @@ def test_ride_rocks_the_body_not_its_path():
     assert 2.0 < crossings < 4.5, crossings
     v_body = np.einsum("nji,nj->ni", tr.c_eb, tr.v_ecef)
     speed = np.linalg.norm(tr.v_ecef, axis=1)
-    np.testing.assert_allclose(v_body[fast, 2], speed[fast] * np.sin(d_pitch[fast]), atol=2e-3)  # nose up: "down" in the body
+    # nose up: "down" in the body
+    np.testing.assert_allclose(v_body[fast, 2], speed[fast] * np.sin(d_pitch[fast]), atol=2e-3)
     att, pos = reintegration_errors(tr)
     assert att < 1e-7 and pos < 2e-3, (att, pos)
 

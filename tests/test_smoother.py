@@ -285,7 +285,8 @@ def test_large_injected_corrections_are_smoothed_in_the_same_error_definition():
     heading), inside its own 3 sigma."""
     s = sim.simulate(scenario.load("default"), seed=2)
     tr = truth_of(s)
-    true_yaw = float(np.degrees(_core.euler_from_body_to_ecef(tr.q_eb[:1], _core.ecef_to_geodetic(tr.r_ecef[:1]))[0, 0]))
+    euler = _core.euler_from_body_to_ecef(tr.q_eb[:1], _core.ecef_to_geodetic(tr.r_ecef[:1]))
+    true_yaw = float(np.degrees(euler[0, 0]))
     fwd = run(s, initial_yaw_deg=true_yaw + 20.0, attitude_sigma_deg=[1.0, 1.0, 25.0])
     sm = fwd.extra["smoothed"]
     m = fwd.t < fwd.t[0] + 20.0

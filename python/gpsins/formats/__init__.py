@@ -13,8 +13,8 @@ containers of ``common``, and the formats the simulator shares with the workstat
 - ``truth``: a simulated session's ``truth.npz``; ``reference``: the reference system's ``reference.csv``
 - ``messages``: the timed device messages an emulator serves; ``nmea``: NMEA 0183 sentences of a solution
 
-Files whose names end in .gz are read through gzip. Damaged input raises ``ReaderError`` naming the file, the offset or line and the field;
-binary streams skip damaged frames and count them instead.
+Files whose names end in .gz are read through gzip. Damaged input raises ``ReaderError`` naming the file,
+the offset or line and the field; binary streams skip damaged frames and count them instead.
 """
 
 from .common import Fixes, Navigation, Pseudoranges, ReaderError  # noqa: F401

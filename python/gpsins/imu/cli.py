@@ -251,7 +251,8 @@ def _filter_files(out: Path, fits, rate) -> None:
     g_n, a_n = _vec(fits, "gyro", "N"), _vec(fits, "accel", "N")
     g_b, a_b = _vec(fits, "gyro", "B"), _vec(fits, "accel", "B")
     g_k, a_k = _vec(fits, "gyro", "K"), _vec(fits, "accel", "K")
-    (out / "imu_noise.toml").write_text(f"""# From `gpsins allan`: Allan coefficients, continuous-time (the filter squares N into V = N^2).
+    (out / "imu_noise.toml").write_text(f"""\
+# From `gpsins allan`: Allan coefficients, continuous-time (the filter squares N into V = N^2).
 # N white noise (gyro rad/sqrt(s) = rad/s/sqrt(Hz); accel m/s/sqrt(s)), B bias instability (rad/s, m/s^2),
 # K rate random walk (rad/s/sqrt(s), m/s^2/sqrt(s)). Use as the [imu_noise] table of a filter configuration.
 [imu_noise]
@@ -264,7 +265,8 @@ accel_rrw_mps2_per_sqrt_s = {a_k}
 bias_tau_s = 100.0
 """, encoding="utf-8")
     rms = lambda v: math.sqrt(sum(x * x for x in v) / 3)  # noqa: E731
-    (out / "imu.yaml").write_text(f"""# Kalibr IMU noise model (continuous time; one value for all axes: the RMS over x, y, z)
+    (out / "imu.yaml").write_text(f"""\
+# Kalibr IMU noise model (continuous time; one value for all axes: the RMS over x, y, z)
 accelerometer_noise_density: {rms(a_n):.6e}   # m/s^2/sqrt(Hz)
 accelerometer_random_walk: {rms(a_k):.6e}     # m/s^3/sqrt(Hz)
 gyroscope_noise_density: {rms(g_n):.6e}       # rad/s/sqrt(Hz)

@@ -70,8 +70,8 @@ def run_plan(plan: Plan) -> dict:
                          for v in noise.values())
             if span < 3600.0:
                 warnings.append(f"drift run: {span / 60:.0f} min static; taus with at least {res['min_edf']:g} degrees "
-                                f"of freedom reach only {usable:.0f} s, so bias instability and rate random walk rest on "
-                                f"few points (the report used 50 min; hours are better)")
+                                f"of freedom reach only {usable:.0f} s, so bias instability and rate random walk "
+                                f"rest on few points (the report used 50 min; hours are better)")
             for name, v in noise.items():
                 if "warning" in v["fit"].slope_readouts:
                     warnings.append(f"{name}: {v['fit'].slope_readouts['warning']}")

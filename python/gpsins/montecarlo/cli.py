@@ -55,7 +55,8 @@ def plan_from_args(args, sweep_key: str | None, sweep_texts: list[str]):
             raise UsageError(f"--values {','.join(sweep_texts)}: a value is given twice")
         for v in sweep_texts:
             try:
-                nav_config.load_config(args.config, nav_config.merge(overrides, nav_config.parse_overrides([f"{sweep_key}={v}"])))
+                swept = nav_config.parse_overrides([f"{sweep_key}={v}"])
+                nav_config.load_config(args.config, nav_config.merge(overrides, swept))
             except nav_config.ConfigError as e:
                 raise UsageError(f"swept value {sweep_key}={v}: {str(e).replace('--set ', '')}") from None
     if args.outages:

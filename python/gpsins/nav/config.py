@@ -52,7 +52,8 @@ FLAT_PER_B = 0.664  # ADEV floor of bias instability B
 
 _DEGREE_KEYS = {"attitude_sigma_deg": "attitude_sigma_rad", "initial_yaw_deg": "initial_yaw_rad",
                 "heading_sigma_deg": "heading_sigma_rad",
-                "heading_max_course_sigma_deg": "heading_max_course_sigma_rad", "gyro_range_deg_per_s": "gyro_range_rad_per_s",
+                "heading_max_course_sigma_deg": "heading_max_course_sigma_rad",
+                "gyro_range_deg_per_s": "gyro_range_rad_per_s",
                 "max_attitude_correction_deg": "max_attitude_correction_rad",
                 "pseudorange_elevation_mask_deg": "pseudorange_elevation_mask_rad",
                 "body_to_vehicle_ypr_deg": "body_to_vehicle_ypr_rad"}
@@ -168,7 +169,8 @@ def parse_overrides(pairs: list[str]) -> dict:
 # spreads, noise densities, times and rates, which may not.
 _SIGNED = ("_cal", "lever_arm", "initial_yaw", "gps_time_offset_s", "pseudorange_sigma_m", "body_to_vehicle_ypr",
            "vehicle_point_body_m")
-_POSITIVE = {"imu_rate_hz", "heading_search_s", "fix_error_gm_tau_s", "pseudorange_error_gm_tau_s", "nhc_interval_s", "fix_uere_m", "bias_tau_s",
+_POSITIVE = {"imu_rate_hz", "heading_search_s", "fix_error_gm_tau_s", "pseudorange_error_gm_tau_s", "nhc_interval_s",
+             "fix_uere_m", "bias_tau_s",
              "zero_velocity_sigma_mps", "zero_rate_sigma_rad_per_s",
              "standstill_window_s", "pseudorange_decimation", "gm_tau_s", "standstill_block_s",
              "gyro_range_rad_per_s", "gyro_range_deg_per_s", "accel_range_mps2"}
@@ -394,7 +396,8 @@ def core_config(cfg: dict) -> _core.InsConfig:
                     try:
                         b.model = getattr(_core.BiasModel, bv)
                     except AttributeError:
-                        raise ConfigError(f"[{key}] model: unknown '{bv}' (random_walk, gauss_markov, constant)") from None
+                        raise ConfigError(f"[{key}] model: unknown '{bv}' "
+                                          "(random_walk, gauss_markov, constant)") from None
                 else:
                     setattr(b, bk, as_vec3(bv, f"[{key}] {bk}"))
             setattr(c, key, b)

@@ -1,6 +1,7 @@
 """Runs of the C++ core from Python: a batch run, a chunked run (``ChunkedRun``: the filter fed a chunk
-of IMU samples at a time, and its smoother), a streaming filter, the solution type, and the
-heading search of a hand-held device. The configuration language is ``nav.config``; the inputs by columns are ``nav.inputs``.
+of IMU samples at a time, and its smoother), a streaming filter, the solution type, and the heading
+search of a hand-held device. The configuration language is ``nav.config``; the inputs by columns are
+``nav.inputs``.
 """
 
 from __future__ import annotations

@@ -88,8 +88,8 @@ def is_dataset(source: str | Path) -> bool:
 
 def _decode_stretches(session: Path, config, overrides: dict) -> list:
     if measurements_ubx.is_ublox(session):  # a u-blox receiver: NAV-PVT fixes carry its own accuracy
-        return [measurements_ubx.decode_session(session, nav_config.value(nav_config.load_config(config, overrides or {}),
-                                                                          "fix_uere_m"))]
+        uere = nav_config.value(nav_config.load_config(config, overrides or {}), "fix_uere_m")
+        return [measurements_ubx.decode_session(session, uere)]
     return measurements.decode_stretches(session)
 
 
@@ -121,7 +121,8 @@ def _session_inputs(session: Path, mode: str, config, timing_method: str, gps_la
             ephs += rinex.read_nav(nav).ephemerides
         # By columns in exact smaller types (a day's float table is 200 MB); a Superstar session's are already.
         prs = dec.gps.pseudoranges
-        inp.pseudoranges = prs if isinstance(prs, nav_inputs.PseudorangeColumns) else nav_inputs.PseudorangeColumns.compact(prs)
+        inp.pseudoranges = (prs if isinstance(prs, nav_inputs.PseudorangeColumns)
+                            else nav_inputs.PseudorangeColumns.compact(prs))
         dec.gps.pseudoranges = None
         inp.ephemerides, inp.klobuchar = ephs, klob
     inp.truth = load_session_truth(session, dec.gps.week * gpstime.SECONDS_PER_WEEK) if truth else None

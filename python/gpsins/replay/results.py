@@ -60,8 +60,8 @@ _WRITE_OPTIONS = dict(compression="zstd", compression_level=1, use_dictionary=Fa
 
 # Component names of multi-column arrays; anything else is numbered (sigma_0, sigma_1, ...).
 _XYZ, _NED, _YPR = ("x", "y", "z"), ("n", "e", "d"), ("yaw", "pitch", "roll")
-COMPONENTS = {"r_ecef": _XYZ, "v_ecef": _XYZ, "gyro_bias": _XYZ, "accel_bias": _XYZ, "r_point_ecef": _XYZ, "fix_error": _XYZ,
-              "q_eb": ("w", "x", "y", "z"), "llh": ("lat_rad", "lon_rad", "h_m"), "ypr_deg": _YPR,
+COMPONENTS = {"r_ecef": _XYZ, "v_ecef": _XYZ, "gyro_bias": _XYZ, "accel_bias": _XYZ, "r_point_ecef": _XYZ,
+              "fix_error": _XYZ, "q_eb": ("w", "x", "y", "z"), "llh": ("lat_rad", "lon_rad", "h_m"), "ypr_deg": _YPR,
               "sigma_ned_m": _NED, "sigma_v_ned_mps": _NED, "sigma_ypr_deg": ("n", "e", "d"),
               "err_ned_m": _NED, "err_v_ned_mps": _NED, "err_ypr_deg": _YPR, "clock": ("bias_m", "drift_mps"),
               "innovation": ("0", "1", "2"), "innovation_sigma": ("0", "1", "2")}

@@ -26,13 +26,14 @@ outages removed, the noise and mounting taken from the data), ``forward.start`` 
 What a data set gives the filter (each only where neither the data set's ``[filter]``
 table nor ``--set`` names the key itself): ``lever_arm_body_m`` from ``[gnss] antenna_m``;
 ``imu_rate_hz`` from the median IMU interval (the core's gap bridging and standstill
-window use it); ``imu_increments_cover_gaps`` for IMU rates (their increments cover every step); ``use_fix_velocity`` when the fixes carry velocities and
-``fix_velocity_sigma_mps`` from their stated sigmas (``dataset.fixes.velocity_sigma``, for fixes that
-state none); ``fix_velocity_lag_s`` from ``[gnss] velocity_lag_s`` (``"measured"``: ``dataset.fixes.velocity_lag``,
-which run.json reports for any data set whose fixes allow it); ``pseudorange_decimation`` so that the tight
-filter uses about one epoch per second whatever the receiver's rate. Fix position and velocity
-sigmas travel per fix in the fix table's sigma columns (``dataset.fixes.fix_table``). The mounting rotation and
-the IMU time offset are applied by ``dataset.load.load``.
+window use it); ``imu_increments_cover_gaps`` for IMU rates (their increments cover every step);
+``use_fix_velocity`` when the fixes carry velocities and ``fix_velocity_sigma_mps`` from their
+stated sigmas (``dataset.fixes.velocity_sigma``, for fixes that state none); ``fix_velocity_lag_s``
+from ``[gnss] velocity_lag_s`` (``"measured"``: ``dataset.fixes.velocity_lag``, which run.json
+reports for any data set whose fixes allow it); ``pseudorange_decimation`` so that the tight filter
+uses about one epoch per second whatever the receiver's rate. Fix position and velocity sigmas
+travel per fix in the fix table's sigma columns (``dataset.fixes.fix_table``). The mounting rotation
+and the IMU time offset are applied by ``dataset.load.load``.
 
 Modes: ``loose`` (fixes), ``tight`` (pseudoranges; fixes only start the filter and give
 the heading) and ``ins``: free inertial navigation after the initialisation. ``ins`` is

@@ -24,7 +24,8 @@ RESULT_ARRAYS = {
              "(before the time offset's with estimate_time_offset)",
     "time_offset_s": "with estimate_time_offset: the IMU time offset state dt_imu (s), to add to the data set's "
                      "[imu] time_offset_s; its sigma is the last of `sigma`",
-    "fix_error": "loose mode with fix_error_gm_sigma_m: the fixes' correlated error state (ECEF; m, or m per unit of DOP with fix_error_gm_dop_scaled); sigmas last of `sigma` (before the time offset's)",
+    "fix_error": "loose mode with fix_error_gm_sigma_m: the fixes' correlated error state (ECEF; m, or m per unit "
+                 "of DOP with fix_error_gm_dop_scaled); sigmas last of `sigma` (before the time offset's)",
     "r_point_ecef": "position of the scored point (antenna unless --point imu; a session's truth: IMU), m",
     "lever_arm_body_m": "antenna relative to the IMU, body axes (the configuration's lever arm)",
     "outages": "outage schedule [start, end), same time base as t",

@@ -168,7 +168,8 @@ def summary_html(results: list[Result], figs: list[str], fig_dir: Path) -> str:
     parts += [f'<p style="color:#b00"><b>WARNING: {esc(w)}</b></p>' for w in _warning_lines(results)]
     for r in results:
         parts.append(f"<h2>{esc(r.name)}</h2><ul>"
-                     + "".join(f"<li>{esc(x)}</li>" for x in _run_lines(r) + noise_from_data.summary_lines(r.run)) + "</ul>")
+                     + "".join(f"<li>{esc(x)}</li>" for x in _run_lines(r) + noise_from_data.summary_lines(r.run))
+                     + "</ul>")
     rec = _receiver_line(results[0])
     if rec:
         parts.append(f"<ul><li>{esc(rec)}</li></ul>")

@@ -50,8 +50,9 @@ def _gps_by_id(scans: list[layouts.Scan]) -> dict:
 def _imu_details(session: logs.SessionLog) -> dict:
     imu = session.imu()
     gaps = (np.diff(imu.counter.astype(np.int64)) - 1) % 256
+    overrange = bp3010.STATUS_GYRO_OVERRANGE | bp3010.STATUS_ACCEL_OVERRANGE
     return {"rate_hz": imu.rate_hz, "invalid": int(np.count_nonzero((imu.status & bp3010.STATUS_VALID) == 0)),
-            "overrange": int(np.count_nonzero(imu.status & (bp3010.STATUS_GYRO_OVERRANGE | bp3010.STATUS_ACCEL_OVERRANGE))),
+            "overrange": int(np.count_nonzero(imu.status & overrange)),
             "missing_by_counter": int(gaps.sum())}
 
 
@@ -89,7 +90,8 @@ def session_summary(directory: str | Path) -> dict:
                  "damage": [{"file": Path(s.path).name, "first_discarded_offset": s.stats.get("first_discarded_offset"),
                              "truncated_tail_offset": s.stats.get("truncated_tail_offset"),
                              "first_bad_stamp_offset": s.stats.get("first_bad_stamp_offset")}
-                            for s in files.scans if s.stats.get("discarded_bytes") or s.stats.get("truncated_tail_bytes")]}
+                            for s in files.scans
+                            if s.stats.get("discarded_bytes") or s.stats.get("truncated_tail_bytes")]}
         if files.device == "superstar2":
             entry["messages"] = _gps_by_id(files.scans)
         elif files.device == "bp3010" and files.count:

@@ -79,8 +79,8 @@ class Decoded:
 
 
 def bad_imu(status: np.ndarray) -> np.ndarray:
-    return ((status & bp3010.STATUS_VALID) == 0) | ((status & (bp3010.STATUS_GYRO_OVERRANGE | bp3010.STATUS_ACCEL_OVERRANGE
-                                                                        | bp3010.STATUS_BIT_FAILURE)) != 0)
+    bad = bp3010.STATUS_GYRO_OVERRANGE | bp3010.STATUS_ACCEL_OVERRANGE | bp3010.STATUS_BIT_FAILURE
+    return ((status & bp3010.STATUS_VALID) == 0) | ((status & bad) != 0)
 
 
 class _Observations:

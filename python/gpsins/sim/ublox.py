@@ -133,7 +133,8 @@ def nav_pvt(f, week: int, leap: int, speed_sigma: float) -> bytes:
         fix_type, flags, h_acc, v_acc, pdop = 0, 0, 1e5, 1e5, 99.99
     gspeed = math.hypot(vn, ve)
     head = math.degrees(math.atan2(ve, vn)) % 360.0
-    body = struct.pack("<IHBBBBBBIiBBBBiiiiIIiiiiiIIHH4xiHH", int(round(f.tow_s * 1000)) % MILLISECONDS_PER_WEEK, y, mo, d, hh,
+    itow = int(round(f.tow_s * 1000)) % MILLISECONDS_PER_WEEK
+    body = struct.pack("<IHBBBBBBIiBBBBiiiiIIiiiiiIIHH4xiHH", itow, y, mo, d, hh,
                        mm, ss, 0x07, 20, nano, fix_type, flags, 0xE0, f.sats, round(math.degrees(lon) * 1e7),
                        round(math.degrees(lat) * 1e7), round(h * 1e3), round(h * 1e3), round(min(h_acc, 4e6) * 1e3),
                        round(min(v_acc, 4e6) * 1e3), round(vn * 1e3), round(ve * 1e3), round(vd * 1e3),
@@ -145,7 +146,8 @@ def nav_pvt(f, week: int, leap: int, speed_sigma: float) -> bytes:
 def nav_timegps(tow: float, week: int, leap: int) -> bytes:
     itow = int(round(tow * 1000))
     ftow = int(round((tow * 1000 - itow) * 1e6))
-    return ubx.encode_frame(ubx.NAV_TIMEGPS, struct.pack("<IihbBI", itow % MILLISECONDS_PER_WEEK, ftow, week, leap, 0x07, 20))
+    body = struct.pack("<IihbBI", itow % MILLISECONDS_PER_WEEK, ftow, week, leap, 0x07, 20)
+    return ubx.encode_frame(ubx.NAV_TIMEGPS, body)
 
 
 def esf_raw(rates: np.ndarray, accel: np.ndarray, tags: np.ndarray) -> bytes:
