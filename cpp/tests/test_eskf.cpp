@@ -6,7 +6,7 @@
 
 #include "gpsins/aiding/position_fix.hpp"
 #include "gpsins/chi2.hpp"
-#include "gpsins/eskf.hpp"
+#include "gpsins/eskf_update.hpp"
 
 using namespace gpsins;
 

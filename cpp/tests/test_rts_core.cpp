@@ -6,6 +6,7 @@
 #include "gpsins/aiding/position_fix.hpp"
 #include "gpsins/aiding/zero_velocity.hpp"
 #include "gpsins/earth.hpp"
+#include "gpsins/eskf_update.hpp"
 #include "gpsins/rts.hpp"
 
 // The smoother on the real core (test_rts.cpp: on the tape and linear problems); a file

@@ -16,13 +16,11 @@
 
 namespace gpsins {
 
-// The twelve filters the core builds (ins_filter.hpp's explicit instantiations). Tight:
-// signal-in-space slots and clock states (NC = kTightAugmented). Loose: fix-error states
-// (NC = 3) when configured. NT = 1: the IMU time offset state.
-using AnyFilter = std::variant<InsFilter<5, 0>, InsFilter<7, 0>, InsFilter<5, kTightAugmented>,
-                               InsFilter<7, kTightAugmented>, InsFilter<5, 3>, InsFilter<7, 3>, InsFilter<5, 0, 1>,
-                               InsFilter<7, 0, 1>, InsFilter<5, kTightAugmented, 1>, InsFilter<7, kTightAugmented, 1>,
-                               InsFilter<5, 3, 1>, InsFilter<7, 3, 1>>;
+// Any of the filters the core builds (filter_variants.hpp): make_filter picks the one a
+// configuration needs.
+#define GPSINS_FILTER_TYPE(NB, NC, NT) InsFilter<NB, NC, NT>
+using AnyFilter = std::variant<GPSINS_FILTER_LIST(GPSINS_FILTER_TYPE, GPSINS_COMMA_SEPARATOR)>;
+#undef GPSINS_FILTER_TYPE
 AnyFilter make_filter(const InsConfig& cfg, bool tight);
 
 // The tables' columns.
@@ -108,18 +106,7 @@ BatchResult run_batch(InsFilter<NB, NC, NT>& f, const BatchInputs& in, const Bat
 #define GPSINS_RUN_BATCH_EXTERN(NB, NC, NT)                                                                           \
   extern template BatchResult run_batch(InsFilter<NB, NC, NT>&, const BatchInputs&, const BatchOptions&, BatchCarry&, \
                                         const RowOffsets&);
-GPSINS_RUN_BATCH_EXTERN(5, 0, 0)
-GPSINS_RUN_BATCH_EXTERN(7, 0, 0)
-GPSINS_RUN_BATCH_EXTERN(5, kTightAugmented, 0)
-GPSINS_RUN_BATCH_EXTERN(7, kTightAugmented, 0)
-GPSINS_RUN_BATCH_EXTERN(5, 3, 0)
-GPSINS_RUN_BATCH_EXTERN(7, 3, 0)
-GPSINS_RUN_BATCH_EXTERN(5, 0, 1)
-GPSINS_RUN_BATCH_EXTERN(7, 0, 1)
-GPSINS_RUN_BATCH_EXTERN(5, kTightAugmented, 1)
-GPSINS_RUN_BATCH_EXTERN(7, kTightAugmented, 1)
-GPSINS_RUN_BATCH_EXTERN(5, 3, 1)
-GPSINS_RUN_BATCH_EXTERN(7, 3, 1)
+GPSINS_FOR_EACH_FILTER(GPSINS_RUN_BATCH_EXTERN)
 #undef GPSINS_RUN_BATCH_EXTERN
 
 }  // namespace gpsins

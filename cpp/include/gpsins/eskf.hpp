@@ -35,6 +35,7 @@
 #include "gpsins/attitude.hpp"
 #include "gpsins/earth.hpp"
 #include "gpsins/eskf_observer.hpp"
+#include "gpsins/filter_variants.hpp"
 #include "gpsins/strapdown.hpp"
 
 namespace gpsins {
@@ -462,74 +463,19 @@ class Eskf {
   VecN sigma() const { return P.diagonal().cwiseMax(0.0).cwiseSqrt(); }
 };
 
-// The update, out of the class so that the declarations below keep it out of the files
-// that call it: the filters' updates with M = 1, 2, 3 rows are compiled once each, in
+// Eskf::update is defined in eskf_update.hpp, which only the files that compile it include:
+// the filter variants' updates with M = 1, 2, 3 rows are compiled once each, in
 // cpp/src/eskf_updates/ (an N x 3 gain's products, unrolled by Eigen for each of the
-// twelve state layouts, cost 2.3 GB and 3 CPU-minutes in one file).
-template <int NB, int NC, int NT>
-template <int M>
-UpdateResult<M> Eskf<NB, NC, NT>::update(const Eigen::Matrix<double, M, 1>& y, const Eigen::Matrix<double, M, N>& H,
-                                         const Eigen::Matrix<double, M, M>& R, double gate, double attitude_limit) {
-  UpdateResult<M> res;
-  res.innovation = y;
-  const Eigen::Matrix<double, N, M> pht = P * H.transpose();
-  const Eigen::Matrix<double, M, M> S = H * pht + R;
-  res.innovation_sigma = S.diagonal().cwiseMax(0.0).cwiseSqrt();
-  const Eigen::LLT<Eigen::Matrix<double, M, M>> llt(S);
-  if (llt.info() != Eigen::Success || !y.allFinite()) {
-    res.guarded = true;
-    return res;
-  }
-  res.nis = y.dot(llt.solve(y));
-  res.log_det_s = 2.0 * llt.matrixLLT().diagonal().array().log().sum();
-  if (gate > 0.0 && !(res.nis <= gate)) return res;
-  const Eigen::Matrix<double, N, M> K = llt.solve(pht.transpose()).transpose();
-  const VecN dx = K * y;
-  if (attitude_limit > 0.0 && !(dx.template segment<3>(es::att).norm() <= attitude_limit)) {
-    res.attitude_refused = true;
-    return res;
-  }
-  // Joseph form (I - K H) P (I - K H)^T + K R K^T, multiplied out with A = P H^T and
-  // S = H P H^T + R into P - K A^T - A K^T + K S K^T: the same expression, symmetric
-  // term by term, in O(N^2 M) instead of two dense N x N products.
-  const Eigen::Matrix<double, N, N> ka = K * pht.transpose();
-  const MatN p_new = P - ka - ka.transpose() + K * S * K.transpose();
-  if (!p_new.allFinite() || (p_new.diagonal().array() <= 0.0).any() || !dx.allFinite()) {
-    res.guarded = true;
-    return res;
-  }
-  P = p_new;
-  if (observer) {
-    const Eigen::Matrix<double, M, M> s_inv = llt.solve(Eigen::Matrix<double, M, M>::Identity());
-    observer->on_update(H, K, s_inv, y, Mat3::Identity() - skew(0.5 * dx.template segment<3>(es::att)));
-  }
-  inject_and_reset(dx);
-  res.accepted = true;
-  return res;
-}
-
+// twelve state layouts, cost 2.3 GB and 3 CPU-minutes in one file), and the declarations
+// below send every other caller there.
 #define GPSINS_ESKF_UPDATE(NB, NC, NT, M)                                                                    \
   template UpdateResult<M> Eskf<NB, NC, NT>::update<M>(const Eigen::Matrix<double, M, 1>&,                   \
                                                        const Eigen::Matrix<double, M, Eskf<NB, NC, NT>::N>&, \
                                                        const Eigen::Matrix<double, M, M>&, double, double);
-// The updates of one filter variant (cpp/src/eskf_updates/ instantiates them).
-#define GPSINS_ESKF_UPDATES(NB, NC, NT) \
-  GPSINS_ESKF_UPDATE(NB, NC, NT, 1) GPSINS_ESKF_UPDATE(NB, NC, NT, 2) GPSINS_ESKF_UPDATE(NB, NC, NT, 3)
 #define GPSINS_ESKF_UPDATES_EXTERN(NB, NC, NT)                                                                        \
   extern GPSINS_ESKF_UPDATE(NB, NC, NT, 1) extern GPSINS_ESKF_UPDATE(NB, NC, NT, 2) extern GPSINS_ESKF_UPDATE(NB, NC, \
                                                                                                               NT, 3)
 
-GPSINS_ESKF_UPDATES_EXTERN(5, 0, 0)
-GPSINS_ESKF_UPDATES_EXTERN(7, 0, 0)
-GPSINS_ESKF_UPDATES_EXTERN(5, kTightAugmented, 0)
-GPSINS_ESKF_UPDATES_EXTERN(7, kTightAugmented, 0)
-GPSINS_ESKF_UPDATES_EXTERN(5, 3, 0)
-GPSINS_ESKF_UPDATES_EXTERN(7, 3, 0)
-GPSINS_ESKF_UPDATES_EXTERN(5, 0, 1)
-GPSINS_ESKF_UPDATES_EXTERN(7, 0, 1)
-GPSINS_ESKF_UPDATES_EXTERN(5, kTightAugmented, 1)
-GPSINS_ESKF_UPDATES_EXTERN(7, kTightAugmented, 1)
-GPSINS_ESKF_UPDATES_EXTERN(5, 3, 1)
-GPSINS_ESKF_UPDATES_EXTERN(7, 3, 1)
+GPSINS_FOR_EACH_FILTER(GPSINS_ESKF_UPDATES_EXTERN)
 
 }  // namespace gpsins

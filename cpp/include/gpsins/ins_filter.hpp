@@ -18,6 +18,7 @@
 #include "gpsins/aiding/measurement.hpp"
 #include "gpsins/eskf.hpp"
 #include "gpsins/filter_names.hpp"
+#include "gpsins/filter_variants.hpp"
 #include "gpsins/fixed_queue.hpp"
 #include "gpsins/gnss/ephemeris.hpp"
 #include "gpsins/gnss/models.hpp"
@@ -381,17 +382,8 @@ class InsFilter {
   double zupt_refused_t_ = kLongAgo_s;  // the last zero-velocity update the gate refused
 };
 
-extern template class InsFilter<5, 0>;
-extern template class InsFilter<7, 0>;
-extern template class InsFilter<5, kTightAugmented>;
-extern template class InsFilter<7, kTightAugmented>;
-extern template class InsFilter<5, 3>;
-extern template class InsFilter<7, 3>;
-extern template class InsFilter<5, 0, 1>;
-extern template class InsFilter<7, 0, 1>;
-extern template class InsFilter<5, kTightAugmented, 1>;
-extern template class InsFilter<7, kTightAugmented, 1>;
-extern template class InsFilter<5, 3, 1>;
-extern template class InsFilter<7, 3, 1>;
+#define GPSINS_INS_FILTER_EXTERN(NB, NC, NT) extern template class InsFilter<NB, NC, NT>;
+GPSINS_FOR_EACH_FILTER(GPSINS_INS_FILTER_EXTERN)
+#undef GPSINS_INS_FILTER_EXTERN
 
 }  // namespace gpsins

@@ -44,6 +44,7 @@
 
 #include "gpsins/eskf.hpp"
 #include "gpsins/eskf_observer.hpp"
+#include "gpsins/filter_variants.hpp"
 
 namespace gpsins {
 
@@ -376,17 +377,8 @@ void EskfRecorder<NB, NC, NT>::smooth(const std::function<void(long, const doubl
   });
 }
 
-extern template class EskfRecorder<5, 0>;
-extern template class EskfRecorder<7, 0>;
-extern template class EskfRecorder<5, kTightAugmented>;
-extern template class EskfRecorder<7, kTightAugmented>;
-extern template class EskfRecorder<5, 3>;
-extern template class EskfRecorder<7, 3>;
-extern template class EskfRecorder<5, 0, 1>;
-extern template class EskfRecorder<7, 0, 1>;
-extern template class EskfRecorder<5, kTightAugmented, 1>;
-extern template class EskfRecorder<7, kTightAugmented, 1>;
-extern template class EskfRecorder<5, 3, 1>;
-extern template class EskfRecorder<7, 3, 1>;
+#define GPSINS_RECORDER_EXTERN(NB, NC, NT) extern template class EskfRecorder<NB, NC, NT>;
+GPSINS_FOR_EACH_FILTER(GPSINS_RECORDER_EXTERN)
+#undef GPSINS_RECORDER_EXTERN
 
 }  // namespace gpsins

@@ -1,7 +1,7 @@
 // Eskf's measurement updates (1, 2 and 3 rows) for the loose filters without augmented states, with the IMU time
 // offset, with and without the scale-factor states: one of six files, so that the twelve state layouts' updates build
 // in parallel (eskf.hpp).
-#include "gpsins/eskf.hpp"
+#include "gpsins/eskf_update.hpp"
 
 namespace gpsins {
 

@@ -1,10 +1,9 @@
 // What the files of InsFilter's member definitions share (cpp/src/filter/, one
-// file per concern): small helpers, the list of the filter variants the core
-// builds, and the member templates every update goes through (apply, record),
+// file per concern): small helpers and the member templates every update goes through (apply, record),
 // which each file instantiates for the measurements it makes.
 //
 // Each file defines its members and explicitly instantiates them for every
-// variant (GPSINS_FOR_EACH_FILTER), so the twelve variants' code is compiled
+// variant (GPSINS_FOR_EACH_FILTER, filter_variants.hpp), so the twelve variants' code is compiled
 // once, spread over translation units that build in parallel; ins_filter.hpp's
 // extern declarations keep every other file from instantiating them again.
 #pragma once
@@ -12,18 +11,8 @@
 #include <cstddef>
 #include <limits>
 
+#include "gpsins/filter_variants.hpp"
 #include "gpsins/ins_filter.hpp"
-
-// X(NB, NC, NT) for each filter the core builds: 5 or 7 IMU error blocks
-// (scale factors), no augmented states, the tight filter's (signal-in-space
-// slots and clock) or the loose filter's fix error, without and with the IMU
-// time offset. The bindings' AnyFilter holds the same twelve.
-// (clang-format would reflow this list differently on each pass)
-// clang-format off
-#define GPSINS_FOR_EACH_FILTER(X)                                                                 \
-  X(5, 0, 0) X(7, 0, 0) X(5, kTightAugmented, 0) X(7, kTightAugmented, 0) X(5, 3, 0) X(7, 3, 0) \
-  X(5, 0, 1) X(7, 0, 1) X(5, kTightAugmented, 1) X(7, kTightAugmented, 1) X(5, 3, 1) X(7, 3, 1)
-// clang-format on
 
 namespace gpsins {
 namespace filter_detail {
