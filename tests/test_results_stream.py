@@ -70,6 +70,35 @@ def test_chunked_run_equals_one_call(tight_inputs, chunk_rows, overlap):
         np.testing.assert_array_equal(cat([b for _, b in blocks], name), getattr(sm, name), err_msg=name)
 
 
+@pytest.mark.parametrize("mode, estimate_time_offset", [("loose", False), ("tight", False), ("loose", True)])
+def test_navigation_covariance_is_the_full_ones_block(tight_inputs, mode, estimate_time_offset):
+    """The covariance a replay asks for (attitude, velocity and position, then the IMU time offset when
+    it is a state) is that block of the full covariance, entry for entry, forward and smoothed, and so
+    are the position sigmas the time offset moves to GNSS time."""
+    inp = tight_inputs
+    imu = inp.imu[:6000]
+    cfg = nav_config.load_config(None, {"mode": mode, "estimate_time_offset": estimate_time_offset})
+    kw = dict(pseudoranges=inp.pseudoranges, ephemerides=inp.ephemerides, klobuchar=inp.klobuchar,
+              gps_time_offset_s=inp.week * 604800.0) if mode == "tight" else {}
+    cat = lambda parts, name: np.concatenate([getattr(p, name) for p in parts])  # noqa: E731
+    for smoothed in (False, True):
+        sols = {}
+        for block in (False, True):
+            run = flt.ChunkedRun(imu, inp.fixes, cfg, mode=mode, chunk_rows=1000, record=smoothed, **kw)
+            sols[block] = [s for s in run.chunks(navigation_covariance=block)]
+            if smoothed:
+                blocks = []
+                run.smooth(lambda first, sol, blocks=blocks: blocks.append((first, sol)), navigation_covariance=block)
+                sols[block] = [sol for _, sol in sorted(blocks, key=lambda b: b[0])]
+        full, nav = sols[False], sols[True]
+        p_full, p_nav = cat(full, "covariance"), cat(nav, "covariance")
+        keep = list(range(9)) + ([p_full.shape[1] - 1] if estimate_time_offset else [])
+        assert p_nav.shape == (len(p_full), len(keep), len(keep)) and len(p_full) > 5000
+        np.testing.assert_array_equal(p_nav, p_full[:, keep][:, :, keep])
+        np.testing.assert_array_equal(cat(nav, "sigma"), cat(full, "sigma"))
+        np.testing.assert_array_equal(cat(nav, "r_ecef"), cat(full, "r_ecef"))
+
+
 def test_results_tables_round_trip(tmp_path):
     rng = np.random.default_rng(1)
     chunks = [dict(t=np.arange(n, dtype=float) + 100 * k, r_ecef=rng.normal(size=(n, 3)), flag=rng.random(n) > 0.5,

@@ -72,22 +72,31 @@ Array from_rows(const std::vector<double>& v, py::ssize_t cols) {
   return a;
 }
 
+// The vector's values as an array of that shape without a copy: the array owns the vector
+// (a run's covariances are tens of MB per chunk).
+Array adopt(std::vector<double>&& v, std::vector<py::ssize_t> shape) {
+  auto* owner = new std::vector<double>(std::move(v));
+  py::capsule free_owner(owner, [](void* p) { delete static_cast<std::vector<double>*>(p); });
+  return Array(std::move(shape), owner->data(), free_owner);
+}
+
 // Backward pass over a recorded run. Rows come newest first; they are gathered
 // into blocks of block_rows, each in time order, and a block is handed to
 // sink(dict(state=..., covariance=..., first=index of its first row)) as soon
 // as it is complete, so the caller can write it out. With no sink the whole
 // smoothed run is returned as smooth_state / smooth_covariance.
 template <int NB, int NC, int NT>
-py::dict smooth_recorded(EskfRecorder<NB, NC, NT>& rec, bool with_cov, py::object sink, long block_rows) {
+py::dict smooth_recorded(EskfRecorder<NB, NC, NT>& rec, bool with_cov, py::object sink, long block_rows, bool nav_cov) {
   using Rec = EskfRecorder<NB, NC, NT>;
   constexpr int N = Rec::N, kNom = Rec::kNominal;
+  const py::ssize_t dim = nav_cov ? kNavigationDim<NT> : N;
   constexpr int kCols = kNom + N;  // nominal without flags, sigma, flags
   const long n = rec.outputs();
   const bool streaming = !sink.is_none();
   const long rows = streaming ? std::max(1L, std::min(block_rows, n)) : n;
   auto new_block = [&](long len) {
     return std::make_pair(Array({static_cast<py::ssize_t>(len), py::ssize_t(kCols)}),
-                          Array(with_cov ? std::vector<py::ssize_t>{len, N, N} : std::vector<py::ssize_t>{0, N, N}));
+                          Array(std::vector<py::ssize_t>{with_cov ? len : 0, dim, dim}));
   };
   long lo = std::max(0L, n - rows);  // rows [lo, hi) are being filled
   auto block = new_block(n - lo);
@@ -101,7 +110,9 @@ py::dict smooth_recorded(EskfRecorder<NB, NC, NT>& rec, bool with_cov, py::objec
       std::copy(row, row + kNom - 1, o);
       for (int i = 0; i < N; ++i) o[kNom - 1 + i] = std::sqrt(std::max(p(i, i), 0.0));
       o[kCols - 1] = row[kNom - 1];
-      if (with_cov)
+      if (with_cov && nav_cov)
+        write_navigation_block<NT>(p, block.second.mutable_data() + (k - lo) * dim * dim);
+      else if (with_cov)
         Eigen::Map<Eigen::Matrix<double, N, N, Eigen::RowMajor>>(block.second.mutable_data() + (k - lo) * N * N) = p;
       if (streaming && k == lo) {
         py::gil_scoped_acquire acquire;
@@ -147,17 +158,16 @@ EskfRecorder<NB, NC, NT>* recorder_of(const InsFilter<NB, NC, NT>&, void* p) {
 
 }  // namespace
 
-py::dict batch_dict(const BatchResult& r, bool with_cov) {
-  const py::ssize_t N = r.n_states;
-  const auto& covs = r.covariance;
+py::dict batch_dict(BatchResult& r, bool with_cov) {
+  const py::ssize_t dim = r.covariance_dim;
+  auto& covs = r.covariance;
   const auto& log = r.updates;
   const auto& events = r.events;
   py::dict out;
   out["state"] = from_rows(r.state, r.state_cols);
   if (with_cov) {
-    Array cov({static_cast<py::ssize_t>(covs.size()) / (N * N), N, N});
-    std::copy(covs.begin(), covs.end(), cov.mutable_data());
-    out["covariance"] = cov;
+    const py::ssize_t rows = dim > 0 ? static_cast<py::ssize_t>(covs.size()) / (dim * dim) : 0;
+    out["covariance"] = adopt(std::move(covs), {rows, dim, dim});
   }
   const auto nu = static_cast<py::ssize_t>(log.size());
   Array ut({nu}), nis({nu}), gate({nu}), logdet({nu}), rscale({nu}), innov({nu, py::ssize_t(3)}),
@@ -215,9 +225,13 @@ py::dict batch_dict(const BatchResult& r, bool with_cov) {
   return out;
 }
 
-py::dict smooth_dict(AnyFilter& f, const BatchCarry& carry, bool with_cov, py::object sink, long block_rows) {
+py::dict smooth_dict(AnyFilter& f, const BatchCarry& carry, bool with_cov, py::object sink, long block_rows,
+                     bool nav_cov) {
   return std::visit(
-      [&](auto& g) { return smooth_recorded(*recorder_of(g, carry.recorder.get()), with_cov, sink, block_rows); }, f);
+      [&](auto& g) {
+        return smooth_recorded(*recorder_of(g, carry.recorder.get()), with_cov, sink, block_rows, nav_cov);
+      },
+      f);
 }
 
 }  // namespace gpsins::py_filter

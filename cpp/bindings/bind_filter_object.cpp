@@ -50,7 +50,7 @@ class PyFilter {
   }
   py::dict run(py::handle imu, py::handle fixes, py::handle prs, int output_every, bool with_cov, bool smooth,
                double smooth_chunk_mb, bool record, py::ssize_t imu_row0, py::ssize_t fix_row0, py::ssize_t pr_row0,
-               py::handle attitude, py::ssize_t att_row0) {
+               py::handle attitude, py::ssize_t att_row0, bool navigation_covariance) {
     if ((smooth || record) && !(smooth_chunk_mb > 0.0)) throw py::value_error("smooth_chunk_mb must be > 0");
     if (output_every < 1) throw py::value_error("output_every must be >= 1");
     if (imu_row0 < 0 || fix_row0 < 0 || pr_row0 < 0 || att_row0 < 0) throw py::value_error("row offsets must be >= 0");
@@ -65,7 +65,12 @@ class PyFilter {
         table(attitude.is_none() ? py::handle(Array(std::vector<py::ssize_t>{0, batch_cols::kAttitude})) : attitude,
               batch_cols::kAttitude, "attitude");
     const BatchInputs in{table_of(a), table_of(b), table_of(c), table_of(d)};
-    const BatchOptions opt{output_every, with_cov, smooth || record, smooth_chunk_mb};
+    BatchOptions opt;
+    opt.output_every = output_every;
+    opt.covariance = with_cov;
+    opt.covariance_navigation = navigation_covariance;
+    opt.record = smooth || record;
+    opt.smooth_chunk_mb = smooth_chunk_mb;
     const RowOffsets at{imu_row0, fix_row0, pr_row0, att_row0};
     BatchResult r;
     {
@@ -75,16 +80,16 @@ class PyFilter {
     if (r.bad != InputStatus::Ok) input_error(r.bad_what, r.bad_row, r.bad_t, r.bad);
     py::dict out = batch_dict(r, with_cov);
     if (smooth) {
-      py::dict sm = smooth_run(with_cov, py::none(), 0);
+      py::dict sm = smooth_run(with_cov, py::none(), 0, navigation_covariance);
       for (auto item : sm) out[item.first] = item.second;
     }
     return out;
   }
   // The backward pass over what run(..., record=True) calls recorded (see bind_filter_batch.cpp).
-  py::dict smooth_run(bool with_cov, py::object sink, long block_rows) {
+  py::dict smooth_run(bool with_cov, py::object sink, long block_rows, bool navigation_covariance) {
     if (!carry_.recorder) throw py::value_error("smooth: nothing recorded (run with record=True first)");
     if (!sink.is_none() && block_rows < 1) throw py::value_error("smooth: block_rows must be >= 1");
-    py::dict out = smooth_dict(f_, carry_, with_cov, sink, block_rows);
+    py::dict out = smooth_dict(f_, carry_, with_cov, sink, block_rows, navigation_covariance);
     py::dict info = out["smooth_info"];
     info["forward_s"] = carry_.forward_s;
     info["forward_cpu_s"] = carry_.forward_cpu_s;
@@ -161,6 +166,7 @@ void bind_filter_object(py::module_& m) {
            py::arg("output_every") = 1, py::arg("covariance") = false, py::arg("smooth") = false,
            py::arg("smooth_chunk_mb") = 256.0, py::arg("record") = false, py::arg("imu_row0") = 0,
            py::arg("fix_row0") = 0, py::arg("pr_row0") = 0, py::arg("attitude") = py::none(), py::arg("att_row0") = 0,
+           py::arg("navigation_covariance") = false,
            "Batch: imu (n, 7) [t, dtheta xyz, dv xyz], fixes (m, 10) [t, r xyz, v xyz, hdop, vdop, mode], "
            "pseudoranges (k, 5) [t, prn, pr, cn0, lock] or (k, 6) [..., Doppler Hz (NaN: none)] (tight), rows of one "
            "epoch sharing t. smooth: also a "
@@ -169,13 +175,14 @@ void bind_filter_object(py::module_& m) {
            "calls (each with the fixes and pseudoranges up to its last IMU time) gives the same rows: *_row0 are "
            "the call's first rows within the whole run (output decimation, messages); record=True keeps the "
            "smoother's record across calls for smooth(). attitude (j, 5) [t, yaw, pitch (NaN: none), sigma yaw, "
-           "sigma pitch] (rad): dual-antenna heading and pitch.")
+           "sigma pitch] (rad): dual-antenna heading and pitch. navigation_covariance: with covariance, only the "
+           "navigation block (attitude, velocity, position, then the IMU time offset when it is a state).")
       .def("smooth", &PyFilter::smooth_run, py::arg("covariance") = false, py::arg("sink") = py::none(),
-           py::arg("block_rows") = 65536,
+           py::arg("block_rows") = 65536, py::arg("navigation_covariance") = false,
            "Backward pass over what run(..., record=True) recorded. With a sink, the smoothed rows are handed "
            "over in blocks of block_rows, newest block first (each in time order), as dicts (state, covariance, "
            "first = index of the block's first row); otherwise returned whole (smooth_state, smooth_covariance). "
-           "Both give smooth_info (tape size, wall times).")
+           "Both give smooth_info (tape size, wall times). navigation_covariance: as run's.")
       .def("push_pseudoranges", &PyFilter::push_pseudoranges, py::arg("t"), py::arg("prn"), py::arg("pr"),
            py::arg("cn0"), py::arg("lock"), py::arg("doppler") = std::vector<double>{})
       .def("push_attitude", &PyFilter::push_attitude, py::arg("t"), py::arg("yaw"),

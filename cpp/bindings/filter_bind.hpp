@@ -21,9 +21,11 @@ BatchTable table_of(const Array& a);
 py::dict counters_dict(const Counters& c);
 py::dict update_dict(const UpdateRecord& u);
 // A batch call's result as run() returns it (state, covariance, updates, events, counters, ...).
-py::dict batch_dict(const BatchResult& r, bool with_cov);
+py::dict batch_dict(BatchResult& r, bool with_cov);  // moves r's covariances out
 // The backward pass over what run(..., record=True) recorded in carry (see bind_filter_batch.cpp).
-py::dict smooth_dict(AnyFilter& f, const BatchCarry& carry, bool with_cov, py::object sink, long block_rows);
+// The backward pass over the recorded run; nav_cov: the covariance's navigation block only.
+py::dict smooth_dict(AnyFilter& f, const BatchCarry& carry, bool with_cov, py::object sink, long block_rows,
+                     bool nav_cov);
 
 void bind_filter_config(py::module_& m);  // InsConfig and its enums
 void bind_filter_object(py::module_& m);  // the InsFilter class: streaming and batch

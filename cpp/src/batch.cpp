@@ -129,7 +129,12 @@ BatchResult run_batch(InsFilter<NB, NC, NT>& f, const BatchInputs& in, const Bat
   std::vector<double>& rows = out.state;
   rows.reserve(static_cast<std::size_t>((n / output_every + 1) * Row::kCols));
   std::vector<double>& covs = out.covariance;
-  if (opt.covariance) covs.reserve(static_cast<std::size_t>((n / output_every + 1) * N * N));
+  // The navigation block: attitude, velocity and position (the first nine error states), then
+  // the time offset (the last state) when NT = 1.
+  constexpr int kNav = kNavigationDim<NT>;
+  const int cov_dim = opt.covariance_navigation ? kNav : N;
+  out.covariance_dim = opt.covariance ? cov_dim : 0;
+  if (opt.covariance) covs.reserve(static_cast<std::size_t>((n / output_every + 1) * cov_dim * cov_dim));
   out.updates.reserve(static_cast<std::size_t>(m * 2 + n / 8 + 16));
   f.set_update_log(&out.updates);
   f.set_event_log(&out.events);
@@ -200,8 +205,14 @@ BatchResult run_batch(InsFilter<NB, NC, NT>& f, const BatchInputs& in, const Bat
       Row::write(f, rows.data() + at);
       if (opt.covariance) {
         const std::size_t c0 = covs.size();
-        covs.resize(c0 + N * N);
-        Eigen::Map<Eigen::Matrix<double, N, N, Eigen::RowMajor>>(covs.data() + c0) = f.core().P;
+        const auto& P = f.core().P;
+        if (opt.covariance_navigation) {
+          covs.resize(c0 + kNav * kNav);
+          write_navigation_block<NT>(P, covs.data() + c0);
+        } else {
+          covs.resize(c0 + N * N);
+          Eigen::Map<Eigen::Matrix<double, N, N, Eigen::RowMajor>>(covs.data() + c0) = P;
+        }
       }
       if (rec) rec->output(f.core(), rows[rows.size() - 1]);
     }

@@ -5,6 +5,7 @@ checks its arguments, raising ``errors.CommandError`` with the line to print, th
 from __future__ import annotations
 
 import argparse
+import os
 from pathlib import Path
 
 from .errors import CommandError
@@ -91,23 +92,41 @@ def cmd_replay(args: argparse.Namespace) -> int:
         print(f"{args.session}: GPS time goes back {len(stretches) - 1} time(s) (receiver restarts): "
               f"{len(stretches)} stretches, each replayed on its own")
     for j, inp in enumerate(stretches):
-        for i, mode in enumerate(modes):
-            _replay_one(args, inp, Path(args.out) / replay_inputs.stretch_dir(j, len(stretches)) /
-                        (mode if len(modes) > 1 else ""), mode, overrides, last_use=i == len(modes) - 1)
+        outs = [Path(args.out) / replay_inputs.stretch_dir(j, len(stretches)) / (mode if len(modes) > 1 else "")
+                for mode in modes]
+        if len(modes) > 1 and (os.cpu_count() or 1) > 1:
+            # The modes side by side, one per core: the filter core lets go of the GIL, and a mode's
+            # writing and scoring overlap the other's filter. The decoded inputs are shared read-only
+            # and let go after both (last_use), so the peak holds both modes' working sets.
+            from concurrent.futures import ThreadPoolExecutor
+
+            with ThreadPoolExecutor(max_workers=len(modes), thread_name_prefix="gpsins-mode") as pool:
+                runs = [pool.submit(_run_one, args, inp, out, mode, overrides, False) for out, mode in zip(outs, modes)]
+                for r in runs:
+                    _print_one(r.result())  # in the modes' order, each as soon as it and those before are done
+        else:
+            for i, (out, mode) in enumerate(zip(outs, modes)):
+                _print_one(_run_one(args, inp, out, mode, overrides, last_use=i == len(modes) - 1))
     return 0
 
 
-def _replay_one(args: argparse.Namespace, inp, out: Path, mode: str, overrides: dict, last_use: bool) -> None:
+def _run_one(args: argparse.Namespace, inp, out: Path, mode: str, overrides: dict, last_use: bool):
+    from .replay import run
+
+    return run.run_mode(inp, out, mode=mode, overrides=overrides, outages=args.outages,
+                        reference=args.reference, reference_q=args.reference_q, point=args.point,
+                        smooth=args.smooth, covariance_every=args.covariance_every,
+                        aid_heading=args.aid_heading, last_use=last_use, estimator=args.estimator)
+
+
+def _print_one(res) -> None:
+    """A mode's lines on the terminal: what it used, its warnings, fits and errors."""
     from . import memory
     from .report import data as report_data
     from .report import terminal as report_terminal
     from .nav import noise_from_data
-    from .replay import run
 
-    res = run.run_mode(inp, out, mode=mode, overrides=overrides, outages=args.outages,
-                       reference=args.reference, reference_q=args.reference_q, point=args.point,
-                       smooth=args.smooth, covariance_every=args.covariance_every,
-                       aid_heading=args.aid_heading, last_use=last_use, estimator=args.estimator)
+    mode = res.mode
     c = res.summary["counters"]
     stretch = res.summary.get("stretch")
     where = f" (stretch {stretch['index']} of {stretch['of']})" if stretch else ""

@@ -61,9 +61,30 @@ struct RowOffsets {
 struct BatchOptions {
   int output_every = 1;
   bool covariance = false;
+  // With covariance: only the navigation block (attitude, velocity, position errors, and the IMU
+  // time offset last when it is a state), 9 or 10 states instead of up to 50: what a replay's
+  // sigmas and NEES take, at a small part of the copying.
+  bool covariance_navigation = false;
   bool record = false;  // keep (or go on keeping) the smoother's record of the forward pass
   double smooth_chunk_mb = 256.0;
 };
+
+// The navigation block of a covariance (BatchOptions::covariance_navigation): attitude,
+// velocity and position, then the IMU time offset (the last state) when NT = 1, written
+// row-major at out.
+template <int NT>
+inline constexpr int kNavigationDim = es::kNavStates + NT;
+template <int NT, int N>
+void write_navigation_block(const Eigen::Matrix<double, N, N>& P, double* out) {
+  constexpr int kNav = kNavigationDim<NT>, k9 = es::kNavStates;
+  Eigen::Map<Eigen::Matrix<double, kNav, kNav, Eigen::RowMajor>> c(out);
+  c.template topLeftCorner<k9, k9>() = P.template topLeftCorner<k9, k9>();
+  if constexpr (NT == 1) {
+    c.template topRightCorner<k9, 1>() = P.template topRightCorner<k9, 1>();
+    c.template bottomLeftCorner<1, k9>() = P.template bottomLeftCorner<1, k9>();
+    c(kNav - 1, kNav - 1) = P(N - 1, N - 1);
+  }
+}
 
 // What a filter carries from one batch call to the next: the smoother's record
 // of the forward pass (its type follows the filter's, so it is kept type-erased)
@@ -80,7 +101,8 @@ struct BatchResult {
   // error), [the time offset], sigmas, flags (1: standstill, 2: heading known).
   std::vector<double> state;
   int state_cols = 0;
-  std::vector<double> covariance;  // n_states x n_states per state row, row-major (BatchOptions::covariance)
+  std::vector<double> covariance;  // covariance_dim^2 per state row, row-major (BatchOptions::covariance)
+  int covariance_dim = 0;          // n_states, or the navigation block's 9 or 10
   int n_states = 0;
   std::vector<UpdateRecord> updates;
   std::vector<FilterEvent> events;

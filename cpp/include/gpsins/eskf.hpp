@@ -42,7 +42,8 @@ namespace gpsins {
 
 namespace es {  // first index of each 3-block
 inline constexpr int att = 0, vel = 3, pos = 6, bg = 9, ba = 12, sg = 15, sa = 18;
-}
+inline constexpr int kNavStates = 9;  // attitude, velocity, position: the navigation block
+}  // namespace es
 
 // Signal-in-space bias states of the tight filter: one per slot, a satellite to a slot.
 inline constexpr int kSisSlots = 12;

@@ -160,7 +160,9 @@ class PluginRun:
         self.heading_search = None
         self._ends = inputs.imu[chunk_rows - 1::chunk_rows, 0]  # the last IMU time of each chunk
 
-    def chunks(self, covariance: bool = True):
+    def chunks(self, covariance: bool = True, navigation_covariance: bool = False):
+        """The plug-in's solution in the built-in's chunks; its covariance as it gave it (the navigation
+        block in the filter's axes when it gave NED), whatever ``navigation_covariance`` asks."""
         s, n = self._out, len(self._out.t)
         upd_t = np.asarray(s.updates["t"]) if len(s.updates.get("t", ())) else np.zeros(0)
         ev_t = np.asarray(s.events.get("t", ())) if s.events else np.zeros(0)

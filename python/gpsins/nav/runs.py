@@ -222,14 +222,17 @@ class ChunkedRun:
         self.fixes_after_end = len(self.fixes)
         self.heading_search = self._setup.search
 
-    def chunks(self, covariance: bool = True):
+    def chunks(self, covariance: bool = True, navigation_covariance: bool = False):
         """The solution chunk by chunk. The core runs the next chunk on a second thread while
         the caller works on this one (the core lets go of the GIL): replay's scoring and writing
         overlap the filter instead of following it. One chunk is in flight at a time and the
-        filter still sees its calls in order, so the rows are those of a single thread."""
+        filter still sees its calls in order, so the rows are those of a single thread.
+        ``navigation_covariance``: each epoch's covariance is only the navigation block (attitude,
+        velocity, position, then the IMU time offset when it is a state), all a replay's sigmas
+        and NEES take."""
         from concurrent.futures import ThreadPoolExecutor
 
-        calls = self._calls(covariance)
+        calls = self._calls(covariance, navigation_covariance)
         if not self.overlap:
             for out in calls:
                 yield Solution.from_batch(out, self.mode, self._setup.scale_factors)
@@ -243,7 +246,7 @@ class ChunkedRun:
                 pending = pool.submit(next, calls, None)
                 yield Solution.from_batch(out, self.mode, self._setup.scale_factors)
 
-    def _calls(self, covariance: bool):
+    def _calls(self, covariance: bool, navigation_covariance: bool):
         """The core's calls, one per chunk, each output dict as it comes."""
         f = self._setup.core_filter
         n = len(self.imu)
@@ -262,7 +265,7 @@ class ChunkedRun:
                 g2 = int(np.searchsorted(self.attitude[:, 0], t_end, side="right"))
                 att = self.attitude[g:g2]
             out = f.run(imu, self.fixes[j:j2], prs, self.output_every, covariance, False, self.smooth_chunk_mb,
-                        self.record, a, j, q, att, g)
+                        self.record, a, j, q, att, g, navigation_covariance)
             self.counters, self.fixes_after_end = out["counters"], len(self.fixes) - j2 + int(out["fixes_after_end"])
             j, q, g = j2, q2, g2
             yield out
@@ -272,12 +275,13 @@ class ChunkedRun:
         (a day's are 240 MB); the smoother needs only its record."""
         self.imu = self.prs = self.attitude = None
 
-    def smooth(self, sink, block_rows: int | None = None, covariance: bool = True) -> dict:
+    def smooth(self, sink, block_rows: int | None = None, covariance: bool = True,
+               navigation_covariance: bool = False) -> dict:
         """After ``chunks()`` ran through with ``record=True``: the backward pass, handing
         ``sink(index of the block's first epoch, Solution)`` each block as it completes (newest
         block first, each in time order; ``block_rows`` epochs, by default as many as a forward
-        chunk, so the blocks' memory is reused as the forward's is). Returns the tape's size and
-        the times."""
+        chunk, so the blocks' memory is reused as the forward's is); ``navigation_covariance`` as
+        ``chunks()``'s. Returns the tape's size and the times."""
         block_rows = self.chunk_rows if block_rows is None else block_rows
         n_states, sf = self._setup.core_filter.n_states, self._setup.scale_factors
 
@@ -286,7 +290,7 @@ class ChunkedRun:
                 {"state": b["state"], "covariance": b.get("covariance"), "updates": {}, "counters": self.counters,
                  "fixes_after_end": self.fixes_after_end, "events": {}, "n_states": n_states}, self.mode, sf))
 
-        return dict(self._setup.core_filter.smooth(covariance, take, block_rows)["smooth_info"])
+        return dict(self._setup.core_filter.smooth(covariance, take, block_rows, navigation_covariance)["smooth_info"])
 
 
 # A device whose course is not its heading (handheld): the heading is searched.

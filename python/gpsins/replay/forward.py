@@ -117,7 +117,8 @@ def forward(run, output: Output, p: Plan) -> Forward:
     update_cols: dict[str, list] = {k: [] for k in STAT_COLUMNS}
     write_s = 0.0
     time_offset = None  # the last epoch's estimate and sigma (s), with estimate_time_offset
-    for sol in run.chunks():
+    # The full covariance only for the covariance file; the sigmas and NEES take the navigation block.
+    for sol in run.chunks(navigation_covariance=output.covariance_every == 0):
         if sol.time_offset is not None and len(sol.t):
             time_offset = (float(sol.time_offset[-1]), float(sol.time_offset_sigma[-1]))
         w0 = time.perf_counter()
@@ -146,7 +147,7 @@ def smooth(run, output: Output, target: Target, score_sched: np.ndarray, p: Plan
     ts = time.perf_counter()
     back = output.stream(results.SMOOTHED, "smoothed.pos", output.what + ", fixed-interval smoothed",
                          newest_first=True)
-    info = run.smooth(lambda first, sol: back.add(sol, first))
+    info = run.smooth(lambda first, sol: back.add(sol, first), navigation_covariance=True)  # no covariance file
     back.close()
     p.clock["smooth_s"] = time.perf_counter() - ts
     smoothed_summary = {"info": info}
