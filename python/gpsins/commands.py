@@ -94,7 +94,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
     for j, inp in enumerate(stretches):
         outs = [Path(args.out) / replay_inputs.stretch_dir(j, len(stretches)) / (mode if len(modes) > 1 else "")
                 for mode in modes]
-        if len(modes) > 1 and (os.cpu_count() or 1) > 1:
+        if len(modes) > 1 and len(os.sched_getaffinity(0)) > 1:
             # The modes side by side, one per core: the filter core lets go of the GIL, and a mode's
             # writing and scoring overlap the other's filter. The decoded inputs are shared read-only
             # and let go after both (last_use), so the peak holds both modes' working sets.
