@@ -65,15 +65,8 @@ py::dict update_dict(const UpdateRecord& u) {
 
 namespace {
 
-Array from_rows(const std::vector<double>& v, py::ssize_t cols) {
-  const py::ssize_t n = static_cast<py::ssize_t>(v.size()) / cols;
-  Array a({n, cols});
-  std::copy(v.begin(), v.end(), a.mutable_data());
-  return a;
-}
-
 // The vector's values as an array of that shape without a copy: the array owns the vector
-// (a run's covariances are tens of MB per chunk).
+// (a run's states and covariances are tens of MB per chunk).
 Array adopt(std::vector<double>&& v, std::vector<py::ssize_t> shape) {
   auto* owner = new std::vector<double>(std::move(v));
   py::capsule free_owner(owner, [](void* p) { delete static_cast<std::vector<double>*>(p); });
@@ -164,7 +157,8 @@ py::dict batch_dict(BatchResult& r, bool with_cov) {
   const auto& log = r.updates;
   const auto& events = r.events;
   py::dict out;
-  out["state"] = from_rows(r.state, r.state_cols);
+  const py::ssize_t cols = r.state_cols, state_rows = static_cast<py::ssize_t>(r.state.size()) / cols;
+  out["state"] = adopt(std::move(r.state), {state_rows, cols});
   if (with_cov) {
     const py::ssize_t rows = dim > 0 ? static_cast<py::ssize_t>(covs.size()) / (dim * dim) : 0;
     out["covariance"] = adopt(std::move(covs), {rows, dim, dim});

@@ -97,7 +97,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
         if len(modes) > 1 and len(os.sched_getaffinity(0)) > 1:
             # The modes side by side, one per core: the filter core lets go of the GIL, and a mode's
             # writing and scoring overlap the other's filter. The decoded inputs are shared read-only
-            # and let go after both (last_use), so the peak holds both modes' working sets.
+            # and kept until both are done (no last_use), so the peak holds both modes' working sets.
             from concurrent.futures import ThreadPoolExecutor
 
             with ThreadPoolExecutor(max_workers=len(modes), thread_name_prefix="gpsins-mode") as pool:

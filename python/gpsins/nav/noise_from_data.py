@@ -158,11 +158,11 @@ def scaled(cfg: dict, fixes: np.ndarray, factors: dict) -> tuple[dict, np.ndarra
     return out, f
 
 
-def fit_window(imu: np.ndarray, fixes: np.ndarray, span_s: float | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """The IMU samples and fixes the fit runs over: up to ``span_s`` (FIT_SPAN_S) after the first fix."""
+def fit_window(imu: np.ndarray, fixes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The IMU samples and fixes the fit runs over: up to FIT_SPAN_S after the first fix."""
     if not len(fixes):
         return imu, fixes
-    end = fixes[0, 0] + (FIT_SPAN_S if span_s is None else span_s)
+    end = fixes[0, 0] + FIT_SPAN_S
     return imu[imu[:, 0] <= end], fixes[fixes[:, 0] <= end]
 
 
