@@ -154,7 +154,9 @@ def test_live_times_its_samples_as_the_replay_does(followed, tmp_path):
     assert dt.max() < 1e-3
 
 
-@pytest.mark.xfail(strict=True, reason="issue 39 asks 1 mm against the replay once the alignment has settled; the "
+# Not strict: how far the final fit moves depends on the stamps' jitter during the drive, and a run now
+# and then stays within the bar (a clean-clone CI run did, once in seven runs of the suite this stop).
+@pytest.mark.xfail(strict=False, reason="issue 39 asks 1 mm against the replay once the alignment has settled; the "
                    "clock fit is global (one line of the IMU counter over the whole session), so a sample fed during "
                    "the drive keeps the time the fit so far gave it, and the rest of the session moves that line: "
                    "at 4x (the stamps' jitter 4x larger in GPS seconds) 0.1-0.5 ms off the final fit, 1.5-13.7 mm in "
