@@ -58,6 +58,9 @@ CASES = {
                                "clock_step_s": 4.0},
     "loaded_host": {"jitter_mean_s": 0.001, "load_stall_rate_hz": 1.0, "load_stall_mean_s": 0.3,
                     "imu_drop_probability": 0.01},
+    # The GPS port first read 2.5 s in: the first blocks' stamps lie up to 2.5 s above their floor, as
+    # if the clock had been set back then, but no stamp ran back.
+    "gps_held_at_start": {"jitter_mean_s": 0.001, "gps_setup_hold_s": 2.5},
 }
 
 
@@ -76,6 +79,8 @@ def test_robust_alignment_is_better_than_a_millisecond(tmp_path, case):
     assert abs(al.imu_clock_ppm - ppm) < 2.0
     if "clock_step_s" in CASES[case]:
         assert len(al.steps_s) == 1 and abs(al.steps_s[0] - CASES[case]["clock_step_s"]) < 2e-3
+    else:
+        assert al.steps_s == []
     dropped = dec.sidecar["counts"]["imu"].get("frames_dropped_by_simulation", 0)
     assert al.summary()["imu_frames_missing"] == dropped
 

@@ -28,6 +28,9 @@ REFIT_S = 0.25  # the whole clock fit again after this much new IMU data (s) ...
 # ... or this share of the session, whichever is more: a fit costs time in proportion to the session, so
 # the fits of a long one cost a constant share of a core
 REFIT_SHARE = 0.02
+# The clock map may move the samples already fed this much (s) before the filter is fed them again at their
+# new times: the robust alignment's own accuracy (tests/test_timing.py), a sixteenth of a 64 Hz sample
+REFEED_S = 1e-3
 INLINE_FIT_S = 0.005  # a due fit that took less than this last time is made before feeding, not after
 
 
@@ -63,10 +66,18 @@ class Follower:
         # A Superstar II session is read incrementally (live_stream); a u-blox one whole each round.
         self.stream: growing.SessionStream | None = growing.SessionStream(self.session)
         self.raw_fed = -1  # the last IMU record (index among all read) fed or passed over
+        self.last_fed = -1  # the last IMU record fed
         self._fit: dict | None = None
         self._refit_now = False
         self._eph_done = 0
         self.refits = 0
+        self.refeeds = 0  # the filter fed again because the clock map moved what it had been fed
+        # A fit is settled when it agrees with the one before within REFEED_S where both have samples:
+        # samples are fed only on a settled map (one fit, or fits from GPS stamps a stall held back,
+        # may be seconds off).
+        self._settled = False
+        self._moved = False  # the current fit moved the samples fed by more than REFEED_S
+        self._whole_t: np.ndarray | None = None  # a u-blox session: the last round's IMU times
         self.fed = False  # the last poll fed samples
         self._fit_cost_s = 0.0  # what the last clock fit took (s)
         self._failed_at = -math.inf  # valid IMU samples when a fit last failed
@@ -105,18 +116,36 @@ class Follower:
             return None  # another stretch (a receiver restart): replay it on its own
         self.leap_s = gps.leap_s if gps.leap_s is not None else self.leap_s
         self.maintain()  # a cheap fit (a short session) now: the samples about to be fed get the freshest
-        idx = np.flatnonzero(imu.valid.a[self.raw_fed + 1:]) + self.raw_fed + 1  # valid records not yet fed
+        if final and self._fit["count"] < int(imu.valid.a.sum()):
+            self._refit()  # everything is on disk: the samples left get the whole session's fit, as in replay
+        idx = self._unfed()
         t = self._times(idx)
         if self._refit_now:  # a gap the counter cannot count: the whole fit, now
             if not self._refit():
                 self._failed_at = int(imu.valid.a.sum())
                 return None
             t = self._times(idx)
+        if not (self._settled or final):
+            return None  # the clock map still moves (its first fit, or late GPS stamps): the next fit decides
+        if self._moved:
+            self._refeed()
+            idx = self._unfed()
+            t = self._times(idx)
         newest = gps.newest()
         fixes = gps.fixes.a
         last_fix = float(fixes[-1, 0]) if len(fixes) else -math.inf
         limit = last_fix if newest - last_fix < FIX_WAIT_S else newest
-        upto = np.inf if final else min(newest - self.hold_s, limit)
+        return self._feed_upto(idx, t, np.inf if final else min(newest - self.hold_s, limit))
+
+    def _unfed(self) -> np.ndarray:
+        """Raw indices of the valid IMU records not yet fed or passed over."""
+        valid = self.stream.imu.valid.a
+        return np.flatnonzero(valid[self.raw_fed + 1:]) + self.raw_fed + 1
+
+    def _feed_upto(self, idx: np.ndarray, t: np.ndarray, upto: float) -> flt.Solution | None:
+        """Feed the samples ``idx`` (timed ``t``) up to GPS time ``upto``, with the fixes, pseudoranges and
+        ephemerides up to the last of them."""
+        gps, imu = self.stream.gps, self.stream.imu
         take = np.isfinite(t) & (t <= upto)
         if not take.any():
             return None
@@ -127,6 +156,7 @@ class Follower:
         idx, t = idx[keep], t[keep]
         if not len(idx):
             return None
+        self.last_fed = int(idx[-1])
         rows = np.column_stack([t, imu.dtheta.a[idx] * imu.lsb[0], imu.dv.a[idx] * imu.lsb[1]])
         prs = gps.pseudoranges(self.pr_fed, float(t[-1])) if self.mode == "tight" else None
         iono = (gps.iono.alpha, gps.iono.beta) if gps.iono else None
@@ -140,7 +170,29 @@ class Follower:
                 except ValueError:
                     pass
             self._eph_done = len(gps.ephemerides)
-        return self._feed(rows, fixes, prs, iono, ephemerides)
+        return self._feed(rows, gps.fixes.a, prs, iono, ephemerides)
+
+    def _refeed(self) -> None:
+        """The clock map moved the samples fed so far by more than ``REFEED_S``: a new filter is fed them
+        again at their new times, up to the last epoch already out (those epochs stay as they went out;
+        the ones after come from the new filter, the state replay would have with this clock map).
+        Without it a map moved forward leaves a hole in the samples (the filter restarts after a gap over
+        ``max_gap_s``) and one moved back drops the samples it moves behind the last fed."""
+        t_out = self._start_over()
+        idx = self._unfed()
+        self._feed_upto(idx, self._times(idx), t_out)
+        self.fed = False
+
+    def _start_over(self) -> float:
+        """No filter and nothing fed (``_refeed``); returns the time of the last epoch out."""
+        t_out = self.t_fed
+        self.filter, self.raw_fed, self.last_fed, self.t_fed = None, -1, -1, -math.inf
+        self.fix_fed = self.pr_fed = -math.inf
+        self.n_imu = self.n_fix = self.n_pr = 0
+        self.ephemerides_seen, self._eph_done = set(), 0
+        self._moved = False
+        self.refeeds += 1
+        return t_out
 
     def finished(self) -> bool:
         """The logger has marked the session stopped (its sidecar says so)."""
@@ -211,10 +263,16 @@ class Follower:
                 else 1.0, "warnings": list(al.warnings)}
 
     def _install(self, fit: dict) -> None:
+        before = self._fit
         self._fit = fit
         self.refits += 1
         self._refit_now = False
         self.warnings = fit["warnings"]
+        if before is not None:
+            k = before["idx"][-1:]
+            self._settled = abs(float(self._times(k)[0] - before["t"][-1])) <= REFEED_S
+        if self.last_fed >= 0 and abs(float(self._times(np.array([self.last_fed]))[0]) - self.t_fed) > REFEED_S:
+            self._moved = True
 
     def _times(self, idx: np.ndarray) -> np.ndarray:
         """GPS times of valid IMU records (raw indices): the last fit's, and past it the fit's IMU clock
@@ -280,17 +338,30 @@ class Follower:
             return None
         self.leap_s = dec.gps.leap_s if dec.gps.leap_s is not None else self.leap_s
         self.warnings = list(al.warnings)
-        imu = nav_inputs.ImuColumns(al.imu_t, dec.imu.dtheta, dec.imu.dv, dec.imu.lsb)
+        before, self._whole_t = self._whole_t, al.imu_t
+        if before is not None and len(before):  # the last record both fits time, as _install compares
+            k = min(len(before), len(al.imu_t)) - 1
+            self._settled = abs(float(al.imu_t[k] - before[k])) <= REFEED_S
+        if not (self._settled or final):
+            return None
+        if 0 <= self.last_fed < len(al.imu_t) and abs(float(al.imu_t[self.last_fed]) - self.t_fed) > REFEED_S:
+            t_out = self._start_over()
+            self._feed_whole(dec, al, t_out)
+            self.fed = False
         newest = float(dec.gps.tow[-1])
         last_fix = float(dec.gps.fixes[-1, 0]) if len(dec.gps.fixes) else -math.inf
         # A fix reaches the file a fraction of a second after its epoch's measurements: samples past
         # the last fix wait for the next one (fed later it would be late for the filter, and the
         # solution no longer the replay's), unless the receiver has gone on without fixes (an outage).
         limit = last_fix if newest - last_fix < FIX_WAIT_S else newest
-        upto = np.inf if final else min(newest - self.hold_s, limit)
+        return self._feed_whole(dec, al, np.inf if final else min(newest - self.hold_s, limit))
+
+    def _feed_whole(self, dec, al, upto: float) -> flt.Solution | None:
         new = np.flatnonzero((al.imu_t > self.t_fed + 0.5 / dec.imu.rate_hz) & (al.imu_t <= upto))
         if not len(new):
             return None
+        self.last_fed = int(new[-1])
+        imu = nav_inputs.ImuColumns(al.imu_t, dec.imu.dtheta, dec.imu.dv, dec.imu.lsb)
         rows = np.asarray(imu[int(new[0]):int(new[-1]) + 1], dtype=float)
         prs = None
         if self.mode == "tight":

@@ -5,8 +5,10 @@ it looks at the record files' sizes; when GPS records have landed it reads only 
 (``session.growing``: parts as they rotate, damaged records skipped as replay skips them), times the new IMU
 samples by the last clock fit extended along the IMU's frame counter (the robust alignment, fitted again
 on everything when the data grew by ``REFIT_S`` or ``REFIT_SHARE``, after a round's outputs, or at once
-for a gap the counter cannot count), feeds the samples, fixes and pseudoranges up to the newest fix to
-the streaming filter (the C++ core, as a replay's chunks are fed), and writes:
+for a gap the counter cannot count; samples wait for a fit that agrees with the one before, and when a fit
+moves what was fed by over a millisecond, a new filter is fed it all again: ``refeeds`` in the status),
+feeds the samples, fixes and pseudoranges up to the newest fix to the streaming filter (the C++ core, as
+a replay's chunks are fed), and writes:
 
 - NMEA 0183 GGA, RMC and GST of every output epoch (or every ``nmea_every``-th) to the clients of a TCP
   port on the loopback interface (``--nmea-port``), for gpsd, QGIS or OpenCPN: first, as soon as a fix is in;
@@ -155,7 +157,7 @@ def _status(fol: Follower, sol: flt.Solution, a: dict) -> dict:
                                                                   math.degrees(a["llh"][k, 1]), a["llh"][k, 2]],
             "r_ecef": a["r_ecef"][k], "ypr_deg": a["ypr_deg"][k], "sigma_ned_m": a["sigma_ned_m"][k],
             "sigma_ypr_deg": a["sigma_ypr_deg"][k], "heading_known": bool(sol.heading_known[k]),
-            "imu_fed": fol.n_imu, "fixes_fed": fol.n_fix, "pseudoranges_fed": fol.n_pr,
+            "imu_fed": fol.n_imu, "fixes_fed": fol.n_fix, "pseudoranges_fed": fol.n_pr, "refeeds": fol.refeeds,
             "counters": {c: fol.counters.get(c) for c in ("fixes_accepted", "fixes_rejected", "gnss_resets",
                                                           "imu_gap_restarts", "pseudoranges_used", "diverged")},
             "nis_per_dof": nis_per_source(sol.updates), "warnings": fol.warnings}

@@ -181,6 +181,9 @@ class Timing:
     # a frame arriving during a stall is stamped when the stall ends. Both streams see the same stalls.
     load_stall_rate_hz: float = 0.0
     load_stall_mean_s: float = 0.15
+    # The GPS port not read for this long from the start (the logger's GPS thread busy with the
+    # receiver's set-up requests): its frames queue and are stamped when it is read.
+    gps_setup_hold_s: float = 0.0
     imu_clock_ppm: float = 0.0
     imu_drop_probability: float = 0.0
     system_clock_offset_s: float = 0.25  # system clock minus true UTC at the start

@@ -177,7 +177,8 @@ class SessionWriter:
             k0 = self.gps_order.count
             jitter = self.jitter["gps"].rows(k0, k0 + len(msgs)) * tm.jitter_mean_s if tm.jitter_mean_s > 0 else 0.0
             delay = tm.gps_latency_s + jitter
-            read = self.gps_order(first + delay + _stall_delay(first + delay, self.stalls))
+            arrival = first + delay + _stall_delay(first + delay, self.stalls)
+            read = self.gps_order(np.maximum(arrival, tm.gps_setup_hold_s))
             stamps = realtime(b, first) + (read - first)
             self.gps_file.write(_records([m.frame for m in msgs], stamps, ss2.HEADER_LEN))
         # IMU: one frame per sample, some dropped if configured; the counter counts every sample.

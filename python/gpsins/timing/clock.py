@@ -75,10 +75,14 @@ def _fit_segments(x: np.ndarray, s: np.ndarray, keep: np.ndarray, cuts: list, ra
     return off, np.full(len(off), rate), [float(d) for d in np.diff(off)]
 
 
-def _spurious_steps(x: np.ndarray, cuts: list, steps: list[float], threshold: float) -> set[int]:
+def _spurious_steps(x: np.ndarray, s: np.ndarray, keep: np.ndarray, rate: float, cuts: list, steps: list[float],
+                    threshold: float) -> set[int]:
     """Cuts that are not clock steps: one whose fitted size is below the threshold (the floor
-    only looked different), or an upward step undone by a downward one of the same size within
-    STALL_MAX_S: a host stall longer than the window, not two clock steps."""
+    only looked different); an upward step undone by a downward one of the same size within
+    STALL_MAX_S (a host stall longer than the window, not two clock steps); or a step back where the
+    blocks' stamps never ran back although they come closer together than its size (the logger keeps
+    a sensor's stamps increasing but where the clock was set back: the blocks before it were held,
+    as when the GPS port is first read late, and no step up precedes it)."""
     small = [i for i, d in enumerate(steps) if abs(d) < threshold]
     if small:
         return {min(small, key=lambda i: abs(steps[i]))}
@@ -86,6 +90,11 @@ def _spurious_steps(x: np.ndarray, cuts: list, steps: list[float], threshold: fl
         up, down = steps[i], steps[i + 1]
         if up > 0 > down and abs(up + down) < max(threshold, 0.1 * up) and x[cuts[i + 1]] - x[cuts[i]] < STALL_MAX_S:
             return {i, i + 1}
+    for i, d in enumerate(steps):
+        c = int(np.searchsorted(keep, cuts[i]))
+        near = keep[max(0, c - GPS_WINDOW):c + GPS_WINDOW]
+        if len(near) > 1 and rate * np.max(np.diff(x[near])) < -d and not np.any(np.diff(s[near]) < 0):
+            return {i}
     return set()
 
 
@@ -116,7 +125,7 @@ def fit_gps_clock(tow: np.ndarray, stamps: np.ndarray, latency_s: float, step_th
     cuts = list(keep[found])
     while True:
         off_a, rate_a, steps = _fit_segments(x, s, keep, cuts, rate0)
-        drop = _spurious_steps(x, cuts, steps, threshold)
+        drop = _spurious_steps(x, s, keep, rate0, cuts, steps, threshold)
         if not drop:
             break
         cuts = [c for i, c in enumerate(cuts) if i not in drop]
