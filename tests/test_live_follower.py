@@ -56,3 +56,34 @@ def test_live_is_the_replay_at_every_epoch(followed):
 def test_a_moved_clock_map_restarts_nothing(followed):
     fol, _, _, replayed = followed
     assert fol.counters["imu_gap_restarts"] == 0 == replayed["imu_gap_restarts"]
+
+
+@pytest.fixture(scope="module")
+def followed_ublox(tmp_path_factory):
+    """A u-blox drive recorded by the daemon through the emulator at 4x, grown again and followed."""
+    from gpsins import mainjob, sim
+
+    root = tmp_path_factory.mktemp("grown_ublox")
+    s = sim.simulate(parse({"name": "ubx", "start": START, "segment": [
+        {"label": "stand", "duration_s": 20, "speed_mps": 0},
+        {"label": "drive", "duration_s": 40, "speed_mps": 10, "turn_deg": 90}]}), seed=2)
+    lat = mainjob.replay_latencies("ublox", 4.0)
+    grown = GrowingCopy(mainjob.record_drive(s, root, 4.0, device="ublox"), root / "grown")
+    fol = Follower(grown.dst, **lat)
+    lo, hi = grown.span
+    for t in np.arange(lo, hi + STEP_S, STEP_S):
+        grown.grow_to(t)
+        fol.poll()
+    grown.finish()
+    while fol.poll(final=True) is not None:
+        pass
+    return fol, replay.replay(grown.dst, root / "replay", **lat).summary["counters"]
+
+
+def test_a_ublox_session_followed_runs_the_replays_filter(followed_ublox):
+    """The ESF samples' rate is counted against the stamps' span, 1 Hz off in a session's first seconds,
+    and every increment with it: fed at that rate, the standstill detector saw 174 of the replay's 468
+    zero-velocity epochs and live ended 11 m from the replay. Every counter of the filter is the replay's."""
+    fol, replayed = followed_ublox
+    differ = {k: (fol.counters.get(k), v) for k, v in replayed.items() if fol.counters.get(k) != v}
+    assert not differ, differ

@@ -77,7 +77,8 @@ class Follower:
         # may be seconds off).
         self._settled = False
         self._moved = False  # the current fit moved the samples fed by more than REFEED_S
-        self._whole_t: np.ndarray | None = None  # a u-blox session: the last round's IMU times
+        self._whole: tuple | None = None  # a u-blox session: the last round's IMU times and rate
+        self._fed_rate = 0  # ... and the rate of the increments fed
         self.fed = False  # the last poll fed samples
         self._fit_cost_s = 0.0  # what the last clock fit took (s)
         self._failed_at = -math.inf  # valid IMU samples when a fit last failed
@@ -338,13 +339,16 @@ class Follower:
             return None
         self.leap_s = dec.gps.leap_s if dec.gps.leap_s is not None else self.leap_s
         self.warnings = list(al.warnings)
-        before, self._whole_t = self._whole_t, al.imu_t
-        if before is not None and len(before):  # the last record both fits time, as _install compares
-            k = min(len(before), len(al.imu_t)) - 1
-            self._settled = abs(float(al.imu_t[k] - before[k])) <= REFEED_S
+        # The ESF samples' rate is counted against the stamps' span (whole Hz): early in a session it may be
+        # 1 Hz off, and every increment with it (they are rates times the period).
+        before, self._whole = self._whole, (al.imu_t, dec.imu.rate_hz)
+        if before is not None and len(before[0]):  # the last record both fits time, as _install compares
+            k = min(len(before[0]), len(al.imu_t)) - 1
+            self._settled = abs(float(al.imu_t[k] - before[0][k])) <= REFEED_S and before[1] == dec.imu.rate_hz
         if not (self._settled or final):
             return None
-        if 0 <= self.last_fed < len(al.imu_t) and abs(float(al.imu_t[self.last_fed]) - self.t_fed) > REFEED_S:
+        if self.last_fed >= 0 and (self.last_fed >= len(al.imu_t) or self._fed_rate != dec.imu.rate_hz
+                                   or abs(float(al.imu_t[self.last_fed]) - self.t_fed) > REFEED_S):
             t_out = self._start_over()
             self._feed_whole(dec, al, t_out)
             self.fed = False
@@ -360,7 +364,7 @@ class Follower:
         new = np.flatnonzero((al.imu_t > self.t_fed + 0.5 / dec.imu.rate_hz) & (al.imu_t <= upto))
         if not len(new):
             return None
-        self.last_fed = int(new[-1])
+        self.last_fed, self._fed_rate = int(new[-1]), dec.imu.rate_hz
         imu = nav_inputs.ImuColumns(al.imu_t, dec.imu.dtheta, dec.imu.dv, dec.imu.lsb)
         rows = np.asarray(imu[int(new[0]):int(new[-1]) + 1], dtype=float)
         prs = None
