@@ -628,3 +628,56 @@ def test_gzipped_files_read_the_same(shared_data, tmp_path):
     (tmp_path / "cut.ubx.gz").write_bytes(gzip.compress(UBX_FILE.read_bytes())[:5000])
     with pytest.raises(ReaderError, match=r"cut\.ubx\.gz"):
         ubx.read(tmp_path / "cut.ubx.gz")
+
+
+# --- the table-at-once paths against the row-by-row ones they stand in for --------------------------------------
+
+def _same_fields(a, b) -> bool:
+    return all((getattr(a, k) is None and getattr(b, k) is None) or np.array_equal(getattr(a, k), getattr(b, k),
+                                                                                    equal_nan=True)
+               for k in vars(a) if isinstance(getattr(a, k), np.ndarray) or getattr(a, k) is None) and \
+        a.skipped == b.skipped
+
+
+def test_pos_read_at_once_equals_row_by_row(tmp_path, monkeypatch):
+    """NumPy's parser over the whole table (rtklib_pos._table) against the per-row loop, which also names
+    bad rows: calendar and week-second times, two-digit years, nan rows, RTKLIB's velocity columns."""
+    walk = Path(__file__).parent / "data" / "walk_0827" / "gnss_1730_sf.pos"
+    ecef = tmp_path / "e.pos"
+    ecef.write_text(POS_ECEF)
+    lines = walk.read_text().splitlines()
+    data = [i for i, x in enumerate(lines) if x and not x.startswith("%")]
+    lines[data[5]] = lines[data[5]].replace(lines[data[5]].split()[2], "nan", 1)  # a row to drop
+    lines[data[7]] = "99/" + lines[data[7]][5:]  # 2099 by RINEX's two-digit rule
+    edited = tmp_path / "w.pos"
+    edited.write_text("\n".join(lines) + "\n")
+    at_once = rtklib_pos._table
+    used = []
+    monkeypatch.setattr(rtklib_pos, "_table", lambda *a: used.append(at_once(*a)) or used[-1])
+    fast = [rtklib_pos.read(p, g) for p, g in ((walk, -21.387), (ecef, None), (edited, -21.387))]
+    assert all(u is not None for u in used) and len(used) == 3 and fast[2].skipped
+    monkeypatch.setattr(rtklib_pos, "_table", lambda *a: None)
+    slow = [rtklib_pos.read(p, g) for p, g in ((walk, -21.387), (ecef, None), (edited, -21.387))]
+    assert all(_same_fields(a, b) for a, b in zip(fast, slow))
+
+
+def test_imu_csv_read_by_pyarrow_equals_loadtxt(tmp_path, monkeypatch):
+    """pyarrow's CSV reader (imu_csv._read_table_fast) against NumPy's loadtxt: CR LF ends, a header, nan and
+    inf rows (dropped and counted), exponents, unused columns; a '#' comment goes to loadtxt."""
+    rng = np.random.default_rng(3)
+    rows = [f"{1278016200.0 + 0.005 * k:.6f},{a:.10e},{b:.6f},{c:.3f},{d:.8e},{e:.7f},{f:.9f},7,x"
+            for k, (a, b, c, d, e, f) in enumerate(rng.normal(size=(2000, 6)))]
+    rows[10] = rows[10].replace(rows[10].split(",")[2], "nan", 1)
+    rows[20] = rows[20].replace(rows[20].split(",")[5], "-inf", 1)
+    table = tmp_path / "imu.csv"
+    table.write_bytes(("t,ax,ay,az,gx,gy,gz,n,s\r\n" + "\r\n".join(rows) + "\r\n").encode())
+    commented = tmp_path / "c.csv"
+    commented.write_text("t,ax,ay,az,gx,gy,gz\n" + "\n".join(",".join(r.split(",")[:7]) for r in rows[:50])
+                         + "  # the last\n")
+    cols = ["t", "ax", "ay", "az", "gx", "gy", "gz"]
+    fast = [imu_csv.read(p, cols) for p in (table, commented)]
+    assert imu_csv._read_table_fast(table.read_bytes(), 1, ",", list(range(7))) is not None
+    assert imu_csv._read_table_fast(commented.read_bytes(), 1, ",", list(range(7))) is None
+    monkeypatch.setattr(imu_csv, "_read_table_fast", lambda *a: None)
+    slow = [imu_csv.read(p, cols) for p in (table, commented)]
+    assert fast[0].skipped and all(_same_fields(a, b) for a, b in zip(fast, slow))

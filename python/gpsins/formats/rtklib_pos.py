@@ -18,6 +18,7 @@ header says geodetic without it is an error rather than a 20-30 m height bias.
 from __future__ import annotations
 
 import datetime as dt
+import io
 import re
 from collections import Counter
 from pathlib import Path
@@ -71,7 +72,7 @@ def read(path: str | Path, geoid_height_m: float | None = None) -> Fixes:
             continue
         if header is None:
             raise ReaderError(path, "no column header ('%  GPST ...') before the data", line=i + 1, field="header")
-        rows.append((i + 1, line.split()))
+        rows.append((i + 1, line))
     if header is None:
         raise ReaderError(path, "no column header ('%  GPST ...')", line=len(lines) + 1, field="header")
     names = header[1:]
@@ -104,7 +105,21 @@ def read(path: str | Path, geoid_height_m: float | None = None) -> Fixes:
     sdv = np.full((n, 3), np.nan)
     finite, cut = np.ones(n, bool), np.zeros(n, bool)
     dms = None
-    for k, (lineno, tok) in enumerate(rows):
+    table = _table(rows, names, header, kind)
+    if table is not None:  # every row whole and plain: the per-row loop only to say what a bad one is
+        t, values = table
+        finite = np.isfinite(t) & np.isfinite(values).all(1)
+        pos[:] = values[:, 0:3]
+        for j in range(3):
+            for index, out in ((isd[j], sd), (ivel[j] if has_vel else None, vel), (isv[j], sdv)):
+                if index is not None:
+                    out[:, j] = values[:, index]
+        for index, out in ((iq, q), (ins, ns)):
+            if index is not None:
+                out[finite] = values[finite, index].astype(int)
+        rows = []
+    for k, (lineno, line) in enumerate(rows):
+        tok = line.split()
         try:
             field = "time"
             t[k] = parse_time(tok[:2])
@@ -183,6 +198,57 @@ def read(path: str | Path, geoid_height_m: float | None = None) -> Fixes:
     return Fixes(t[order], np.asarray(r).reshape(-1, 3)[order], sd_ned[order], q[order], ns[order],
                  None if v_ned is None else v_ned[order], None if sv_ned is None else sv_ned[order], path.name,
                  skipped)
+
+
+def _table(rows: list, names: list[str], header: list[str], kind: str) -> tuple[np.ndarray, np.ndarray] | None:
+    """GPS seconds and values of every row at once (NumPy's parser: 0.15 s for a 26 000-row file where
+    the loop over rows takes 0.5 s), or None where a row needs the loop: another width (a cut last row,
+    ``d m s`` angles), UTC times, a value NumPy does not take, or one out of its range (Q, ns, latitude
+    and longitude), which the loop then names with its line."""
+    if not rows or (header[0].upper() if header else "GPST") != "GPST":
+        return None
+    first = rows[0][1].split()
+    calendar = "/" in first[0]
+    width = (6 if calendar else 2) + len(names)
+    if len(first) != width - (4 if calendar else 0):
+        return None
+    text = "\n".join(line for _, line in rows)
+    if calendar:
+        text = text.replace("/", " ").replace(":", " ")
+    try:
+        a = np.loadtxt(io.StringIO(text), ndmin=2, comments=None)
+    except ValueError:
+        return None
+    if a.shape != (len(rows), width):
+        return None
+    if calendar:
+        y, mo, d = (a[:, k].astype(np.int64) for k in range(3))
+        if not (np.array_equal(a[:, :5], np.floor(a[:, :5])) and np.all((mo >= 1) & (mo <= 12) & (d >= 1) & (d <= 31))):
+            return None
+        y = np.where(y < 100, y + np.where(y < 80, 2000, 1900), y)
+        seconds = a[:, 3].astype(np.int64) * 3600 + a[:, 4].astype(np.int64) * 60
+        t = (_days_since_gps_epoch(y, mo, d) * 86400.0 + seconds) + a[:, 5]  # gps_seconds' sum, in its order
+    else:
+        t = a[:, 0].astype(np.int64) * SECONDS_PER_WEEK + a[:, 1]
+    values = a[:, width - len(names):]
+    ok = np.isfinite(values).all(1) & np.isfinite(t)
+    col = {n.lower(): k for k, n in enumerate(names)}
+    for name, lo, hi in (("q", 0, 255), ("ns", 0, 1 << 16)):
+        if name in col and not np.all((values[ok, col[name]] >= lo) & (values[ok, col[name]] <= hi)):
+            return None
+    if kind == "llh" and not np.all((np.abs(values[ok, 0]) <= 90.0) & (np.abs(values[ok, 1]) <= 360.0)):
+        return None
+    return t, values
+
+
+def _days_since_gps_epoch(y: np.ndarray, mo: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """Whole days from 1980-01-06 to each proleptic Gregorian date (days from the civil date, in integers)."""
+    y = y - (mo <= 2)
+    era = np.floor_divide(y, 400)
+    yoe = y - era * 400
+    doy = (153 * (mo + np.where(mo > 2, -3, 9)) + 2) // 5 + d - 1
+    doe = yoe * 365 + yoe // 4 - yoe // 100 + doy
+    return era * 146097 + doe - 719468 - 3657  # 1970-01-01 is day 0 of the first sum; 1980-01-06 is day 3657
 
 
 def _dms(tokens: list[str]) -> float:
