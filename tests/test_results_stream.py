@@ -158,6 +158,29 @@ def test_replay_in_chunks_writes_what_one_chunk_writes(session, tmp_path):
     assert c.summary["epochs"] == len(zc["t"])
 
 
+def test_replay_output_every_nth_sample_is_those_epochs_of_the_full_one(session, tmp_path):
+    """--output-every N (a 1 Hz .pos from a fast IMU, the writing of an hour at 200 Hz left out): every
+    Nth sample's epoch of the full output, the forward and the smoothed, value for value, with chunks
+    that do not divide by N; the .pos has those epochs' lines."""
+    inp = replay_inputs.load_inputs(session)
+    replay.run_mode(inp, tmp_path / "all", chunk_rows=1000, smooth=True)
+    replay.run_mode(inp, tmp_path / "every", chunk_rows=1000, smooth=True, output_every=64)
+    za, ze = results.load(tmp_path / "all"), results.load(tmp_path / "every")
+    k = np.searchsorted(za["t"], ze["t"])
+    assert len(ze["t"]) == pytest.approx(len(za["t"]) / 64, abs=2) and np.array_equal(za["t"][k], ze["t"])
+    assert np.allclose(np.diff(ze["t"]), 1.0, atol=1e-6)  # 64 samples of the 64 Hz unit
+    for name in ("r_ecef", "q_eb", "sigma_ned_m"):
+        np.testing.assert_array_equal(ze[name], za[name][k], err_msg=name)
+    # The smoother's tape multiplies the steps between outputs into one transition: the same to rounding.
+    for name in ("smooth_r_ecef", "smooth_q_eb", "smooth_sigma_ned_m"):
+        np.testing.assert_allclose(ze[name], za[name][k], rtol=1e-12, atol=1e-9, err_msg=name)
+    lines = [x for x in (tmp_path / "every" / "solution.pos").read_text().splitlines() if not x.startswith("%")]
+    all_lines = [x for x in (tmp_path / "all" / "solution.pos").read_text().splitlines() if not x.startswith("%")]
+    assert lines == [all_lines[i] for i in k]
+    with pytest.raises(ValueError, match="--output-every 0"):
+        replay.run_mode(inp, tmp_path / "zero", output_every=0)
+
+
 def test_gpst_text_matches_datetime():
     import datetime as dt
     x = np.array([0.0005, 1.0004999, 12.9995, 1e9 + 0.0015, 1.5e9 + 0.9999996, 86399.9996])

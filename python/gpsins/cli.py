@@ -115,6 +115,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="aid the filter with the session's dual-antenna heading and pitch (reference.csv), 1 Hz")
     p.add_argument("--covariance-every", type=int, default=0, metavar="N",
                    help="also write the full error-state covariance of every Nth epoch (covariance.parquet)")
+    p.add_argument("--output-every", type=int, default=1, metavar="N",
+                   help="the solution at every Nth IMU sample only (200 with a 200 Hz IMU: a 1 Hz .pos); the "
+                        "scoring uses the epochs written")
     p.add_argument("--force", action="store_true",
                    help="replay a data set even where the data-set doctor finds the data at odds with it")
     p.add_argument("--estimator", metavar="MODULE:NAME",

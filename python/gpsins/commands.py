@@ -116,7 +116,8 @@ def _run_one(args: argparse.Namespace, inp, out: Path, mode: str, overrides: dic
     return run.run_mode(inp, out, mode=mode, overrides=overrides, outages=args.outages,
                         reference=args.reference, reference_q=args.reference_q, point=args.point,
                         smooth=args.smooth, covariance_every=args.covariance_every,
-                        aid_heading=args.aid_heading, last_use=last_use, estimator=args.estimator)
+                        aid_heading=args.aid_heading, last_use=last_use, estimator=args.estimator,
+                        output_every=args.output_every)
 
 
 def _print_one(res) -> None:

@@ -34,13 +34,19 @@ def _ins_aiding_end(run: flt.ChunkedRun, fixes: np.ndarray) -> float | None:
     return None
 
 
-def start(inp, p: Plan, *, chunk_rows: int, overlap: bool, smooth: bool, estimator):
+def start(inp, p: Plan, *, chunk_rows: int, overlap: bool, smooth: bool, estimator, output_every: int = 1):
     """The run of the plan: (run, the time an INS run's free navigation starts from, the estimator's
     name). An INS run first runs the filter up to the fix that completed its initialisation; the plan
-    then gets its fixes up to there and the heading it searched."""
+    then gets its fixes up to there and the heading it searched. ``output_every``: an epoch out at every
+    so many IMU samples."""
+    if output_every < 1:
+        raise ValueError(f"--output-every {output_every}: a whole number of IMU samples, at least 1")
+    if estimator is not None and output_every != 1:
+        raise ValueError("--output-every: the built-in filter's (a plug-in estimator gives every epoch)")
+
     def make_run(cfg_run: dict, fixes_run: np.ndarray, record: bool) -> flt.ChunkedRun:
         return flt.ChunkedRun(inp.imu, fixes_run, cfg_run, mode=p.filter_mode, record=record, chunk_rows=chunk_rows,
-                              attitude=p.attitude, overlap=overlap, **p.tight)
+                              attitude=p.attitude, overlap=overlap, output_every=output_every, **p.tight)
 
     t2 = time.perf_counter()
     free_from, searched = None, None

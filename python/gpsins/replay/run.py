@@ -80,12 +80,13 @@ def replay(source: str | Path, out: str | Path, *, mode: str = "loose", config=N
            reference: str | Path | None = None, reference_q=(1,), point: str = "antenna",
            smooth: bool = False, covariance_every: int = 0, chunk_rows: int = flt.CHUNK_ROWS,
            aid_heading: bool = False, overlap: bool = True, force: bool = False,
-           estimator: str | None = None) -> ReplayResult:
+           estimator: str | None = None, output_every: int = 1) -> ReplayResult:
     """Replay a session directory or a data-set TOML (see the module doc); ``outages``: FIRST:LENGTH:PERIOD[:END];
     ``reference``: an RTKLIB .pos (its ``reference_q`` epochs) at the antenna point; ``point``: the point
     solution.pos gives (antenna or imu); ``smooth``: also the fixed-interval smoother (smoothed.parquet,
     smoothed.pos, run.json "smoothed"); ``covariance_every``: also the full covariance of every so many
-    epochs (covariance.parquet); ``chunk_rows``: IMU samples per filter call (memory, not results);
+    epochs (covariance.parquet); ``output_every``: the solution (and its scoring) at every so many IMU
+    samples only (200 at 200 Hz: a 1 Hz .pos); ``chunk_rows``: IMU samples per filter call (memory, not results);
     ``overlap``: the filter's next chunk runs on a second thread while this one is scored and written
     (results unchanged; off for one run per core, as Monte Carlo workers are). A session whose receiver
     restarted (GPS time going back) is replayed stretch by stretch into ``out/stretch-N``: the result
@@ -98,7 +99,8 @@ def replay(source: str | Path, out: str | Path, *, mode: str = "loose", config=N
     results = [run_mode(inp, Path(out) / stretch_dir(j, len(stretches)), mode=mode, overrides=overrides,
                         outages=outages, reference=reference, reference_q=reference_q, point=point, smooth=smooth,
                         covariance_every=covariance_every, chunk_rows=chunk_rows, aid_heading=aid_heading,
-                        overlap=overlap, estimator=estimator) for j, inp in enumerate(stretches)]
+                        overlap=overlap, estimator=estimator, output_every=output_every)
+               for j, inp in enumerate(stretches)]
     results[0].stretches = results
     return results[0]
 
@@ -130,7 +132,7 @@ def _run_mode(inp: Inputs, out: Path, *, mode: str = "loose", overrides: dict | 
              outages: str | outages_mod.OutageSpec | None = None, reference: str | Path | None = None,
              reference_q=(1,), point: str = "antenna", smooth: bool = False, covariance_every: int = 0,
              chunk_rows: int = flt.CHUNK_ROWS, aid_heading: bool = False, last_use: bool = False,
-             overlap: bool = True, estimator=None) -> ReplayResult:
+             overlap: bool = True, estimator=None, output_every: int = 1) -> ReplayResult:
     """One filter mode over decoded inputs (``load_inputs``), written to ``out`` (see ``replay``);
     ``estimator``: a plug-in estimator, or its ``package.module:name``, run in the built-in filter's
     place (``gpsins.nav.estimator``), scored and written the same way;
@@ -141,7 +143,7 @@ def _run_mode(inp: Inputs, out: Path, *, mode: str = "loose", overrides: dict | 
     p = plan(inp, mode=mode, overrides=overrides, outages=outages, point=point, smooth=smooth,
              aid_heading=aid_heading, estimator=estimator)
     run, free_from, estimator = start(inp, p, chunk_rows=chunk_rows, overlap=overlap, smooth=smooth,
-                                      estimator=estimator)
+                                      estimator=estimator, output_every=output_every)
     target = scoring_target(inp, p.ref_system, reference, reference_q)
     lever = lever_arm_body_m(p.cfg)
     output = Output(Path(out), inp, target, lever, point, covariance_every,
