@@ -31,6 +31,7 @@ REFIT_SHARE = 0.02
 # The clock map may move the samples already fed this much (s) before the filter is fed them again at their
 # new times: the robust alignment's own accuracy (tests/test_timing.py), a sixteenth of a 64 Hz sample
 REFEED_S = 1e-3
+MAX_UNSETTLED = 8
 INLINE_FIT_S = 0.005  # a due fit that took less than this last time is made before feeding, not after
 
 
@@ -76,6 +77,7 @@ class Follower:
         # samples are fed only on a settled map (one fit, or fits from GPS stamps a stall held back,
         # may be seconds off).
         self._settled = False
+        self._unsettled = 0  # fits in a row that did not agree with the one before
         self._moved = False  # the current fit moved the samples fed by more than REFEED_S
         self._whole: tuple | None = None  # a u-blox session: the last round's IMU times and rate
         self._fed_rate = 0  # ... and the rate of the increments fed
@@ -271,9 +273,15 @@ class Follower:
         self.warnings = fit["warnings"]
         if before is not None:
             k = before["idx"][-1:]
-            self._settled = abs(float(self._times(k)[0] - before["t"][-1])) <= REFEED_S
+            self._note_settled(abs(float(self._times(k)[0] - before["t"][-1])) <= REFEED_S)
         if self.last_fed >= 0 and abs(float(self._times(np.array([self.last_fed]))[0]) - self.t_fed) > REFEED_S:
             self._moved = True
+
+    def _note_settled(self, agrees: bool) -> None:
+        """A fit that agrees with the one before settles the map; so do MAX_UNSETTLED fits in a row that
+        do not (a map that keeps moving is fed anyway, and fed again whenever it moves what was fed)."""
+        self._unsettled = 0 if agrees else self._unsettled + 1
+        self._settled = agrees or self._unsettled >= MAX_UNSETTLED
 
     def _times(self, idx: np.ndarray) -> np.ndarray:
         """GPS times of valid IMU records (raw indices): the last fit's, and past it the fit's IMU clock
@@ -344,7 +352,7 @@ class Follower:
         before, self._whole = self._whole, (al.imu_t, dec.imu.rate_hz)
         if before is not None and len(before[0]):  # the last record both fits time, as _install compares
             k = min(len(before[0]), len(al.imu_t)) - 1
-            self._settled = abs(float(al.imu_t[k] - before[0][k])) <= REFEED_S and before[1] == dec.imu.rate_hz
+            self._note_settled(abs(float(al.imu_t[k] - before[0][k])) <= REFEED_S and before[1] == dec.imu.rate_hz)
         if not (self._settled or final):
             return None
         if self.last_fed >= 0 and (self.last_fed >= len(al.imu_t) or self._fed_rate != dec.imu.rate_hz

@@ -19,8 +19,6 @@ from . import results, solution
 from .plan import Plan, lever_arm_body_m
 from .scoring import Target, Scored, score_stream
 
-STAT_COLUMNS = ("kind", "dof", "nis", "accepted", "r_scale", "innovation", "innovation_sigma")
-
 
 def _ins_aiding_end(run: flt.ChunkedRun, fixes: np.ndarray) -> float | None:
     """Time of the fix after which the filter was initialised (heading known): the last one an INS run
@@ -106,7 +104,7 @@ class Forward:
     stream: solution.Stream
     events: dict  # t, kind, value of the filter's events
     update_kinds: dict  # update kind -> count
-    sources: dict  # per-source update statistics (noise_from_data.source_stats)
+    sources: dict  # per-source update statistics (noise_from_data.SourceStats)
     counters: dict  # the filter's counters after the pass
     time_offset: tuple | None  # the last epoch's IMU time offset estimate and sigma (s), with estimate_time_offset
     write_s: float
@@ -120,7 +118,7 @@ def forward(run, output: Output, p: Plan) -> Forward:
     updates = results.TableWriter(output.out / results.UPDATES)
     events: dict[str, list] = {"t": [], "kind": [], "value": []}
     update_kinds: dict[int, int] = {}
-    update_cols: dict[str, list] = {k: [] for k in STAT_COLUMNS}
+    sources = noise_from_data.SourceStats()
     write_s = 0.0
     time_offset = None  # the last epoch's estimate and sigma (s), with estimate_time_offset
     # The full covariance only for the covariance file; the sigmas and NEES take the navigation block.
@@ -131,8 +129,7 @@ def forward(run, output: Output, p: Plan) -> Forward:
         stream.add(sol, stream.epochs)
         updates.append(sol.updates)
         write_s += time.perf_counter() - w0
-        for k in STAT_COLUMNS:
-            update_cols[k].append(np.asarray(sol.updates[k]))
+        sources.add(sol.updates)
         for k in events:
             events[k].extend(np.asarray(sol.events.get(k, ())).tolist())
         for k, n in zip(*np.unique(sol.updates["kind"], return_counts=True)):
@@ -142,9 +139,7 @@ def forward(run, output: Output, p: Plan) -> Forward:
     p.clock["filter_s"] = time.perf_counter() - t3 - write_s
     if stream.epochs == 0:
         raise layouts.LogError(f"{p.source}: the filter never initialised (no usable fix after levelling)")
-    sources = noise_from_data.source_stats({k: np.concatenate(v) if v else np.zeros(0)
-                                            for k, v in update_cols.items()})
-    return Forward(stream, events, update_kinds, sources, run.counters, time_offset, write_s)
+    return Forward(stream, events, update_kinds, sources.result(), run.counters, time_offset, write_s)
 
 
 def smooth(run, output: Output, target: Target, score_sched: np.ndarray, p: Plan) -> tuple[dict, Scored]:
