@@ -1,7 +1,8 @@
 """gpsins live's follower over a session grown again record by record as the logger wrote it (no ptys, no
 wall clock, so no load can change it): the same answer as the replay of the finished session at every
 epoch (issue 39: 1 mm and 0.01 deg), also when the logger read its GPS port only 2.5 s in, so that the
-first clock maps are seconds off and later ones move what was fed."""
+first clock maps are seconds off and later ones move what was fed, on a host that stalls, and across a
+realtime clock set back."""
 
 import numpy as np
 import pytest
@@ -17,10 +18,18 @@ from gpsins.sim.session import simulate_session
 STEP_S = 0.05  # the follower looks this often (system seconds of the drive)
 
 
-@pytest.fixture(scope="module", params=[0.0, 2.5], ids=["steady", "gps_held_at_start"])
+CASES = {"steady": {},
+         "gps_held_at_start": {"gps_setup_hold_s": 2.5},
+         # A loaded host: stalls of 0.3 s on average every 2 s hold both ports (1.47 mm from the replay when
+         # only moves over 1 ms were fed again).
+         "host_stalls": {"load_stall_rate_hz": 0.5, "load_stall_mean_s": 0.3},
+         "clock_set_back": {"clock_step_at_s": 35.0, "clock_step_s": -1.5}}
+
+
+@pytest.fixture(scope="module", params=sorted(CASES))
 def followed(request, tmp_path_factory):
     root = tmp_path_factory.mktemp("grown")
-    sc = parse({"name": "grown", "start": START, "timing": {"gps_setup_hold_s": request.param},
+    sc = parse({"name": "grown", "start": START, "timing": CASES[request.param],
                 "segment": [{"label": "stand", "duration_s": 20, "speed_mps": 0},
                             {"label": "drive", "duration_s": 40, "speed_mps": 10, "turn_deg": 90}]})
     grown = GrowingCopy(simulate_session(sc, 3, root / "recorded"), root / "session")

@@ -29,8 +29,13 @@ REFIT_S = 0.25  # the whole clock fit again after this much new IMU data (s) ...
 # the fits of a long one cost a constant share of a core
 REFIT_SHARE = 0.02
 # The clock map may move the samples already fed this much (s) before the filter is fed them again at their
-# new times: the robust alignment's own accuracy (tests/test_timing.py), a sixteenth of a 64 Hz sample
+# new times: the robust alignment's own accuracy (tests/test_timing.py), a sixteenth of a 64 Hz sample.
+# While the session is short (the first FINE_REFEED_SAMPLES, 10 min at 100 Hz, a refeed at most 0.2 s of a
+# loose filter) also FINE_REFEED_S: the fits of a drive's first minutes move its samples by tens of
+# microseconds, which the filter carries on as a millimetre (a host that stalls now and then: 1.5 mm from
+# the replay at the end of a 60 s drive, 0.2 mm with these).
 REFEED_S = 1e-3
+FINE_REFEED_S, FINE_REFEED_SAMPLES = 1e-5, 60_000
 MAX_UNSETTLED = 8
 INLINE_FIT_S = 0.005  # a due fit that took less than this last time is made before feeding, not after
 
@@ -78,7 +83,7 @@ class Follower:
         # may be seconds off).
         self._settled = False
         self._unsettled = 0  # fits in a row that did not agree with the one before
-        self._moved = False  # the current fit moved the samples fed by more than REFEED_S
+        self._moved = False  # the current fit moved the samples fed (_moves)
         self._whole: tuple | None = None  # a u-blox session: the last round's IMU times and rate
         self._fed_rate = 0  # ... and the rate of the increments fed
         self.fed = False  # the last poll fed samples
@@ -176,15 +181,21 @@ class Follower:
         return self._feed(rows, gps.fixes.a, prs, iono, ephemerides)
 
     def _refeed(self) -> None:
-        """The clock map moved the samples fed so far by more than ``REFEED_S``: a new filter is fed them
+        """The clock map moved the samples fed so far (``_moves``): a new filter is fed them
         again at their new times, up to the last epoch already out (those epochs stay as they went out;
         the ones after come from the new filter, the state replay would have with this clock map).
         Without it a map moved forward leaves a hole in the samples (the filter restarts after a gap over
         ``max_gap_s``) and one moved back drops the samples it moves behind the last fed."""
-        t_out = self._start_over()
+        last, t_out = self.last_fed, self._start_over()
         idx = self._unfed()
-        self._feed_upto(idx, self._times(idx), t_out)
+        t = self._times(idx)
+        self._feed_upto(idx, t, _refeed_upto(t_out, float(t[np.searchsorted(idx, last)]),
+                                             1.0 / self.stream.imu.rate_hz))
         self.fed = False
+
+    def _moves(self, shift_s: float) -> bool:
+        """Whether a fit that moved the last sample fed by ``shift_s`` calls for a refeed."""
+        return shift_s > REFEED_S or (shift_s > FINE_REFEED_S and self.n_imu <= FINE_REFEED_SAMPLES)
 
     def _start_over(self) -> float:
         """No filter and nothing fed (``_refeed``); returns the time of the last epoch out."""
@@ -274,7 +285,7 @@ class Follower:
         if before is not None:
             k = before["idx"][-1:]
             self._note_settled(abs(float(self._times(k)[0] - before["t"][-1])) <= REFEED_S)
-        if self.last_fed >= 0 and abs(float(self._times(np.array([self.last_fed]))[0]) - self.t_fed) > REFEED_S:
+        if self.last_fed >= 0 and self._moves(abs(float(self._times(np.array([self.last_fed]))[0]) - self.t_fed)):
             self._moved = True
 
     def _note_settled(self, agrees: bool) -> None:
@@ -356,9 +367,10 @@ class Follower:
         if not (self._settled or final):
             return None
         if self.last_fed >= 0 and (self.last_fed >= len(al.imu_t) or self._fed_rate != dec.imu.rate_hz
-                                   or abs(float(al.imu_t[self.last_fed]) - self.t_fed) > REFEED_S):
-            t_out = self._start_over()
-            self._feed_whole(dec, al, t_out)
+                                   or self._moves(abs(float(al.imu_t[self.last_fed]) - self.t_fed))):
+            last, t_out = self.last_fed, self._start_over()
+            self._feed_whole(dec, al, _refeed_upto(t_out, float(al.imu_t[min(last, len(al.imu_t) - 1)]),
+                                                   1.0 / dec.imu.rate_hz))
             self.fed = False
         newest = float(dec.gps.tow[-1])
         last_fix = float(dec.gps.fixes[-1, 0]) if len(dec.gps.fixes) else -math.inf
@@ -384,6 +396,13 @@ class Follower:
         iono = (dec.gps.iono.alpha, dec.gps.iono.beta) if dec.gps.iono else None
         return self._feed(rows, dec.gps.fixes, prs, iono, dec.gps.decoded_ephemerides() if self.mode == "tight"
                           else [])
+
+
+def _refeed_upto(t_out: float, t_last: float, period_s: float) -> float:
+    """How far a refeed goes: to the last sample fed (``t_last``, at its new time) when it moved less than
+    half a step, so each sample is an epoch once as in replay; else to the last epoch out (``t_out``), so
+    the outputs stay in time order and a sample moved past it is not left out."""
+    return t_last if abs(t_last - t_out) < 0.5 * period_s else t_out
 
 
 class _Sidecar:

@@ -6,9 +6,9 @@ it looks at the record files' sizes; when GPS records have landed it reads only 
 samples by the last clock fit extended along the IMU's frame counter (the robust alignment, fitted again
 on everything when the data grew by ``REFIT_S`` or ``REFIT_SHARE``, after a round's outputs, or at once
 for a gap the counter cannot count; samples wait for a fit that agrees with the one before, and when a fit
-moves what was fed by over a millisecond, a new filter is fed it all again: ``refeeds`` in the status),
-feeds the samples, fixes and pseudoranges up to the newest fix to the streaming filter (the C++ core, as
-a replay's chunks are fed), and writes:
+moves what was fed (over 1 ms; 10 us in its first 60 000 samples), a new filter is fed it all again:
+``refeeds`` in the status), feeds the samples, fixes and pseudoranges up to the newest fix to the
+streaming filter (the C++ core, as a replay's chunks are fed), and writes:
 
 - NMEA 0183 GGA, RMC and GST of every output epoch (or every ``nmea_every``-th) to the clients of a TCP
   port on the loopback interface (``--nmea-port``), for gpsd, QGIS or OpenCPN: first, as soon as a fix is in;
@@ -21,8 +21,9 @@ a replay's chunks are fed), and writes:
 logger's root and moves on when the logger starts another (a restart). A u-blox session is decoded and
 aligned whole each round (the incremental reader is the Superstar II's). Against a replay of the
 finished session: samples fed during the drive were timed by the fit of their time, which the rest of the
-session refines (the fit is one line over the session), so the two solutions agree to about a
-millimetre at real time, not bit for bit; ``tests/test_live.py`` and ``benchmarks/bench_live.py`` measure it.
+session refines (the fit is one line over the session), so the two solutions agree to a fraction of a
+millimetre at real time, not bit for bit; ``tests/test_live_follower.py``, ``tests/test_live.py`` and
+``benchmarks/bench_live.py`` measure it.
 """
 
 from __future__ import annotations
