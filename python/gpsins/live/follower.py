@@ -30,12 +30,12 @@ REFIT_S = 0.25  # the whole clock fit again after this much new IMU data (s) ...
 REFIT_SHARE = 0.02
 # The clock map may move the samples already fed this much (s) before the filter is fed them again at their
 # new times: the robust alignment's own accuracy (tests/test_timing.py), a sixteenth of a 64 Hz sample.
-# While the session is short (the first FINE_REFEED_SAMPLES, 10 min at 100 Hz, a refeed at most 0.2 s of a
-# loose filter) also FINE_REFEED_S: the fits of a drive's first minutes move its samples by tens of
-# microseconds, which the filter carries on as a millimetre (a host that stalls now and then: 1.5 mm from
-# the replay at the end of a 60 s drive, 0.2 mm with these).
+# While the session is short (the first FINE_REFEED_SAMPLES, 5 min at 64 Hz: a refeed then takes at most
+# 0.07 s of a loose filter, the round's NMEA that much later) also FINE_REFEED_S: the fits of a drive's first
+# minutes move its samples by tens of microseconds, which the filter carries on as a millimetre (a host
+# that stalls now and then: 1.5 mm from the replay at the end of a 60 s drive, 0.2 mm with these).
 REFEED_S = 1e-3
-FINE_REFEED_S, FINE_REFEED_SAMPLES = 1e-5, 60_000
+FINE_REFEED_S, FINE_REFEED_SAMPLES = 1e-5, 20_000
 MAX_UNSETTLED = 8
 INLINE_FIT_S = 0.005  # a due fit that took less than this last time is made before feeding, not after
 

@@ -6,7 +6,7 @@ it looks at the record files' sizes; when GPS records have landed it reads only 
 samples by the last clock fit extended along the IMU's frame counter (the robust alignment, fitted again
 on everything when the data grew by ``REFIT_S`` or ``REFIT_SHARE``, after a round's outputs, or at once
 for a gap the counter cannot count; samples wait for a fit that agrees with the one before, and when a fit
-moves what was fed (over 1 ms; 10 us in its first 60 000 samples), a new filter is fed it all again:
+moves what was fed (over 1 ms; 10 us in its first 20 000 samples), a new filter is fed it all again:
 ``refeeds`` in the status), feeds the samples, fixes and pseudoranges up to the newest fix to the
 streaming filter (the C++ core, as a replay's chunks are fed), and writes:
 
