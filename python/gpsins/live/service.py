@@ -159,6 +159,7 @@ def _status(fol: Follower, sol: flt.Solution, a: dict) -> dict:
             "r_ecef": a["r_ecef"][k], "ypr_deg": a["ypr_deg"][k], "sigma_ned_m": a["sigma_ned_m"][k],
             "sigma_ypr_deg": a["sigma_ypr_deg"][k], "heading_known": bool(sol.heading_known[k]),
             "imu_fed": fol.n_imu, "fixes_fed": fol.n_fix, "pseudoranges_fed": fol.n_pr, "refeeds": fol.refeeds,
+            "clock_settled": fol.clock_settled,
             "counters": {c: fol.counters.get(c) for c in ("fixes_accepted", "fixes_rejected", "gnss_resets",
                                                           "imu_gap_restarts", "pseudoranges_used", "diverged")},
             "nis_per_dof": nis_per_source(sol.updates), "warnings": fol.warnings}
