@@ -61,6 +61,9 @@ def test_flips_and_garbage_never_lose_an_intact_superstar2_frame(seed):
 
 @settings(max_examples=40, deadline=None)
 @given(st.integers(0, 2**32 - 1))
+# Garbage with a valid sum and counter 175 between frames 173 and 176 was taken while hunting, and lost the
+# intact 174 after it (found by this test beside the suite under load).
+@example(seed=34898)
 def test_flips_and_garbage_never_lose_an_intact_bp3010_frame(seed):
     check_no_loss(bp3010.FRAMING, BP, seed, p_flip=0.1, p_garbage=0.1)
 

@@ -144,11 +144,23 @@ def _live_against_replay(followed, tmp_path):
     follower.SETTLE_SPAN_S of them)."""
     _, session, out, rounds, _, lat, _ = followed
     z, e = results.load(replay.replay(session, tmp_path / "replay", **lat).out), outputs.read_epochs(out / "live.f64")
-    assert len(e["t"]) == len(z["t"])  # the same IMU samples, each timed by its own round's clock map
-    t_from = max([r["t"] for r in rounds if not r["clock_settled"]], default=-np.inf)
-    assert t_from <= e["t"][0] + follower.SETTLE_SPAN_S + 2.0  # settled a few rounds after that much GPS time
-    after = e["t"] > t_from
-    return np.abs(e["t"] - z["t"])[after], np.linalg.norm(e["r_ecef"] - z["r_ecef"], axis=1)[after]
+    return settled_differences(e, z, rounds, 0.8)
+
+
+def settled_differences(e: dict, z: dict, rounds: list[dict], share: float) -> tuple[np.ndarray, np.ndarray]:
+    """|t| and |r| differences of live's epochs that went out on a settled clock map (rounds whose status
+    says clock_settled) against the replay's epoch nearest each: a sample given twice or left out would
+    pair with a neighbour a step (15.6 ms) away. Before the map settles it may differ (a loaded run: 4673
+    epochs against 4672, the extra one in the first second). At least ``share`` of the epochs are held to it."""
+    t_round = np.array([r["t"] for r in rounds])
+    ok = np.array([r["clock_settled"] for r in rounds])
+    k = np.searchsorted(t_round, e["t"])  # the round that gave each epoch: the first whose last epoch is at or after it
+    settled = ok[np.minimum(k, len(ok) - 1)] & (k < len(ok))
+    assert settled.sum() >= share * len(z["t"]), (settled.sum(), len(z["t"]))
+    t = e["t"][settled]
+    j = np.clip(np.searchsorted(z["t"], t), 1, len(z["t"]) - 1)
+    j = np.where(np.abs(z["t"][j - 1] - t) < np.abs(z["t"][j] - t), j - 1, j)
+    return np.abs(z["t"][j] - t), np.linalg.norm(z["r_ecef"][j] - e["r_ecef"][settled], axis=1)
 
 
 def test_live_times_its_samples_as_the_replay_does(followed, tmp_path):
@@ -388,11 +400,8 @@ def test_live_survives_rotation_unplug_and_junk_and_times_as_replay_does(rough, 
     z, e = results.load(replay.replay(session, tmp_path / "replay", **lat).out), outputs.read_epochs(out / "live.f64")
     assert len(e["t"]) == len(z["t"])
     statuses = [json.loads(x) for x in (out / "status.jsonl").read_text().splitlines()]
-    t_from = max([r["t"] for r in statuses if not r["clock_settled"]], default=-np.inf)  # as _live_against_replay
-    assert t_from <= e["t"][0] + follower.SETTLE_SPAN_S + 2.0
-    after = e["t"] > t_from
-    dt = np.abs(e["t"] - z["t"])[after]
-    dr = np.linalg.norm(e["r_ecef"] - z["r_ecef"], axis=1)[after]
+    # 10 s to settle at the start and again after the IMU is plugged back in, of a 45 s drive.
+    dt, dr = settled_differences(e, z, statuses, 0.4)
     print(f"rough drive, live against replay: time max {1e3 * dt.max():.3f} ms, position max {1e3 * dr.max():.2f} mm")
     assert dt.max() < 1e-3
     last = statuses[-1]

@@ -215,11 +215,12 @@ class Follower:
 
     @property
     def clock_settled(self) -> bool:
-        """Whether the clock map has SETTLE_SPAN_S of GPS time messages behind it: epochs out before then
-        were timed on a map that later messages may still move by a millisecond or more."""
+        """Whether the clock map has SETTLE_SPAN_S of GPS time messages behind it, and the IMU clock's newest
+        piece (after a gap the counter cannot count) as long: epochs out before then were timed on a map that
+        later messages may still move by a millisecond or more (2.2 ms right after an unplugged IMU)."""
         if self.stream is None:
             return self._whole is not None and self._whole_span_s >= SETTLE_SPAN_S
-        return self._fit is not None and self._fit["gps_span_s"] >= SETTLE_SPAN_S
+        return self._fit is not None and min(self._fit["gps_span_s"], self._fit["piece_span_s"]) >= SETTLE_SPAN_S
 
     def finished(self) -> bool:
         """The logger has marked the session stopped (its sidecar says so)."""
@@ -287,7 +288,8 @@ class Follower:
         span = float(imu_stamps[-1] - imu_stamps[0])
         return {"idx": kept, "t": al.imu_t, "n": al.imu_index.astype(np.int64), "p": float(al.imu_period_s),
                 "count": len(kept), "gps_per_system_s": (float(al.imu_t[-1] - al.imu_t[0]) / span) if span > 0
-                else 1.0, "warnings": list(al.warnings), "gps_span_s": float(np.ptp(tow))}
+                else 1.0, "warnings": list(al.warnings), "gps_span_s": float(np.ptp(tow)),
+                "piece_span_s": float(al.imu_t[-1] - al.imu_t[_newest_piece(al)])}
 
     def _install(self, fit: dict) -> None:
         before = self._fit
@@ -410,6 +412,12 @@ class Follower:
         iono = (dec.gps.iono.alpha, dec.gps.iono.beta) if dec.gps.iono else None
         return self._feed(rows, dec.gps.fixes, prs, iono, dec.gps.decoded_ephemerides() if self.mode == "tight"
                           else [])
+
+
+def _newest_piece(al) -> int:
+    """The first record of the IMU clock's newest piece (after its last gap of PIECE_GAP_S or more)."""
+    long_gaps = [k for k, missing in al.gaps if missing * al.imu_period_s >= timing.PIECE_GAP_S]
+    return long_gaps[-1] if long_gaps else 0
 
 
 def _refeed_upto(t_out: float, t_last: float, period_s: float) -> float:
