@@ -659,6 +659,11 @@ def test_pos_read_at_once_equals_row_by_row(tmp_path, monkeypatch):
     monkeypatch.setattr(rtklib_pos, "_table", lambda *a: None)
     slow = [rtklib_pos.read(p, g) for p, g in ((walk, -21.387), (ecef, None), (edited, -21.387))]
     assert all(_same_fields(a, b) for a, b in zip(fast, slow))
+    monkeypatch.setattr(rtklib_pos, "_table", at_once)
+    lines[data[9]] = lines[data[9]].replace(lines[data[9]].split()[0], "2019/02/30", 1)  # no such day
+    edited.write_text("\n".join(lines) + "\n")
+    with pytest.raises(ReaderError, match=rf"w\.pos:{data[9] + 1}: time: bad value"):
+        rtklib_pos.read(edited, -21.387)
 
 
 def test_imu_csv_read_by_pyarrow_equals_loadtxt(tmp_path, monkeypatch):

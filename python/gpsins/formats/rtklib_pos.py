@@ -226,8 +226,11 @@ def _table(rows: list, names: list[str], header: list[str], kind: str) -> tuple[
         if not (np.array_equal(a[:, :5], np.floor(a[:, :5])) and np.all((mo >= 1) & (mo <= 12) & (d >= 1) & (d <= 31))):
             return None
         y = np.where(y < 100, y + np.where(y < 80, 2000, 1900), y)
+        days = _days_since_gps_epoch(y, mo, d)
+        if days is None:
+            return None
         seconds = a[:, 3].astype(np.int64) * 3600 + a[:, 4].astype(np.int64) * 60
-        t = (_days_since_gps_epoch(y, mo, d) * 86400.0 + seconds) + a[:, 5]  # gps_seconds' sum, in its order
+        t = (days * 86400.0 + seconds) + a[:, 5]  # gps_seconds' sum, in its order
     else:
         t = a[:, 0].astype(np.int64) * SECONDS_PER_WEEK + a[:, 1]
     values = a[:, width - len(names):]
@@ -241,14 +244,15 @@ def _table(rows: list, names: list[str], header: list[str], kind: str) -> tuple[
     return t, values
 
 
-def _days_since_gps_epoch(y: np.ndarray, mo: np.ndarray, d: np.ndarray) -> np.ndarray:
-    """Whole days from 1980-01-06 to each proleptic Gregorian date (days from the civil date, in integers)."""
-    y = y - (mo <= 2)
-    era = np.floor_divide(y, 400)
-    yoe = y - era * 400
-    doy = (153 * (mo + np.where(mo > 2, -3, 9)) + 2) // 5 + d - 1
-    doe = yoe * 365 + yoe // 4 - yoe // 100 + doy
-    return era * 146097 + doe - 719468 - 3657  # 1970-01-01 is day 0 of the first sum; 1980-01-06 is day 3657
+def _days_since_gps_epoch(y: np.ndarray, mo: np.ndarray, d: np.ndarray) -> np.ndarray | None:
+    """Whole days from 1980-01-06 to each date (NumPy's calendar), or None if one is no date (30 February):
+    the row loop then names it."""
+    days = (np.asarray(y - 1970, "datetime64[Y]").astype("datetime64[M]") + (mo - 1).astype("timedelta64[M]")
+            ).astype("datetime64[D]") + (d - 1).astype("timedelta64[D]")
+    if not np.array_equal(days.astype("datetime64[M]").astype("datetime64[D]") + (d - 1).astype("timedelta64[D]"),
+                          days):
+        return None
+    return (days - np.datetime64("1980-01-06", "D")).astype(np.int64)
 
 
 def _dms(tokens: list[str]) -> float:
