@@ -177,8 +177,8 @@ def test_live_times_its_samples_as_the_replay_does(followed, tmp_path):
 @pytest.mark.xfail(strict=False, reason="issue 39 asks 1 mm against the replay once the alignment has settled; an "
                    "epoch that went out keeps the time the clock map of its moment gave it, and the rest of the "
                    "session moves that map (one line of the IMU counter over the whole session): at 4x (the stamps' "
-                   "jitter 4x larger in GPS seconds) 0.1-0.5 ms, and 0.25-1.32 mm in position in five runs, some beside "
-                   "other load (1.5-13.7 mm before the filter was fed again on the fits' "
+                   "jitter 4x larger in GPS seconds) 0.1-0.5 ms, and 0.25-1.32 mm in position in five runs, "
+                   "some beside other load (1.5-13.7 mm before the filter was fed again on the fits' "
                    "moves of over 10 us in a session's first 20 000 samples); on grown sessions at real time "
                    "0.15-0.22 mm (test_live_follower.py); a causal map, the same online and in replay, would make "
                    "them equal")
