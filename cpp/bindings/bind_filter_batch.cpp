@@ -98,7 +98,13 @@ py::dict smooth_recorded(EskfRecorder<NB, NC, NT>& rec, bool with_cov, py::objec
   double sink_s = 0.0, sink_cpu_s = 0.0;  // the caller's work on the blocks, not the smoother's
   {
     py::gil_scoped_release release;
-    rec.smooth([&](long k, const double* row, const Eigen::Matrix<double, N, N>& p) {
+    // Without the whole covariance wanted, only the navigation block's covariances are formed.
+    std::uint64_t blocks = Rec::Pass::kAllStates;
+    if (!with_cov || nav_cov) {
+      blocks = (std::uint64_t(1) << es::kNavStates) - 1;
+      if constexpr (NT == 1) blocks |= std::uint64_t(1) << (N - 1);
+    }
+    const auto emit = [&](long k, const double* row, const Eigen::Matrix<double, N, N>& p) {
       double* o = block.first.mutable_data() + (k - lo) * kCols;
       std::copy(row, row + kNom - 1, o);
       for (int i = 0; i < N; ++i) o[kNom - 1 + i] = std::sqrt(std::max(p(i, i), 0.0));
@@ -122,7 +128,8 @@ py::dict smooth_recorded(EskfRecorder<NB, NC, NT>& rec, bool with_cov, py::objec
         if (lo > 0) block = new_block(lo - next_lo);
         lo = next_lo;
       }
-    });
+    };
+    rec.smooth(emit, blocks);
   }
   const double backward_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count() - sink_s;
   const double backward_cpu_s = thread_cpu_s() - c0 - sink_cpu_s;

@@ -69,9 +69,11 @@ class LinearRts final : public EskfObserver<kN> {
   std::size_t spilled() const { return tape_.spilled_bytes(); }
 
   void on_propagate(const MatN& phi) override {
-    Eigen::Map<MatN>(tape_.append(SmootherTape::kPropagate, kN * kN)) = phi;
+    BackwardPass<kN>::record_transition(tape_, SmootherTape::kPropagate, phi);
   }
-  void on_transition(const MatN& a) override { Eigen::Map<MatN>(tape_.append(SmootherTape::kTransition, kN * kN)) = a; }
+  void on_transition(const MatN& a) override {
+    BackwardPass<kN>::record_transition(tape_, SmootherTape::kTransition, a);
+  }
   void on_update(const MatRef& H, const MatRef& K, const MatRef& s_inv, const VecRef& y, const Mat3& g) override {
     const int m = static_cast<int>(H.rows());
     double* d = tape_.append(SmootherTape::kUpdate, 1 + 2 * m * kN + m * m + m + 9);

@@ -22,7 +22,7 @@ struct Recorded {
   SmootherTape tape;
   long outputs = 0;
   explicit Recorded(std::size_t chunk) : tape(chunk) {}
-  void propagate(const MatN& phi) { Eigen::Map<MatN>(tape.append(SmootherTape::kPropagate, kN * kN)) = phi; }
+  void propagate(const MatN& phi) { BackwardPass<kN>::record_transition(tape, SmootherTape::kPropagate, phi); }
   void update(const Eigen::MatrixXd& H, const Eigen::MatrixXd& K, const Eigen::MatrixXd& s_inv,
               const Eigen::VectorXd& y) {
     const int m = static_cast<int>(H.rows());
@@ -140,11 +140,17 @@ TEST_CASE("smoother tape: bytes per record as documented") {
   SmootherTape tape(4096);
   tape.append(SmootherTape::kPropagate, 225);
   CHECK(tape.bytes() == 226 * sizeof(double));
+  // A transition: one mask per column, its non-zeros (here the identity and 7 more), the trailer.
+  Eigen::Matrix<double, 15, 15> a = Eigen::Matrix<double, 15, 15>::Identity();
+  for (int k = 0; k < 7; ++k) a(k, 14 - k) = 0.5 + k;
+  const std::size_t before = tape.bytes();
+  BackwardPass<15>::record_transition(tape, SmootherTape::kTransition, a);
+  CHECK(tape.bytes() - before == (15 + 15 + 7 + 1) * sizeof(double));
   using R50 = EskfRecorder<5, 0>;
   using R52 = EskfRecorder<5, 2>;
   using R72 = EskfRecorder<7, 2>;
   using R53 = EskfRecorder<5, 3>;  // loose with the fix-error states
-  // Output record: nominal + packed covariance + trailer; propagation: N^2 + trailer.
+  // Output record: nominal + packed covariance + trailer.
   CHECK(R50::kNominal + BackwardPass<15>::kPacked + 1 == 139);
   CHECK(R52::kNominal + BackwardPass<17>::kPacked + 1 == 174);
   CHECK(R72::kNominal + BackwardPass<23>::kPacked + 1 == 303);
@@ -199,7 +205,7 @@ TEST_CASE("smoother backward pass: sparse transitions and updates equal the dens
       for (int j = 0; j < 15; ++j)
         if (!(i < 3 && (j >= 3 && j < 9)) && !(i < 3 && j >= 12)) phi(i, j) += 0.05 * n01(rng);
     for (int i = 9; i < 15; ++i) phi(i, i) = 0.999;
-    Eigen::Map<MatN>(tape.append(SmootherTape::kPropagate, N * N)) = phi;
+    BackwardPass<N>::record_transition(tape, SmootherTape::kPropagate, phi);
     records.push_back({1, std::vector<double>(phi.data(), phi.data() + N * N)});
     if (k % 4 == 0) {  // a fix: position and, through a lever arm, attitude columns
       const int m = k % 8 == 0 ? 3 : 1;
@@ -283,4 +289,22 @@ TEST_CASE("smoother backward pass: sparse transitions and updates equal the dens
   CHECK(scale > 1.0);
   CHECK(ddx < 1e-9 * scale);
   CHECK(dps < 1e-9 * scale);
+  // Only some states' covariances wanted: those and every variance as the dense pass gives them, the rest zero.
+  const std::uint64_t blocks = 0x1FF | std::uint64_t(1) << 14;
+  double dblock = 0.0, rest = 0.0;
+  BackwardPass<N>::run(
+      tape, outputs,
+      [&](long i, const double*, int, const VecN&, const MatN& ps) {
+        const MatN& want = ps_dense[static_cast<std::size_t>(i)];
+        for (int r = 0; r < N; ++r)
+          for (int c = 0; c < N; ++c) {
+            if (r == c || ((blocks >> r & 1) && (blocks >> c & 1)))
+              dblock = std::max(dblock, std::abs(ps(r, c) - want(r, c)));
+            else
+              rest = std::max(rest, std::abs(ps(r, c)));
+          }
+      },
+      blocks);
+  CHECK(dblock < 1e-9 * scale);
+  CHECK(rest == 0.0);
 }

@@ -30,14 +30,17 @@
 // back chunk by chunk, newest first.
 //
 // Cost of the backward pass per output epoch: Phi^T Lambda Phi over Phi's
-// non-zeros only (about half of a step's Phi), P - P Lambda P as one dense
-// product and half of a second; an update works on the columns its H uses.
-// On the default drive it takes about half the forward pass's CPU time (loose).
+// non-zeros only (a third of a step's Phi loose, a sixth tight), P - P Lambda P
+// as one dense product and half of a second (or, where only the variances and a
+// block are wanted, their dot products); an update works on the columns its H
+// uses. On the default drive, whole covariances, it takes 0.8 of the forward
+// pass's CPU time loose and 1.1 tight (benchmarks/bench_smoother.py speed).
 #pragma once
 
 #include <cstdint>
 #include <array>
 #include <cstdio>
+#include <cstring>
 #include <functional>
 #include <string>
 #include <vector>
@@ -104,7 +107,34 @@ class BackwardPass {
     return p;
   }
 
-  static void run(SmootherTape& tape, long n_outputs, const Emit& emit) {
+  // A transition's record (Phi or a re-initialisation's A): for each column a 64-bit
+  // mask of its non-zero rows, its bits copied into a double, then the non-zeros
+  // column by column. A step's Phi is about half zeros (the tight filter's, with its
+  // diagonal slots and clock, three quarters), and these are what the pass visits.
+  static_assert(N <= 64, "a transition record's column mask is 64 bits");
+  static void record_transition(SmootherTape& tape, SmootherTape::Kind kind, const MatN& a) {
+    const int nz = static_cast<int>((a.array() != 0.0).count());
+    double* d = tape.append(kind, N + nz);
+    double* v = d + N;
+    for (int j = 0; j < N; ++j) {
+      std::uint64_t mask = 0;
+      for (int i = 0; i < N; ++i)
+        if (const double x = a(i, j); x != 0.0) {
+          mask |= std::uint64_t(1) << i;
+          *v++ = x;
+        }
+      std::memcpy(d + j, &mask, sizeof mask);
+    }
+  }
+
+  // blocks: the states whose covariances with each other are wanted (bit i: state i); of
+  // the others only the variances are formed, the rest of the emitted matrix is zero.
+  static constexpr std::uint64_t kAllStates = N == 64 ? ~std::uint64_t(0) : (std::uint64_t(1) << N) - 1;
+  static void run(SmootherTape& tape, long n_outputs, const Emit& emit, std::uint64_t blocks = kAllStates) {
+    std::array<int, N> cov_states;
+    int n_cov = 0;
+    for (int i = 0; i < N; ++i)
+      if (blocks >> i & 1) cov_states[n_cov++] = i;
     VecN lam = VecN::Zero();
     MatN Lam = MatN::Zero();
     long index = n_outputs;
@@ -125,8 +155,18 @@ class BackwardPass {
           // products of columns (P is symmetric), mirrored.
           const MatN w = Lam * p;
           MatN ps;
-          for (int j = 0; j < N; ++j)
-            for (int i = j; i < N; ++i) ps(i, j) = ps(j, i) = p(i, j) - p.col(i).dot(w.col(j));
+          if (n_cov == N) {
+            for (int j = 0; j < N; ++j)
+              for (int i = j; i < N; ++i) ps(i, j) = ps(j, i) = p(i, j) - p.col(i).dot(w.col(j));
+          } else {  // a replay's sigmas and navigation block: a fifth of the pass's work saved (tight)
+            ps.setZero();
+            for (int i = 0; i < N; ++i) ps(i, i) = p(i, i) - p.col(i).dot(w.col(i));
+            for (int b = 0; b < n_cov; ++b)
+              for (int a = b + 1; a < n_cov; ++a) {
+                const int i = cov_states[a], j = cov_states[b];
+                ps(i, j) = ps(j, i) = p(i, j) - p.col(i).dot(w.col(j));
+              }
+          }
           emit(--index, d, n_nom, dx, ps);
           break;
         }
@@ -135,25 +175,19 @@ class BackwardPass {
   }
 
  private:
-  // lambda <- Phi^T lambda, Lambda <- Phi^T Lambda Phi. A step's Phi is about
-  // half zeros (the bias rows, the attitude row's velocity and position
-  // blocks, diagonal bias blocks) and a restart's A more: only its non-zeros
-  // are visited, column by column, each scaling a whole column of Lambda.
+  // lambda <- Phi^T lambda, Lambda <- Phi^T Lambda Phi. Only Phi's non-zeros
+  // (record_transition) are visited, column by column, each scaling a whole
+  // column of Lambda.
   static void transition_step(const double* d, VecN& lam, MatN& Lam) {
     std::array<int, N + 1> start;
     std::array<int, N * N> row;
-    std::array<double, N * N> val;
+    const double* val = d + N;  // record_transition's layout
     int nz = 0;
     for (int j = 0; j < N; ++j) {
       start[j] = nz;
-      for (int i = 0; i < N; ++i) {
-        const double v = d[j * N + i];
-        if (v != 0.0) {
-          row[nz] = i;
-          val[nz] = v;
-          ++nz;
-        }
-      }
+      std::uint64_t mask;
+      std::memcpy(&mask, d + j, sizeof mask);
+      for (; mask; mask &= mask - 1) row[nz++] = __builtin_ctzll(mask);
     }
     start[N] = nz;
     VecN l;
@@ -278,7 +312,7 @@ class EskfRecorder final : public EskfObserver<3 * NB + NC + NT> {
   }
   void on_transition(const MatN& a) override {
     flush_phi();
-    Eigen::Map<MatN>(tape_.append(SmootherTape::kTransition, N * N)) = a;
+    Pass::record_transition(tape_, SmootherTape::kTransition, a);
   }
 
   // An output epoch: the core's nominal state and covariance now.
@@ -314,7 +348,10 @@ class EskfRecorder final : public EskfObserver<3 * NB + NC + NT> {
 
   // Backward pass: emit(index, row of the smoothed nominal in the layout above
   // (flags last), smoothed covariance), newest first.
-  void smooth(const std::function<void(long, const double*, const MatN&)>& emit);
+  // blocks: as BackwardPass::run's; the attitude is always among them (the reset after
+  // the injection mixes its rows into the others').
+  void smooth(const std::function<void(long, const double*, const MatN&)>& emit,
+              std::uint64_t blocks = Pass::kAllStates);
 
   long outputs() const { return outputs_; }
   const SmootherTape& tape() const { return tape_; }
@@ -322,7 +359,7 @@ class EskfRecorder final : public EskfObserver<3 * NB + NC + NT> {
  private:
   void flush_phi() {
     if (!have_phi_) return;
-    Eigen::Map<MatN>(tape_.append(SmootherTape::kPropagate, N * N)) = phi_;
+    Pass::record_transition(tape_, SmootherTape::kPropagate, phi_);
     have_phi_ = false;
   }
   SmootherTape tape_;
@@ -335,10 +372,11 @@ class EskfRecorder final : public EskfObserver<3 * NB + NC + NT> {
 // pass, the heaviest code here) out of the files that use a recorder: compiled once, in
 // cpp/src/rts_recorders/, for the filters the core builds.
 template <int NB, int NC, int NT>
-void EskfRecorder<NB, NC, NT>::smooth(const std::function<void(long, const double*, const MatN&)>& emit) {
+void EskfRecorder<NB, NC, NT>::smooth(const std::function<void(long, const double*, const MatN&)>& emit,
+                                      std::uint64_t blocks) {
   flush_phi();
   std::array<double, kNominal> row{};
-  Pass::run(tape_, outputs_, [&](long k, const double* nom, int, const typename Pass::VecN& dx, const MatN& ps) {
+  const auto smoothed = [&](long k, const double* nom, int, const typename Pass::VecN& dx, const MatN& ps) {
     std::copy(nom, nom + kNominal, row.begin());
     Quat q(nom[kRowQuat], nom[kRowQuat + 1], nom[kRowQuat + 2], nom[kRowQuat + 3]);
     Vec3 dth = dx.template segment<3>(es::att);
@@ -374,7 +412,8 @@ void EskfRecorder<NB, NC, NT>::smooth(const std::function<void(long, const doubl
     p.template leftCols<3>() = (p.template leftCols<3>() * g.transpose()).eval();
     if (heading_unknown) p.template block<3, 3>(es::att, es::att) += yaw_var * up_b * up_b.transpose();
     emit(k, row.data(), p);
-  });
+  };
+  Pass::run(tape_, outputs_, smoothed, blocks | 7);
 }
 
 #define GPSINS_RECORDER_EXTERN(NB, NC, NT) extern template class EskfRecorder<NB, NC, NT>;
