@@ -289,6 +289,15 @@ def test_replay_cli_on_a_data_set_prints_the_outage_table(tmp_path, capsys):
     assert "--outages '5:10'" in capsys.readouterr().err
 
 
+def test_outages_none_sets_the_data_sets_schedule_aside(tmp_path):
+    """walk_0827.toml schedules outages in its [scoring]; --outages none replays with every fix."""
+    assert cli.main(["replay", str(WALK / "walk_0827.toml"), "--out", str(tmp_path / "r"), "--outages", "none"]) == 0
+    s = json.loads((tmp_path / "r" / "run.json").read_text())
+    assert s["outages"]["schedule"] == [] and s["outages"]["fixes_removed"] == 0
+    assert cli.main(["replay", str(WALK / "walk_0827.toml"), "--out", str(tmp_path / "d")]) == 0
+    assert json.loads((tmp_path / "d" / "run.json").read_text())["outages"]["fixes_removed"] > 0
+
+
 # --- the simulator's data set: mounting rotation, lever arm, time offset against truth -----------------------
 
 MOUNT = (-90.0, 3.0, 180.0)

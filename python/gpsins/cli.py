@@ -102,7 +102,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="loosely coupled (fixes), tightly coupled (pseudoranges), both, or ins: free inertial "
                         "navigation after the initialisation")
     p.add_argument("--outages", metavar="FIRST:LENGTH:PERIOD[:END]",
-                   help="simulated GNSS outages, seconds from the first GNSS epoch (no GNSS inside them)")
+                   help="simulated GNSS outages, seconds from the first GNSS epoch (no GNSS inside them); "
+                        "none: no outage, also where the data set's [scoring] schedules some")
     p.add_argument("--reference", metavar="FILE.pos",
                    help="reference trajectory (RTKLIB .pos) at the antenna point: errors and drift per outage")
     p.add_argument("--reference-q", type=int, nargs="+", default=[1], metavar="Q",

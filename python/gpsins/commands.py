@@ -76,7 +76,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
     if args.outages:
         from .evaluate import outages
 
-        outages.parse(args.outages)
+        if not outages.is_none(args.outages):
+            outages.parse(args.outages)
     if args.reference and not Path(args.reference).is_file():
         raise CommandError(f"{args.reference}: no such reference file (--reference takes an RTKLIB .pos)")
 

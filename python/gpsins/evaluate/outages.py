@@ -38,6 +38,13 @@ class OutageSpec:
         return ":".join(f"{x:g}" for x in (self.first_s, self.length_s, self.period_s, self.end_s))
 
 
+NONE = "none"  # --outages none: no outage, also where a data set's [scoring] schedules some
+
+
+def is_none(text) -> bool:
+    return isinstance(text, str) and text.strip().lower() == NONE
+
+
 def parse(text: str) -> OutageSpec:
     """``FIRST:LENGTH:PERIOD[:END]`` in seconds."""
     parts = str(text).split(":")

@@ -78,10 +78,13 @@ def plan(inp: Inputs, *, mode: str, overrides: dict | None, outages, point: str,
         raise ValueError(f"{inp.source}: inputs were decoded without pseudoranges (load_inputs modes)")
     source = inp.source
     overrides = dict(overrides or {})
-    spec = outages_mod.parse(outages) if isinstance(outages, str) else outages
+    if outages_mod.is_none(outages):
+        spec = None
+    else:
+        spec = outages_mod.parse(outages) if isinstance(outages, str) else outages
+        spec = spec if spec is not None else inp.outage_spec
     clock = {k: v for k, v in inp.info.items() if k in ("decode_s", "align_s")}
     filter_mode = "loose" if mode == "ins" else mode
-    spec = spec if spec is not None else inp.outage_spec
     schedule = outages_mod.schedule(spec, *inp.gnss_span) if spec is not None else np.zeros((0, 2))
     if spec is not None and not len(schedule):
         raise layouts.LogError(f"{source}: outages {spec.text()}: none falls inside the GNSS span, "
