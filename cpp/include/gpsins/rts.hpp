@@ -109,8 +109,8 @@ class BackwardPass {
 
   // A transition's record (Phi or a re-initialisation's A): for each column a 64-bit
   // mask of its non-zero rows, its bits copied into a double, then the non-zeros
-  // column by column. A step's Phi is about half zeros (the tight filter's, with its
-  // diagonal slots and clock, three quarters), and these are what the pass visits.
+  // column by column. A step's Phi is about two thirds zeros (the tight filter's, with
+  // its diagonal slots and clock, five sixths), and the pass visits only the rest.
   static_assert(N <= 64, "a transition record's column mask is 64 bits");
   static void record_transition(SmootherTape& tape, SmootherTape::Kind kind, const MatN& a) {
     const int nz = static_cast<int>((a.array() != 0.0).count());
@@ -158,7 +158,7 @@ class BackwardPass {
           if (n_cov == N) {
             for (int j = 0; j < N; ++j)
               for (int i = j; i < N; ++i) ps(i, j) = ps(j, i) = p(i, j) - p.col(i).dot(w.col(j));
-          } else {  // a replay's sigmas and navigation block: a fifth of the pass's work saved (tight)
+          } else {  // the variances and the wanted block only (a replay's sigmas and navigation block)
             ps.setZero();
             for (int i = 0; i < N; ++i) ps(i, i) = p(i, i) - p.col(i).dot(w.col(i));
             for (int b = 0; b < n_cov; ++b)

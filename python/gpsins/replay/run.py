@@ -81,16 +81,16 @@ def replay(source: str | Path, out: str | Path, *, mode: str = "loose", config=N
            smooth: bool = False, covariance_every: int = 0, chunk_rows: int = flt.CHUNK_ROWS,
            aid_heading: bool = False, overlap: bool = True, force: bool = False,
            estimator: str | None = None, output_every: int = 1) -> ReplayResult:
-    """Replay a session directory or a data-set TOML (see the module doc); ``outages``: FIRST:LENGTH:PERIOD[:END];
-    ``reference``: an RTKLIB .pos (its ``reference_q`` epochs) at the antenna point; ``point``: the point
-    solution.pos gives (antenna or imu); ``smooth``: also the fixed-interval smoother (smoothed.parquet,
-    smoothed.pos, run.json "smoothed"); ``covariance_every``: also the full covariance of every so many
-    epochs (covariance.parquet); ``output_every``: the solution (and its scoring) at every so many IMU
-    samples only (200 at 200 Hz: a 1 Hz .pos); ``chunk_rows``: IMU samples per filter call (memory, not results);
-    ``overlap``: the filter's next chunk runs on a second thread while this one is scored and written
-    (results unchanged; off for one run per core, as Monte Carlo workers are). A session whose receiver
-    restarted (GPS time going back) is replayed stretch by stretch into ``out/stretch-N``: the result
-    is the first stretch's, with every stretch's in ``stretches``."""
+    """Replay a session directory or a data-set TOML (see the module doc); ``outages``: FIRST:LENGTH:PERIOD[:END] (None:
+    the data set's [scoring] schedule, if any; "none": no outage at all); ``reference``: an RTKLIB .pos (its
+    ``reference_q`` epochs) at the antenna point; ``point``: the point solution.pos gives (antenna or imu); ``smooth``:
+    also the fixed-interval smoother (smoothed.parquet, smoothed.pos, run.json "smoothed"); ``covariance_every``: also
+    the full covariance of every so many epochs (covariance.parquet); ``output_every``: the solution (and its scoring)
+    at every so many IMU samples only (200 at 200 Hz: a 1 Hz .pos); ``chunk_rows``: IMU samples per filter call (memory,
+    not results); ``overlap``: the filter's next chunk runs on a second thread while this one is scored and written
+    (results unchanged; off for one run per core, as Monte Carlo workers are). A session whose receiver restarted (GPS
+    time going back) is replayed stretch by stretch into ``out/stretch-N``: the result is the first stretch's, with
+    every stretch's in ``stretches``."""
     if mode not in MODES:
         raise ValueError(f"--mode {mode!r}: one of {', '.join(MODES)}")
     stretches = load_stretches(source, modes=(mode,), config=config, overrides=overrides,
