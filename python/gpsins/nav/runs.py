@@ -193,11 +193,15 @@ def setup_run(imu, fixes, config, mode, ephemerides, klobuchar, gps_time_offset_
 
 
 CHUNK_ROWS = 4096  # IMU samples per call of a chunked run: ~10 MB of covariances at 17 states (tight: 28 MB)
+# With an epoch out every k samples a call takes up to this many times as many samples: about as many
+# epochs per call, and the per-call Python work (tables, scoring) k times rarer.
+MAX_CALL_SCALE = 16
 
 
 class ChunkedRun:
-    """The filter over a whole run in consecutive calls of ``chunk_rows`` IMU samples, so that
-    what is in memory at a time does not grow with the run: ``chunks()`` yields each call's
+    """The filter over a whole run in consecutive calls of ``chunk_rows`` IMU samples (times
+    ``output_every``, up to ``MAX_CALL_SCALE``), so that what is in memory at a time does not grow with
+    the run: ``chunks()`` yields each call's
     ``Solution`` (its epochs only, with their covariances), the same rows one ``run`` gives.
     ``record=True`` keeps the smoother's record of the forward pass (spilled to a temporary
     file in ``smooth_chunk_mb`` pieces); ``overlap``: the core runs the next chunk on a second
@@ -251,8 +255,9 @@ class ChunkedRun:
         f = self._setup.core_filter
         n = len(self.imu)
         j = q = g = 0
-        for a in range(0, n, self.chunk_rows):
-            b = min(n, a + self.chunk_rows)
+        step = self.chunk_rows * min(self.output_every, MAX_CALL_SCALE)
+        for a in range(0, n, step):
+            b = min(n, a + step)
             imu = np.ascontiguousarray(self.imu[a:b], dtype=float)
             t_end = imu[-1, 0] if b < n else np.inf  # the last call takes what is left (fixes after the end)
             j2 = int(np.searchsorted(self.fixes[:, 0], t_end, side="right"))
