@@ -363,13 +363,13 @@ def test_tight_smoothed_clock_and_position():
     assert np.all(ss <= sf * (1 + 1e-6) + 1e-12)
 
 
-@pytest.mark.xfail(strict=True, reason="issue 35, the walk's model, not the smoother: 0.240 m smoothed vs 0.088 m "
-                   "forward, but the backward pass equals a textbook RTS with the fix-error states and restarts "
-                   "(test_rts.cpp) and every covariance change on the walk is one the smoother is told; the forward "
-                   "pass is overconfident (fix NIS 4.0 per dof): the published accelerometer bias drive 6.86e-5 "
-                   "m/s^2/sqrt(s) allows 0.8 mg in the walk's 134 s, its forward estimate moves 3 mg. At 1e-3: 0.047 "
-                   "vs 0.035 m (1.34x), at 2e-3 0.032 vs 0.026 m (1.23x), the smoothed outage drift then 0.30 and "
-                   "0.32 m pooled (0.26 m now)")
+@pytest.mark.xfail(strict=True, reason="issue 35, the walk's model, not the smoother: smoothed vertical RMS 0.241 m "
+                   "against 0.088 m forward (2.7x, bar 1.1x) over the walk's 339 RTK-fixed epochs; the backward pass "
+                   "equals a textbook RTS with the fix-error states and restarts (test_rts.cpp) and every covariance "
+                   "change on the walk is one the smoother is told; the forward pass is overconfident (fix NIS 3.97 "
+                   "per dof): the published accelerometer bias drive 6.86e-5 m/s^2/sqrt(s) allows 0.8 mg in the "
+                   "walk's 134 s, its forward estimate moves 3 mg. At 1e-3: 0.047 vs 0.035 m (1.34x), at 2e-3 0.032 "
+                   "vs 0.026 m (1.23x), the smoothed outage drift then 0.30 and 0.32 m pooled (0.26 m now)")
 def test_smoothed_height_stays_on_the_walks_rtk_fixes(tmp_path):
     from pathlib import Path
 
@@ -378,5 +378,8 @@ def test_smoothed_height_stays_on_the_walks_rtk_fixes(tmp_path):
     res = replay.replay(toml, tmp_path / "r", outages="none", smooth=True)  # every fix, the schedule set aside
     fwd, sm = res.summary["scoring"]["outside"], res.summary["smoothed"]["scoring"]["outside"]
     # Every epoch scored is a fix the filter took: the smoothed solution, which has all of them, is no
-    # farther from them than the forward pass right after each update.
+    # farther from them than the forward pass right after each update. The bar is the RTS smoother's own
+    # property (its error variance at most the forward's at every epoch, Rauch, Tung and Striebel 1965;
+    # test_tight_smoothed_clock_and_position checks the sigmas), with 10 % for the spread of an RMS over
+    # 339 epochs whose errors are correlated (1 / sqrt(2 n) is 3.8 % for independent ones).
     assert sm["rms_v_m"] <= 1.1 * fwd["rms_v_m"]

@@ -99,11 +99,7 @@ py::dict smooth_recorded(EskfRecorder<NB, NC, NT>& rec, bool with_cov, py::objec
   {
     py::gil_scoped_release release;
     // Without the whole covariance wanted, only the navigation block's covariances are formed.
-    std::uint64_t blocks = Rec::Pass::kAllStates;
-    if (!with_cov || nav_cov) {
-      blocks = (std::uint64_t(1) << es::kNavStates) - 1;
-      if constexpr (NT == 1) blocks |= std::uint64_t(1) << (N - 1);
-    }
+    const std::uint64_t blocks = with_cov && !nav_cov ? Rec::Pass::kAllStates : kNavigationStates<N, NT>;
     const auto emit = [&](long k, const double* row, const Eigen::Matrix<double, N, N>& p) {
       double* o = block.first.mutable_data() + (k - lo) * kCols;
       std::copy(row, row + kNom - 1, o);

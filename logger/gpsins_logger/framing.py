@@ -273,18 +273,17 @@ class FrameFinder:
                 return False if final or len(buf) >= window_end + n else None
             if j + n > len(buf):
                 return False if final else None
-            if self._continues_last(j, n):
-                return False
-            if rule.checksum_ok(buf, j, n) and 1 <= rule.counter_gap(candidate, buf, j) <= MAX_GAP:
-                return True
+            if rule.checksum_ok(buf, j, n):
+                if self._continues_last(j):
+                    return False
+                if 1 <= rule.counter_gap(candidate, buf, j) <= MAX_GAP:
+                    return True
             j += 1
 
-    def _continues_last(self, j: int, n: int) -> bool:
-        """A valid frame at j whose counter is the next after the last accepted frame's: that frame, not a
-        candidate before it without such evidence, comes next (a garbage frame taken there lost it)."""
-        rule = self.rule
-        return (self._last is not None and rule.checksum_ok(self._buf, j, n)
-                and rule.counter_gap(self._last, self._buf, j) == 1)
+    def _continues_last(self, j: int) -> bool:
+        """Whether the valid frame at j has the counter next after the last accepted frame's: that frame, not
+        a candidate before it without such evidence, comes next (a garbage frame taken there lost it)."""
+        return self._last is not None and self.rule.counter_gap(self._last, self._buf, j) == 1
 
     def _between(self, i: int, n: int, final: bool) -> bool | None:
         buf, rule = self._buf, self.rule
@@ -305,11 +304,12 @@ class FrameFinder:
                 return False
             if rule.counter_end(j + n) > len(buf):
                 return ended if final else None
-            if self._continues_last(j, n):
-                return False
-            if rule.checksum_ok(buf, j, n) and self._anchored(j, n):
-                ahead = rule.counter_gap(candidate, buf, j)
-                if not 1 <= ahead <= MAX_GAP:
+            if rule.checksum_ok(buf, j, n):
+                if self._continues_last(j):
                     return False
-                return gap_back is None or 1 <= rule.counter_gap(self._last, buf, j) - gap_back <= MAX_GAP
+                if self._anchored(j, n):
+                    ahead = rule.counter_gap(candidate, buf, j)
+                    if not 1 <= ahead <= MAX_GAP:
+                        return False
+                    return gap_back is None or 1 <= rule.counter_gap(self._last, buf, j) - gap_back <= MAX_GAP
             j += 1

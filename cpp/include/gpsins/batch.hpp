@@ -7,6 +7,7 @@
 #pragma once
 
 #include <cstddef>
+#include <cstdint>
 #include <memory>
 #include <string>
 #include <variant>
@@ -74,6 +75,10 @@ struct BatchOptions {
 // row-major at out.
 template <int NT>
 inline constexpr int kNavigationDim = es::kNavStates + NT;
+// The navigation block's states (write_navigation_block's) as a mask, bit i for state i of N.
+template <int N, int NT>
+inline constexpr std::uint64_t kNavigationStates = ((std::uint64_t(1) << es::kNavStates) - 1) |
+                                                   (NT == 1 ? std::uint64_t(1) << (N - 1) : 0);
 template <int NT, int N>
 void write_navigation_block(const Eigen::Matrix<double, N, N>& P, double* out) {
   constexpr int kNav = kNavigationDim<NT>, k9 = es::kNavStates;

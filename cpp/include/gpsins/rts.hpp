@@ -413,7 +413,7 @@ void EskfRecorder<NB, NC, NT>::smooth(const std::function<void(long, const doubl
     if (heading_unknown) p.template block<3, 3>(es::att, es::att) += yaw_var * up_b * up_b.transpose();
     emit(k, row.data(), p);
   };
-  Pass::run(tape_, outputs_, smoothed, blocks | 7);
+  Pass::run(tape_, outputs_, smoothed, blocks | std::uint64_t(7) << es::att);
 }
 
 #define GPSINS_RECORDER_EXTERN(NB, NC, NT) extern template class EskfRecorder<NB, NC, NT>;

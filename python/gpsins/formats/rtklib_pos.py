@@ -247,10 +247,9 @@ def _table(rows: list, names: list[str], header: list[str], kind: str) -> tuple[
 def _days_since_gps_epoch(y: np.ndarray, mo: np.ndarray, d: np.ndarray) -> np.ndarray | None:
     """Whole days from 1980-01-06 to each date (NumPy's calendar), or None if one is no date (30 February):
     the row loop then names it."""
-    days = (np.asarray(y - 1970, "datetime64[Y]").astype("datetime64[M]") + (mo - 1).astype("timedelta64[M]")
-            ).astype("datetime64[D]") + (d - 1).astype("timedelta64[D]")
-    if not np.array_equal(days.astype("datetime64[M]").astype("datetime64[D]") + (d - 1).astype("timedelta64[D]"),
-                          days):
+    month = np.asarray(y - 1970, "datetime64[Y]").astype("datetime64[M]") + (mo - 1).astype("timedelta64[M]")
+    days = month.astype("datetime64[D]") + (d - 1).astype("timedelta64[D]")
+    if not np.array_equal(days.astype("datetime64[M]"), month):  # a day past its month's end
         return None
     return (days - np.datetime64("1980-01-06", "D")).astype(np.int64)
 

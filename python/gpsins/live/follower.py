@@ -88,9 +88,8 @@ class Follower:
         self._settled = False
         self._unsettled = 0  # fits in a row that did not agree with the one before
         self._moved = False  # the current fit moved the samples fed (_moves)
-        self._whole: tuple | None = None  # a u-blox session: the last round's IMU times and rate
+        self._whole: tuple | None = None  # a u-blox session: the last round's IMU times, rate, GPS time span
         self._fed_rate = 0  # ... and the rate of the increments fed
-        self._whole_span_s = 0.0  # ... and the span of its GPS time messages
         self.fed = False  # the last poll fed samples
         self._fit_cost_s = 0.0  # what the last clock fit took (s)
         self._failed_at = -math.inf  # valid IMU samples when a fit last failed
@@ -219,7 +218,7 @@ class Follower:
         piece (after a gap the counter cannot count) as long: epochs out before then were timed on a map that
         later messages may still move by a millisecond or more (2.2 ms right after an unplugged IMU)."""
         if self.stream is None:
-            return self._whole is not None and self._whole_span_s >= SETTLE_SPAN_S
+            return self._whole is not None and self._whole[2] >= SETTLE_SPAN_S
         return self._fit is not None and min(self._fit["gps_span_s"], self._fit["piece_span_s"]) >= SETTLE_SPAN_S
 
     def finished(self) -> bool:
@@ -375,8 +374,7 @@ class Follower:
         self.warnings = list(al.warnings)
         # The ESF samples' rate is counted against the stamps' span (whole Hz): early in a session it may be
         # 1 Hz off, and every increment with it (they are rates times the period).
-        before, self._whole = self._whole, (al.imu_t, dec.imu.rate_hz)
-        self._whole_span_s = float(np.ptp(dec.gps.tow))
+        before, self._whole = self._whole, (al.imu_t, dec.imu.rate_hz, float(np.ptp(dec.gps.tow)))
         if before is not None and len(before[0]):  # the last record both fits time, as _install compares
             k = min(len(before[0]), len(al.imu_t)) - 1
             self._note_settled(abs(float(al.imu_t[k] - before[0][k])) <= REFEED_S and before[1] == dec.imu.rate_hz)
