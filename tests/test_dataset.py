@@ -352,11 +352,26 @@ def test_sigma_floor_table_reaches_the_fix_table(tmp_path):
     assert dataset_fixes.velocity_sigma(ds.fixes) is None  # kf-gins fixes have no velocity
 
 
+def test_antenna_sigma_reaches_the_filter_configuration(tmp_path):
+    from gpsins.replay import inputs
+
+    assert (load.load(_kfgins_set(tmp_path, "")).antenna_sigma_m == 0).all()  # exact unless stated
+    ds = load.load(_kfgins_set(tmp_path, "antenna_sigma_m = 0.05\n"))
+    np.testing.assert_array_equal(ds.antenna_sigma_m, [0.05, 0.05, 0.05])
+    ds = load.load(_kfgins_set(tmp_path, "antenna_sigma_m = [0.1, 0.0, 0.02]\n"))
+    np.testing.assert_array_equal(ds.antenna_sigma_m, [0.1, 0.0, 0.02])
+    # (two IMU samples: the doctor would refuse them, so --force)
+    assert inputs.load_inputs(ds.path, force=True).data_config["lever_arm_sigma_m"] == [0.1, 0.0, 0.02]
+
+
 @pytest.mark.parametrize("extra, match", [
     ("[gnss.sigma_floor_m]\nrtk = [0.1, 0.2]\n", "unknown quality 'rtk'"),
     ("[gnss.sigma_floor_m]\nfix = [0.1]\n", r"sigma_floor_m\] fix: must be two positive numbers"),
     ("[gnss.sigma_default_m]\nfix = [0.1, -1]\n", r"sigma_default_m\] fix: must be two positive"),
     ("velocity_sigma_floor_mps = 0\n", "velocity_sigma_floor_mps: must be positive"),
+    ("antenna_sigma_m = -0.1\n", r"\[gnss\] antenna_sigma_m: 1-sigma metres per axis"),
+    ("antenna_sigma_m = [0.1, 0.1]\n", r"\[gnss\] antenna_sigma_m: must be three numbers"),
+    ('antenna_sigma_m = "5 cm"\n', r"\[gnss\] antenna_sigma_m: must be three numbers"),
 ])
 def test_bad_sigma_keys_name_the_field(tmp_path, extra, match):
     with pytest.raises(DatasetError, match=match):

@@ -333,11 +333,16 @@ def facts_walk(tmp_path_factory):
     return run.replay(WALK.parent / "walk_0827_facts.toml", tmp_path_factory.mktemp("facts"))
 
 
-@pytest.mark.xfail(strict=True, reason="issue 35's goal for a data set of facts only is 2.3 m on 25:15:45:45; "
-                   "measured 2.36 m with the generic MEMS priors (2.22 m with the BP3010-sized bias priors, "
-                   "which would be tuning on the walk); the tuned copy gives 2.29 m")
 def test_walk_from_its_publishers_facts_meets_the_goal(facts_walk):
-    assert facts_walk.summary["scoring"]["horizontal_m"]["rms"] <= 2.3
+    """Issue 35's goal for a data set of facts only, 2.3 m on 25:15:45:45. The publisher puts the antenna
+    "about 0.05 m" from the IMU without a direction, so the data set says antenna_sigma_m = 0.05 and replay
+    fits the lever arm (nav.lever_arm); without the fit 2.36 m."""
+    fit = facts_walk.summary["lever_arm_fit"]
+    drift_m = facts_walk.summary["scoring"]["horizontal_m"]["rms"]
+    print(f"\nlever arm {np.round(fit['lever_arm_body_m'], 3)} m, drift {drift_m:.2f} m")
+    assert drift_m <= 2.3
+    # The publisher's "about 0.05 m": a fit that had taken up some other misfit would be free to wander.
+    assert 0.025 <= np.linalg.norm(fit["lever_arm_body_m"]) <= 0.1
 
 
 def test_walk_from_its_publishers_facts_is_near_the_tuned_copy(facts_walk, tmp_path):
@@ -352,9 +357,10 @@ def test_walk_from_its_publishers_facts_is_near_the_tuned_copy(facts_walk, tmp_p
 
 
 @pytest.mark.xfail(strict=True, reason="issue 35 asks NIS/dof in [0.5, 2] for every source on real data; on the "
-                   "walk from facts the RTK fixes' NIS/dof mean is 5.8 (median 2.3, lag-one autocorrelation "
-                   "0.88): the hand's gait is motion the error model has no term for, and fitting white IMU "
-                   "noise to it (fit_noise) brings the mean to 0.8 but the drift to 4.7 m")
+                   "walk from facts the RTK fixes' NIS/dof mean is 5.4 (median 2.4, lag-one autocorrelation "
+                   "0.90; 5.8, 2.3, 0.88 before the lever arm was fitted): the hand's gait is motion the error "
+                   "model has no term for, and fitting white IMU noise to it (fit_noise) brought the mean to 0.8 "
+                   "but the drift to 4.7 m")
 def test_walk_from_its_publishers_facts_is_consistent(facts_walk):
     import pyarrow.parquet as pq
 

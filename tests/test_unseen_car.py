@@ -23,6 +23,8 @@ OUTAGES = "40:15:45"
 MISMATCH = dict(declared_white_noise_scale=1.0 / 3.0, fix_correlated_sigma_m=(0.02, 0.03), fix_correlated_tau_s=30.0,
                 undeclared_misalignment_ypr_deg=(5.4, -6.8, 0.0))
 KINDS = {1: "fix_3d", 3: "fix_velocity", 7: "nonholonomic"}
+TRUE_ANTENNA_M = (0.6, -0.3, -1.1)  # the data-set writer's
+ROUGH_ANTENNA_M = (0.5, -0.2, -1.0)
 
 
 @pytest.fixture(scope="module")
@@ -42,6 +44,10 @@ def car(tmp_path_factory):
                        "gate off": {"gate_probability": 0.0},
                        "mounting stated": {"body_to_vehicle_ypr_deg": [5.4, -6.8, 0.0]}}.items():
         runs[name] = run.replay(path, work / name.replace(" ", "_"), overrides=over, outages=OUTAGES)
+    # The same recording, its antenna stated as a tape measure would give it: 10 cm off on each axis, sigma 0.1 m.
+    rough = dataset_writer.write_dataset(s, work / "rough", gnss_rate_hz=4.0, imu_format="rates", **MISMATCH,
+                                         stated_antenna_m=ROUGH_ANTENNA_M, antenna_sigma_m=0.1)
+    runs["antenna rough"] = run.replay(rough, work / "antenna_rough", outages=OUTAGES)
     runs["truth"] = s.truth
     return runs
 
@@ -103,3 +109,21 @@ def test_the_estimated_mounting_is_as_good_as_the_stated_one(car):
     assert m is not None
     assert abs(m["yaw_deg"] - 5.4) < 0.5 and abs(m["pitch_deg"] + 6.8) < 0.5
     assert drift(car["nhc"]) <= 1.1 * drift(car["mounting stated"])
+
+
+def test_a_roughly_stated_antenna_is_fitted_without_harm(car):
+    """A lever arm stated to 10 cm (antenna_sigma_m = 0.1) is fitted to the recording (nav.lever_arm). The bar
+    is issue 35's for the mounting: within 10 % of the run that states it exactly. The fit is a maximum
+    a-posteriori under the filter's model, and here the model is not the truth's (the undeclared noise, the
+    correlated fix errors): measured on seeds 0-2 the fit finds the lateral and vertical components within
+    2-5 cm but the forward one about 0.4 m, where the truth is 0.6 and the statement 0.5; a forward offset
+    looks like a slow along-track fix error, and such errors are what this recording has undeclared."""
+    fit = car["antenna rough"].summary["lever_arm_fit"]
+    print(fit, round(drift(car["antenna rough"]), 3), round(drift(car["nhc"]), 3))
+    assert fit["stated_m"] == list(ROUGH_ANTENNA_M)
+    assert fit["minus_two_log_posterior"]["fitted"] < fit["minus_two_log_posterior"]["stated"]
+    # Across the track and vertically the recording shows it: closer to the truth than the statement.
+    for k in (1, 2):
+        assert abs(fit["lever_arm_body_m"][k] - TRUE_ANTENNA_M[k]) < abs(ROUGH_ANTENNA_M[k] - TRUE_ANTENNA_M[k])
+    assert drift(car["antenna rough"]) <= 1.1 * drift(car["nhc"])
+    assert car["antenna rough"].summary["counters"]["gnss_resets"] == 0

@@ -181,6 +181,7 @@ def template(imu_file: str | Path, gnss_file: str | Path, directory: str | Path)
         lines.append("# geoid_height_m = 0.0   # SET if the .pos heights are above the geoid")
     lines += [
         "antenna_m = [0.0, 0.0, 0.0]   # SET: the antenna from the IMU in body axes, m",
+        "# antenna_sigma_m = 0.05   # how well antenna_m is known (1-sigma, m): replay then fits it to the data",
         "",
         "[vehicle]",
         'kind = "none"   # SET: "car" for a road vehicle whose body axes are its own (non-holonomic constraint)',

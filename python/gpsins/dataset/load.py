@@ -37,6 +37,9 @@ Extensions (all optional):
 - ``[gnss] velocity_lag_s``: how long before its fix's time a fix velocity applies (seconds), or
   ``"measured"`` (the default): from the fixes themselves (``velocity_lag``; a receiver that reports the mean velocity
   over the epoch just ended gives half an epoch). The filter's ``fix_velocity_lag_s``.
+- ``[gnss] antenna_sigma_m``: how well ``antenna_m`` is known, 1-sigma per body axis (one number or
+  three; default 0, exact). Where it is above 0, replay fits the lever arm to the recording
+  (``gpsins.nav.lever_arm``) with the stated one as its prior. The filter's ``lever_arm_sigma_m``.
 - ``[gnss] ionosphere = "dual-frequency"`` (rinex, ubx; default ``"broadcast"``: Klobuchar when the
   navigation data has it): each L1 range less the ionospheric delay its second code measures (GPS L2,
   Galileo E5a; ``ionosphere.py``), averaged along each satellite's track over ``ionosphere_smoothing_s``
@@ -75,8 +78,9 @@ _KNOWN = {
     "": {"name", "imu", "gnss", "vehicle", "filter", "scoring", "description"},
     "imu": {"file", "format", "columns", "time", "week", "accel_unit", "gyro_unit", "time_offset_s", "imu_to_body",
             "imu_to_body_ypr_deg", "delimiter", "skip_rows", "tag", "counter_hz", "counter_bits"},
-    "gnss": {"file", "format", "nav", "antenna_m", "week", "geoid_height_m", "sigma_floor_m", "sigma_default_m",
-             "velocity_sigma_floor_mps", "velocity_lag_s", "systems", "ionosphere", "ionosphere_smoothing_s"},
+    "gnss": {"file", "format", "nav", "antenna_m", "antenna_sigma_m", "week", "geoid_height_m", "sigma_floor_m",
+             "sigma_default_m", "velocity_sigma_floor_mps", "velocity_lag_s", "systems", "ionosphere",
+             "ionosphere_smoothing_s"},
     "vehicle": {"kind"},
     "scoring": {"reference", "reference_q", "reference_geoid_height_m", "outages"},
 }
@@ -128,6 +132,7 @@ class Dataset:
     sigma_default_m: dict = field(default_factory=dict)  # [gnss.sigma_default_m]
     velocity_sigma_floor_mps: float = VELOCITY_SIGMA_FLOOR_MPS
     velocity_lag_s: float | str = "measured"  # [gnss] velocity_lag_s: seconds, or "measured" (the default)
+    antenna_sigma_m: np.ndarray = field(default_factory=lambda: np.zeros(3))  # [gnss] antenna_sigma_m, per axis
     ionosphere: str = "broadcast"  # [gnss] ionosphere: "broadcast" (Klobuchar) or "dual-frequency" (ranges corrected)
 
     def gnss_span(self) -> tuple[float, float]:
@@ -381,6 +386,11 @@ def load(path: str | Path) -> Dataset:
     if lag != "measured" and not (isinstance(lag, (int, float)) and not isinstance(lag, bool) and 0.0 <= lag < 10.0):
         raise DatasetError(path, 'seconds (0 to 10) or "measured"', field="[gnss] velocity_lag_s")
     ds.velocity_lag_s = lag if lag == "measured" else float(lag)
+    sigma = tg.get("antenna_sigma_m", 0.0)
+    sigma = np.full(3, sigma, float) if isinstance(sigma, (int, float)) and not isinstance(sigma, bool) else sigma
+    ds.antenna_sigma_m = _vector(sigma, path, "[gnss] antenna_sigma_m")
+    if (ds.antenna_sigma_m < 0).any() or (ds.antenna_sigma_m > 10.0).any():
+        raise DatasetError(path, "1-sigma metres per axis, 0 to 10", field="[gnss] antenna_sigma_m")
 
     if "reference" in ts:
         ds.reference = load_reference(_file(base, ts["reference"], path, "[scoring] reference"),

@@ -57,8 +57,10 @@ _DEGREE_KEYS = {"attitude_sigma_deg": "attitude_sigma_rad", "initial_yaw_deg": "
                 "max_attitude_correction_deg": "max_attitude_correction_rad",
                 "pseudorange_elevation_mask_deg": "pseudorange_elevation_mask_rad",
                 "body_to_vehicle_ypr_deg": "body_to_vehicle_ypr_rad"}
-_EXTRA_KEYS = {"preset", "mode", "imu_noise", "gyro_bias_residual_rad_per_s", "accel_bias_residual_mps2",
-               "platform", "heading_search_s", "fit_noise", "estimate_mounting"}
+# Keys for replay's steps before the run (the platform, the fits from the recording), not the core's.
+_REPLAY_KEYS = ("preset", "mode", "platform", "heading_search_s", "fit_noise", "estimate_mounting",
+                "lever_arm_sigma_m")
+_EXTRA_KEYS = {"imu_noise", "gyro_bias_residual_rad_per_s", "accel_bias_residual_mps2", *_REPLAY_KEYS}
 PLATFORMS = ("vehicle", "handheld")
 # What a platform changes from the preset unless the configuration says otherwise. A handheld device's
 # gait (steps at about 2 Hz, the hand's swing) is motion its MEMS noise figures do not cover: against
@@ -192,7 +194,7 @@ def _key_types() -> dict[str, str]:
     for deg, rad in _DEGREE_KEYS.items():
         kinds[deg] = kinds.get(rad, "float")
     kinds.update({"preset": "str", "mode": "str", "platform": "str", "heading_search_s": "float", "fit_noise": "bool",
-                  "estimate_mounting": "bool",
+                  "estimate_mounting": "bool", "lever_arm_sigma_m": "vec3",
                   "imu_noise": "table", "gyro_bias_residual_rad_per_s": "vec3",
                   "accel_bias_residual_mps2": "vec3"})
     for k in _EXTRA_KEYS - set(kinds):
@@ -353,7 +355,7 @@ def core_config(cfg: dict) -> _core.InsConfig:
     noise = table.pop("imu_noise", None)
     gyro_residual = table.pop("gyro_bias_residual_rad_per_s", None)
     accel_residual = table.pop("accel_bias_residual_mps2", None)
-    for k in ("preset", "mode", "platform", "heading_search_s", "fit_noise", "estimate_mounting"):
+    for k in _REPLAY_KEYS:
         table.pop(k, None)
     for deg, rad in _DEGREE_KEYS.items():
         if deg in table:

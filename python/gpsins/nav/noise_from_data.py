@@ -141,6 +141,11 @@ def summary_lines(run: dict) -> list[str]:
     if m:
         out.append(f"mounting estimated: body to vehicle yaw {m['yaw_deg']:.2f} deg, pitch {m['pitch_deg']:.2f} deg "
                    f"over {m['epochs']} epochs")
+    arm = run.get("lever_arm_fit")
+    if arm:
+        out.append("antenna lever arm from the recording: [" + ", ".join(f"{x:.3f}" for x in arm["lever_arm_body_m"])
+                   + "] m body axes (stated [" + ", ".join(f"{x:.3f}" for x in arm["stated_m"]) + "] +- "
+                   + "/".join(f"{x:.3f}" for x in arm["sigma_m"]) + f" m, {arm['evaluations']} runs)")
     c = run.get("constraint_fit")
     if c:
         out.append(f"vehicle constraint from the recording: every {c['interval_s']:.2f} s, sigma lateral "
@@ -148,7 +153,8 @@ def summary_lines(run: dict) -> list[str]:
     return out
 
 
-def _minus_two_log_likelihood(updates: dict) -> float:
+def minus_two_log_likelihood(updates: dict) -> float:
+    """-2 ln L of a run's fix and constraint innovations (FIT_KINDS), up to a constant."""
     kind = np.asarray(updates["kind"])
     sel = np.isin(kind, FIT_KINDS)
     nis = np.asarray(updates["nis"])[sel]
@@ -197,25 +203,32 @@ def fit_window(imu: np.ndarray, fixes: np.ndarray) -> tuple[np.ndarray, np.ndarr
     return imu[imu[:, 0] <= end], fixes[fixes[:, 0] <= end]
 
 
+def fit_start(imu, fixes: np.ndarray, cfg: dict) -> tuple[np.ndarray, np.ndarray, dict]:
+    """What a likelihood fit's runs share: the samples and fixes of ``fit_window``, and the configuration
+    with the gate and the GNSS reset off (every hypothesis scored on the same updates), started at the
+    heading the declared model's run found, so that a heading search is done once."""
+    imu, fixes = fit_window(np.asarray(imu), fixes)
+    base = dict(cfg, gate_probability=0.0, gnss_reset_timeout_s=0.0)
+    if flt.needs_heading_search(base):
+        found = flt.search_heading(imu, fixes, base)
+        if found["yaw_deg"] is not None:
+            base = flt.starting_at_yaw(base, found["yaw_deg"], found["sigma_deg"])
+    return imu, fixes, base
+
+
 def fit_noise(imu, fixes: np.ndarray, cfg: dict, *, mode: str = "loose", scales=SCALES) -> dict:
     """Fit the four variance factors (SCALES) by likelihood over the fixes given (the first
     FIT_SPAN_S of them, ``fit_window``); returns
     ``{"factors": {...}, "minus_two_log_likelihood": {"declared", "fitted"}, "evaluations", "fixes", "span_s"}``.
-    The runs have the gate off (every hypothesis scored on the same updates) and start at the
-    heading the declared model's run found, so a heading search is done once."""
+    The runs start as ``fit_start`` sets them up."""
     from scipy.optimize import minimize
 
-    imu, fixes = fit_window(np.asarray(imu), fixes)
-    base = dict(cfg, gate_probability=0.0, gnss_reset_timeout_s=0.0)
-    if flt.needs_heading_search(base):
-        found = flt.search_heading(np.asarray(imu), fixes, base)
-        if found["yaw_deg"] is not None:
-            base = flt.starting_at_yaw(base, found["yaw_deg"], found["sigma_deg"])
+    imu, fixes, base = fit_start(imu, fixes, cfg)
     cache: dict[tuple, float] = {}
 
     def likelihood(factors: dict) -> float:
         c, f = scaled(base, fixes, factors)
-        return _minus_two_log_likelihood(flt.run(imu, f, c, mode=mode, output_every=10 ** 9).updates)
+        return minus_two_log_likelihood(flt.run(imu, f, c, mode=mode, output_every=10 ** 9).updates)
 
     def cost(x: np.ndarray) -> float:
         key = tuple(np.round(x, 6))

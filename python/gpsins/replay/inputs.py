@@ -168,6 +168,8 @@ def _dataset_inputs(path: Path, config, overrides: dict, modes=("loose",), force
     cfg0 = nav_config.load_config(base, overrides)
     # The data's own statistics: a generic MEMS unit's priors, the noise fitted to the recording.
     derived: dict = {"lever_arm_body_m": ds.antenna_m.tolist(), **dataset_mod.GENERIC_MEMS}
+    if (ds.antenna_sigma_m > 0).any():
+        derived["lever_arm_sigma_m"] = ds.antenna_sigma_m.tolist()
     dt = np.diff(imu.t)
     dt = dt[dt > 0]
     if len(dt):

@@ -79,7 +79,7 @@ def _summary(inp, p: Plan, run, fwd: Forward, scoring: dict, reference_system: d
                "errors": forward.score.summary() if forward.score is not None else {},
                "update_kinds": {flt.UPDATE_KINDS[k]: n for k, n in sorted(fwd.update_kinds.items())},
                "sources": fwd.sources, "noise_fit": p.noise_fit, "mounting_fit": p.mount_fit,
-               "constraint_fit": p.constraint_fit,
+               "constraint_fit": p.constraint_fit, "lever_arm_fit": p.lever_fit,
                "health": health_lines(counters, fwd.sources),
                "solution_point": point,
                "heading_aiding": ({"source": reference_mod.FILE_NAME, "epochs": int(len(p.attitude)),

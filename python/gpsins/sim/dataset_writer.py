@@ -117,7 +117,7 @@ class DatasetWriter:
                  velocity_sigma_mps: float = 0.03, seed_offset: int = 0, vehicle_kind: str = "car",
                  velocity_mean_over_epoch: bool = False, undeclared_misalignment_ypr_deg=(0.0, 0.0, 0.0),
                  fix_correlated_sigma_m=(0.0, 0.0), fix_correlated_tau_s: float = 30.0,
-                 declared_white_noise_scale: float = 1.0):
+                 declared_white_noise_scale: float = 1.0, stated_antenna_m=None, antenna_sigma_m: float = 0.0):
         if imu_format not in ("increments", "rates"):
             raise ValueError(f"imu_format {imu_format!r}: increments or rates")
         # The simulated vehicle moves along its body x axis without slip (also the walk profile and the
@@ -127,6 +127,9 @@ class DatasetWriter:
         self.out.mkdir(parents=True, exist_ok=True)
         self.sc, self.seed = sc, seed
         self.mount, self.antenna_m = imu_to_body_ypr_deg, antenna_m
+        # What the data set says of the antenna (a tape measure's figure, its sigma); the fixes are of the true one.
+        self.stated_antenna_m = antenna_m if stated_antenna_m is None else stated_antenna_m
+        self.antenna_sigma_m = float(antenna_sigma_m)
         # The IMU's axes are off the declared mounting by a fine misalignment the data set does not state:
         # the body the data set declares is then turned from the vehicle's axes by it, as the filter's
         # body_to_vehicle_ypr states (what a car's non-holonomic constraint has to find).
@@ -252,7 +255,8 @@ class DatasetWriter:
                  f"time_offset_s = {self.imu_time_offset_s!r}",
                  f"imu_to_body_ypr_deg = {_toml_value([float(x) for x in self.mount])}", "",
                  "[gnss]", 'file = "receiver.pos"', 'format = "rtklib-pos"',
-                 f"antenna_m = {_toml_value([float(x) for x in self.antenna_m])}", "",
+                 f"antenna_m = {_toml_value([float(x) for x in self.stated_antenna_m])}",
+                 *([f"antenna_sigma_m = {self.antenna_sigma_m!r}"] if self.antenna_sigma_m > 0 else []), "",
                  "[vehicle]", f'kind = "{self.vehicle_kind}"', "",
                  "[scoring]", 'reference = "truth.pos"', "reference_q = [1]", "",
                  "[filter]", 'preset = "default"',
