@@ -5,7 +5,7 @@ C_eb d into every position innovation: steady while the body holds its attitude,
 so the innovations run correlated and the filter takes the swing for motion. A hand-held device's
 antenna is "about 5 cm away", a car's measured with a tape to a few cm. Where the data set states how
 well it knows the offset (``[gnss] antenna_sigma_m``, the filter key ``lever_arm_sigma_m``), replay
-takes the lever arm of largest posterior: the innovations' -2 ln L (noise_from_data's, the same gate-off
+takes the lever arm of largest posterior: the innovations' -2 ln L (noise_from_data's, the same
 runs over the fixes the run uses) plus the prior's sum ((l - l_stated) / sigma)^2, minimised by
 Nelder-Mead over the three components. The stated lever arm stays where the fit finds nothing better.
 """
