@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import noise_from_data
+
 MIN_SPEED_MPS = 5.0  # slower, a velocity error of a few cm/s is a degree
 MAX_TURN_RATE_RAD_S = 0.05  # nearly straight: the lever arm's and a skid's share stay small
 MIN_EPOCHS = 200
@@ -75,28 +77,15 @@ def refine(imu, fixes: np.ndarray, cfg: dict, found: dict) -> dict:
     (``noise_from_data``: fixes and constraint) is least near the true mounting. Nelder-Mead from
     ``found`` in yaw and pitch; returns ``found`` with the refined angles, the direction's as
     ``direction_*``, both likelihoods and the runs made."""
-    from scipy.optimize import minimize
-
-    from . import noise_from_data
-    from . import runs as flt
-
     imu, fixes, base = noise_from_data.fit_start(imu, fixes, {**cfg, "nonholonomic_constraint": True})
-    base.pop("body_to_vehicle_ypr_rad", None)
-    evaluations = [0]
 
     def cost(x: np.ndarray) -> float:
-        evaluations[0] += 1
-        c = dict(base, body_to_vehicle_ypr_deg=[float(x[0]), float(x[1]), 0.0])
-        return noise_from_data.minus_two_log_likelihood(flt.run(imu, fixes, c, mode="loose",
-                                                                output_every=10 ** 9).updates)
+        return noise_from_data.run_likelihood(imu, fixes, dict(base, body_to_vehicle_ypr_deg=[x[0], x[1], 0.0]))
 
     x0 = np.array([found["yaw_deg"], found["pitch_deg"]])
-    at_found = cost(x0)
-    res = minimize(cost, x0, method="Nelder-Mead",
-                   options={"maxfev": REFINE_EVALUATIONS, "xatol": REFINE_TOLERANCE_DEG, "fatol": 0.5,
-                            "initial_simplex": np.vstack([x0, x0 + np.eye(2) * REFINE_STEP_DEG])})
-    x = res.x if res.fun < at_found else x0
+    best = noise_from_data.minimise_from(cost, x0, np.full(2, REFINE_STEP_DEG), max_evaluations=REFINE_EVALUATIONS,
+                                         tolerance=REFINE_TOLERANCE_DEG)
     return {**found, "direction_yaw_deg": found["yaw_deg"], "direction_pitch_deg": found["pitch_deg"],
-            "yaw_deg": float(x[0]), "pitch_deg": float(x[1]),
-            "minus_two_log_likelihood": {"direction": at_found, "refined": float(min(res.fun, at_found))},
-            "refine_evaluations": evaluations[0]}
+            "yaw_deg": float(best["x"][0]), "pitch_deg": float(best["x"][1]),
+            "minus_two_log_likelihood": {"direction": best["at_start"], "refined": best["best"]},
+            "refine_evaluations": best["evaluations"]}

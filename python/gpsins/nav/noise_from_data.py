@@ -226,6 +226,32 @@ def fit_start(imu, fixes: np.ndarray, cfg: dict) -> tuple[np.ndarray, np.ndarray
     return imu, fixes, base
 
 
+def run_likelihood(imu: np.ndarray, fixes: np.ndarray, cfg: dict, mode: str = "loose") -> float:
+    """-2 ln L of one run over ``fixes`` with ``cfg`` (no epochs kept: only its updates are read)."""
+    return minus_two_log_likelihood(flt.run(imu, fixes, cfg, mode=mode, output_every=10 ** 9).updates)
+
+
+def minimise_from(cost, x0: np.ndarray, steps: np.ndarray, *, max_evaluations: int, tolerance: float) -> dict:
+    """Nelder-Mead on ``cost`` from ``x0`` (first simplex x0 + each of ``steps``), keeping ``x0`` unless the
+    search beats it: ``{"x", "at_start", "best", "evaluations"}``. The fits of a few of the filter's inputs to
+    the recording (the lever arm, the mounting) each run one filter pass per evaluation."""
+    from scipy.optimize import minimize
+
+    count = [0]
+
+    def counted(x: np.ndarray) -> float:
+        count[0] += 1
+        return cost(x)
+
+    at_start = counted(x0)
+    res = minimize(counted, x0, method="Nelder-Mead",
+                   options={"maxfev": max_evaluations, "xatol": tolerance, "fatol": 0.5,
+                            "initial_simplex": np.vstack([x0, x0 + np.diag(steps)])})
+    better = res.fun < at_start
+    return {"x": res.x if better else x0, "at_start": at_start, "best": float(min(res.fun, at_start)),
+            "evaluations": count[0]}
+
+
 def fit_noise(imu, fixes: np.ndarray, cfg: dict, *, mode: str = "loose", scales=SCALES) -> dict:
     """Fit the four variance factors (SCALES) by likelihood over the fixes given (the first
     FIT_SPAN_S of them, ``fit_window``); returns
@@ -238,7 +264,7 @@ def fit_noise(imu, fixes: np.ndarray, cfg: dict, *, mode: str = "loose", scales=
 
     def likelihood(factors: dict) -> float:
         c, f = scaled(base, fixes, factors)
-        return minus_two_log_likelihood(flt.run(imu, f, c, mode=mode, output_every=10 ** 9).updates)
+        return run_likelihood(imu, f, c, mode)
 
     def cost(x: np.ndarray) -> float:
         key = tuple(np.round(x, 6))
