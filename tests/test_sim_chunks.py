@@ -146,6 +146,21 @@ def test_the_data_set_in_blocks_is_the_whole_runs(tmp_path):
     assert len(rows) - 3 == len(np.arange(0.137, sim.simulate(sc, 5).imu_t[-1] - 0.5, 0.2))
 
 
+def test_the_data_sets_fix_rate_is_the_one_asked_for(tmp_path):
+    """`gpsins sim --dataset --fix-rate 1` (the 1 Hz receiver of KF-GINS's hour): fixes a second apart, as many as
+    fit in the run; a rate that is not positive is refused by name."""
+    from gpsins import cli
+
+    sc = _scenario()
+    simulate_session(sc, 5, tmp_path / "s", 16.0, dataset=tmp_path / "d", fix_rate_hz=1.0)
+    rows = [r for r in (tmp_path / "d" / "receiver.pos").read_text().splitlines() if not r.startswith("%")]
+    hms = np.array([[float(x) for x in r.split()[1].split(":")] for r in rows])
+    assert np.allclose(np.diff(hms @ [3600.0, 60.0, 1.0]), 1.0)
+    assert len(rows) == len(np.arange(0.137, sim.simulate(sc, 5).imu_t[-1] - 0.5, 1.0))
+    assert cli.main(["sim", "--out", str(tmp_path / "x"), "--dataset", "--fix-rate", "0"]) == 2
+    assert not (tmp_path / "x").exists()
+
+
 def test_a_fast_receiver_keeps_its_message_order_across_blocks(tmp_path):
     """At 50 Hz a fix's messages (60 ms after its epoch) come after the next epochs' measurements (20 ms after
     theirs), also across a block's end."""

@@ -32,6 +32,7 @@ void bind_filter_config(py::module_& m) {
 #define GPSINS_FIELD(name) c.def_readwrite(#name, &InsConfig::name)
   GPSINS_FIELD(imu_rate_hz);
   GPSINS_FIELD(max_gap_s);
+  GPSINS_FIELD(covariance_interval_s);
   GPSINS_FIELD(imu_increments_cover_gaps);
   GPSINS_FIELD(gap_accel_sigma_mps2);
   GPSINS_FIELD(gyro_range_rad_per_s);

@@ -144,6 +144,14 @@ class PyFilter {
   auto with(G&& g) const {
     return std::visit([&](const auto& f) { return g(f); }, f_);
   }
+  Eigen::MatrixXd covariance() {
+    return std::visit(
+        [](auto& f) {
+          f.flush_covariance();
+          return Eigen::MatrixXd(f.core().P);
+        },
+        f_);
+  }
 
  private:
   AnyFilter f_;
@@ -228,9 +236,7 @@ void bind_filter_object(py::module_& m) {
       .def_property_readonly(
           "time_offset", [](const PyFilter& p) { return p.with([](const auto& f) { return f.core().time_offset_s; }); },
           "The IMU time offset estimate (s; 0 without estimate_time_offset): add it to the declared one.")
-      .def_property_readonly(
-          "covariance",
-          [](const PyFilter& p) { return p.with([](const auto& f) { return Eigen::MatrixXd(f.core().P); }); })
+      .def_property_readonly("covariance", [](PyFilter& p) { return p.covariance(); })
       .def_property_readonly(
           "counters",
           [](const PyFilter& p) { return p.with([](const auto& f) { return counters_dict(f.counters()); }); })

@@ -200,6 +200,9 @@ BatchResult run_batch(InsFilter<NB, NC, NT>& f, const BatchInputs& in, const Bat
       break;
     }
     if (f.initialised() && (offset.imu + k) % output_every == 0) {
+      // A smoother's record needs the covariance of the epoch itself; otherwise an epoch between two
+      // covariance steps (covariance_interval_s) reports the last step's, at most that interval old.
+      if (rec) f.flush_covariance();
       const std::size_t at = rows.size();
       rows.resize(at + Row::kCols);
       Row::write(f, rows.data() + at);

@@ -77,6 +77,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--imu-rate", type=int, help="IMU rate in Hz instead of the scenario's (BP3010 frame layout)")
     p.add_argument("--dataset", action="store_true",
                    help="also write a data set (IMU CSV, receiver .pos, truth .pos, dataset.toml) in OUT/dataset")
+    p.add_argument("--fix-rate", type=float, default=5.0,
+                   help="the data set's fixes per second (default 5; the session's receiver keeps its own rate)")
     p.add_argument("--block-s", type=float, help="simulate and write in blocks of about this many seconds "
                    "(default 60; memory grows with the block, not the drive; the output is the same for any block)")
     p.set_defaults(func=cmd_sim)

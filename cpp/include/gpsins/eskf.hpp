@@ -184,12 +184,17 @@ class Eskf {
     return c;
   }
 
+  // The covariance may be carried over several increments at once, up to this long (s): the
+  // navigation state is mechanised at every increment, its error's covariance once per
+  // interval (0: at every increment). Everything that reads or changes P calls
+  // flush_covariance() first; an increment as long as the interval is carried alone.
+  double covariance_interval_s = 0.0;
+
   // Advance nominal state and covariance across one raw increment.
   void propagate(const Increment& raw) {
     const Increment c = corrected(raw);
     const double dt = c.dt_s;
     if (!(dt > 0.0)) return;
-    const Vec3 w = c.dtheta_rad / dt, f = c.dv_mps / dt;
     const Mat3 c0 = nav.q_eb.toRotationMatrix();
     mechanise(nav, c);
     // Clock: bias integrates drift.
@@ -197,6 +202,22 @@ class Eskf {
     if constexpr (kSisCount > 0) sis *= gauss_markov_step(noise.sis_inv_tau, dt).phi;
     // Fix error: its estimate decays as the process's mean does.
     if constexpr (NC == 3) fix_error *= gauss_markov_step(noise.fix_error_inv_tau, dt).phi;
+    carried_.add(c, c0);
+    // Flush when one more increment of this length would overrun the interval.
+    if (carried_.dt_s + dt > covariance_interval_s * (1.0 + 1e-9)) flush_covariance();
+  }
+
+  // Propagate the covariance over the increments carried since the last flush, as one
+  // increment: the mean rate, and the specific force in the body frame at its start.
+  // The linear time-invariant parts (clock, Gauss-Markov states) compose exactly; the
+  // rest is the same expansion over the longer step (its error grows as the step's
+  // cube: test_eskf and bench_filter's nees measure it).
+  void flush_covariance() {
+    if (!(carried_.dt_s > 0.0)) return;
+    const double dt = carried_.dt_s;
+    const Vec3 w = carried_.dtheta_rad / dt, f = carried_.dv_start_body / dt;
+    const Mat3 c0 = carried_.c_start;
+    carried_ = CarriedIncrements{};
     propagate_covariance(w, f, c0, dt);
   }
 
@@ -411,6 +432,7 @@ class Eskf {
   // The filter's re-initialisations, told to the observer: `count` states from
   // `first` restart independently of their past.
   void note_restart(int first, int count) {
+    flush_covariance();
     if (!observer) return;
     MatN a = MatN::Identity();
     a.diagonal().segment(first, count).setZero();
@@ -418,10 +440,12 @@ class Eskf {
   }
   // Any other linear map the filter applies to the error: P <- A P A^T (plus noise).
   void note_transition(const MatN& a) {
+    flush_covariance();
     if (observer) observer->on_transition(a);
   }
   // The attitude error replaced by keep * (attitude error) plus independent noise.
   void note_attitude_map(const Mat3& keep) {
+    flush_covariance();
     if (!observer) return;
     MatN a = MatN::Identity();
     a.template block<3, 3>(es::att, es::att) = keep;
@@ -440,6 +464,7 @@ class Eskf {
 
   void inject_and_reset(const VecN& dx) {
     using namespace es;
+    flush_covariance();
     const Vec3 dth = dx.template segment<3>(att);
     nav.q_eb = (nav.q_eb * quat_from_rotvec(dth)).normalized();
     nav.v_ecef_mps += dx.template segment<3>(vel);
@@ -462,6 +487,26 @@ class Eskf {
   }
 
   VecN sigma() const { return P.diagonal().cwiseMax(0.0).cwiseSqrt(); }
+
+ private:
+  // The corrected increments whose covariance propagation is still to come.
+  struct CarriedIncrements {
+    double dt_s = 0.0;
+    Vec3 dtheta_rad = Vec3::Zero();     // summed rotation increments
+    Vec3 dv_start_body = Vec3::Zero();  // summed delta-v, in the body frame at the first one's start
+    Mat3 c_start = Mat3::Identity();    // body to ECEF at the first one's start
+    void add(const Increment& c, const Mat3& c0) {
+      if (dt_s > 0.0) {
+        dv_start_body += c_start.transpose() * (c0 * c.dv_mps);
+      } else {
+        c_start = c0;
+        dv_start_body = c.dv_mps;
+      }
+      dt_s += c.dt_s;
+      dtheta_rad += c.dtheta_rad;
+    }
+  };
+  CarriedIncrements carried_;
 };
 
 // Eskf::update is defined in eskf_update.hpp, which only the files that compile it include:

@@ -11,6 +11,7 @@ template <int NB, int NC, int NT>
 template <int M>
 UpdateResult<M> Eskf<NB, NC, NT>::update(const Eigen::Matrix<double, M, 1>& y, const Eigen::Matrix<double, M, N>& H,
                                          const Eigen::Matrix<double, M, M>& R, double gate, double attitude_limit) {
+  flush_covariance();
   UpdateResult<M> res;
   res.innovation = y;
   const Eigen::Matrix<double, N, M> pht = P * H.transpose();

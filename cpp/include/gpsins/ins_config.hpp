@@ -29,6 +29,12 @@ struct InsConfig {
   // Gaps up to this are bridged with the previous rates; a longer one restarts
   // the navigation states (attitude and biases carried, covariance inflated).
   double max_gap_s = 0.5;
+  // The error covariance is propagated once per this interval (s), over the increments it
+  // holds, and before every update (and a smoother's output); the navigation state at every
+  // increment. 0: at every increment. Under an interval shorter than two IMU steps (64 Hz at
+  // 0.02 s) only the remainder of a step split at a measurement is carried with the next.
+  // An output epoch between two covariance steps reports the last one's sigmas.
+  double covariance_interval_s = 0.0;
   // The increments cover the whole step between stamps however long (rates
   // integrated over each interval, as an IMU CSV of rates gives): a step up to
   // max_gap_s is one increment, not a lost frame to bridge.

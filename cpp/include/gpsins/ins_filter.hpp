@@ -193,6 +193,8 @@ class InsFilter {
   }
   bool standstill() const { return standstill_; }
   const Core& core() const { return core_; }
+  // Brings the covariance up to the last increment (Eskf::covariance_interval_s): before reading core().P.
+  void flush_covariance() { core_.flush_covariance(); }
   const Counters& counters() const { return counters_; }
   const InsConfig& config() const { return cfg_; }
   const UpdateRecord& last_update() const { return last_update_; }

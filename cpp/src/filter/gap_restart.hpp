@@ -21,6 +21,7 @@ namespace gpsins {
 template <int NB, int NC, int NT>
 void InsFilter<NB, NC, NT>::restart_after_gap(double gap_s, double t_end) {
   using filter_detail::square;
+  core_.flush_covariance();
   ++counters_.imu_gap_restarts;
   event(kImuGapRestart, gap_s);
   detector_.reset();

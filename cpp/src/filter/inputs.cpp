@@ -70,6 +70,7 @@ StandstillThresholds thresholds_of(const InsConfig& c) {
 template <int NB, int NC, int NT>
 InsFilter<NB, NC, NT>::InsFilter(const InsConfig& cfg) : cfg_(cfg), detector_(thresholds_of(cfg)) {
   core_.noise = noise_of(cfg);
+  core_.covariance_interval_s = cfg.covariance_interval_s;
   dt_nominal_ = cfg.imu_rate_hz > 0.0 ? 1.0 / cfg.imu_rate_hz : 1.0 / kDefaultImuRateHz;
   const bool chi2 = cfg.update_check == UpdateCheck::ChiSquare || cfg.update_check == UpdateCheck::Both;
   const bool gating = chi2 && cfg.gate_probability > 0.0 && cfg.gate_probability < 1.0;

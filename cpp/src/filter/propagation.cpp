@@ -50,7 +50,10 @@ void InsFilter<NB, NC, NT>::propagate_to(const Increment& inc) {
     const double frac = std::clamp((t_meas - t_last_) / rest.dt_s, 0.0, 1.0);
     Increment first, second;
     split_increment(rest, frac, first, second);
-    if (initialised()) propagate_nav(first, t_last_ + first.dt_s);
+    if (initialised()) {
+      propagate_nav(first, t_last_ + first.dt_s);
+      core_.flush_covariance();  // what the measurement's processing reads or resets
+    }
     t_last_ += first.dt_s;
     if (take_fix) {
       const FixInput fix = pending_.pop_front();
@@ -73,6 +76,7 @@ void InsFilter<NB, NC, NT>::propagate_to(const Increment& inc) {
   if (!initialised()) return;
   propagate_nav(rest, t_last_);
   if (!heading_known()) {
+    core_.flush_covariance();
     if (!standstill_) inflate_unknown_heading(rest);
     decouple_yaw();
   } else if (cfg_.nonholonomic_constraint) {

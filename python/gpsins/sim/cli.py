@@ -33,6 +33,10 @@ def run_sim(args) -> int:
     if out.exists():
         print(f"gpsins sim: {out} exists; give a new directory", file=sys.stderr)
         return 2
+    fix_rate_hz = getattr(args, "fix_rate", 5.0)
+    if not fix_rate_hz > 0:
+        print(f"gpsins sim: --fix-rate must be > 0 Hz, got {fix_rate_hz:g}", file=sys.stderr)
+        return 2
     block_s = getattr(args, "block_s", None)
     if block_s is not None and not block_s > 0:
         print(f"gpsins sim: --block-s must be > 0 s, got {block_s:g}", file=sys.stderr)
@@ -41,7 +45,7 @@ def run_sim(args) -> int:
     from .session import simulate_session
 
     dataset = out / "dataset" if getattr(args, "dataset", False) else None
-    simulate_session(sc, args.seed, out, block_s or DEFAULT_BLOCK_S, dataset)
+    simulate_session(sc, args.seed, out, block_s or DEFAULT_BLOCK_S, dataset, fix_rate_hz)
     print(f"simulated {sc.name} ({sc.duration_s:.0f} s, IMU at {sc.imu.rate_hz} Hz, seed {args.seed}) in "
           f"{time.perf_counter() - t:.1f} s: {out}")
     if dataset is not None:

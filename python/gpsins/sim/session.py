@@ -262,14 +262,15 @@ def write_session(sim: Simulation, directory: str | Path) -> Path:
 
 
 def simulate_session(sc, seed: int, directory: str | Path, block_s: float | None = DEFAULT_BLOCK_S,
-                     dataset: str | Path | None = None) -> Path:
+                     dataset: str | Path | None = None, fix_rate_hz: float = 5.0) -> Path:
     """Simulate and write a session block by block: memory bounded by the block, not the drive.
-    ``dataset``: also write the run as a data set there (``dataset_writer``, default options)."""
+    ``dataset``: also write the run as a data set there (``dataset_writer``, default options but
+    ``fix_rate_hz`` fixes per second)."""
     from .dataset_writer import DatasetWriter
 
     sim = Simulator(sc, seed)
     w = SessionWriter(sc, seed, directory)
-    ds = DatasetWriter(sc, seed, dataset, sim.truth.t_end) if dataset is not None else None
+    ds = DatasetWriter(sc, seed, dataset, sim.truth.t_end, gnss_rate_hz=fix_rate_hz) if dataset is not None else None
     try:
         for b in sim.blocks(block_s):
             w.add(b)
