@@ -666,6 +666,29 @@ def test_pos_read_at_once_equals_row_by_row(tmp_path, monkeypatch):
         rtklib_pos.read(edited, -21.387)
 
 
+def test_imu_csv_read_in_pieces_equals_loadtxt(tmp_path, monkeypatch):
+    """The table streams from the file in pieces cut at line ends (imu_csv.PIECE_BYTES): with pieces of a
+    few lines, and gzipped, every value equals loadtxt's, the last line without its line end included,
+    and more rows than the head's line length promised (short lines after long ones) still all arrive."""
+    import gzip
+
+    rng = np.random.default_rng(5)
+    long_rows = [f"{1278016200.0 + 0.005 * k:.6f},{a:.12e},{b:.12e},{c:.12e},{d:.12e},{e:.12e},{f:.12e}"
+                 for k, (a, b, c, d, e, f) in enumerate(rng.normal(size=(300, 6)))]
+    short_rows = [f"{1278016202.0 + 0.005 * k:.3f},{a:.2f},{b:.2f},{c:.2f},{d:.2f},{e:.2f},{f:.2f}"
+                  for k, (a, b, c, d, e, f) in enumerate(rng.normal(size=(5000, 6)))]
+    text = "t,ax,ay,az,gx,gy,gz\n" + "\n".join(long_rows + short_rows)  # no line end at the end
+    plain, packed = tmp_path / "imu.csv", tmp_path / "imu.csv.gz"
+    plain.write_text(text)
+    packed.write_bytes(gzip.compress(text.encode()))
+    expected = np.loadtxt(text.splitlines()[1:], delimiter=",")
+    monkeypatch.setattr(imu_csv, "PIECE_BYTES", 1000)
+    for p in (plain, packed):
+        got = imu_csv._read_table_fast(p, len("t,ax,ay,az,gx,gy,gz\n"), ",", list(range(7)), row_bytes=120.0)
+        assert got is not None and got.shape == expected.shape
+        np.testing.assert_array_equal(got, expected)
+
+
 def test_imu_csv_read_by_pyarrow_equals_loadtxt(tmp_path, monkeypatch):
     """pyarrow's CSV reader (imu_csv._read_table_fast) against NumPy's loadtxt: CR LF ends, a header, nan and
     inf rows (dropped and counted), exponents, unused columns; a '#' comment goes to loadtxt."""
@@ -681,8 +704,8 @@ def test_imu_csv_read_by_pyarrow_equals_loadtxt(tmp_path, monkeypatch):
                          + "  # the last\n")
     cols = ["t", "ax", "ay", "az", "gx", "gy", "gz"]
     fast = [imu_csv.read(p, cols) for p in (table, commented)]
-    assert imu_csv._read_table_fast(table.read_bytes(), 1, ",", list(range(7))) is not None
-    assert imu_csv._read_table_fast(commented.read_bytes(), 1, ",", list(range(7))) is None
+    assert imu_csv._read_table_fast(table, len("t,ax,ay,az,gx,gy,gz,n,s\r\n"), ",", list(range(7))) is not None
+    assert imu_csv._read_table_fast(commented, len("t,ax,ay,az,gx,gy,gz\n"), ",", list(range(7))) is None
     monkeypatch.setattr(imu_csv, "_read_table_fast", lambda *a: None)
     slow = [imu_csv.read(p, cols) for p in (table, commented)]
     assert fast[0].skipped and all(_same_fields(a, b) for a, b in zip(fast, slow))

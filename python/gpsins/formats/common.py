@@ -150,6 +150,19 @@ def read_bytes(path: str | Path) -> bytes:
         raise ReaderError(path, getattr(e, "strerror", None) or str(e)) from None
 
 
+def read_head(path: str | Path, n: int) -> bytes:
+    """A file's first n bytes (of its content when gzipped), with read_bytes's errors."""
+    path = Path(path)
+    try:
+        if path.suffix.lower() == ".gz":
+            with gzip.open(path, "rb") as f:
+                return f.read(n)
+        with open(path, "rb") as f:
+            return f.read(n)
+    except (OSError, EOFError) as e:
+        raise ReaderError(path, getattr(e, "strerror", None) or str(e)) from None
+
+
 def read_text_lines(path: str | Path) -> list[str]:
     return read_bytes(path).decode("ascii", errors="replace").splitlines()
 

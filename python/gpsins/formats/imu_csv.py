@@ -17,6 +17,7 @@ then makes the increments.
 from __future__ import annotations
 
 import datetime as dt
+import gzip
 import re
 import warnings
 from collections import Counter
@@ -25,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .common import NON_FINITE_ROWS, ReaderError, finite_rows, read_bytes
+from .common import NON_FINITE_ROWS, ReaderError, finite_rows, read_bytes, read_head
 from .gpstime import SECONDS_PER_WEEK, UNIX_TO_GPS_S, leap_seconds
 
 HEAD_BYTES = 1 << 20  # where the header and the delimiter are looked for (the first 1000 lines at most)
@@ -137,8 +138,11 @@ def _check_layout(path: Path, columns: list, time_column: str, accel_unit: str, 
 
 
 def _axes_si(col: dict, accel_unit: str, gyro_unit: str) -> tuple[np.ndarray, np.ndarray]:
-    acc = np.column_stack([col["ax"], col["ay"], col["az"]]) * ACCEL_UNITS[accel_unit][0]
-    gyr = np.column_stack([col["gx"], col["gy"], col["gz"]]) * GYRO_UNITS[gyro_unit][0]
+    # Scaled in place: an hour at 200 Hz is 18 MB a triad.
+    acc = np.column_stack([col["ax"], col["ay"], col["az"]])
+    acc *= ACCEL_UNITS[accel_unit][0]
+    gyr = np.column_stack([col["gx"], col["gy"], col["gz"]])
+    gyr *= GYRO_UNITS[gyro_unit][0]
     return acc, gyr
 
 
@@ -152,9 +156,11 @@ def read(path: str | Path, columns, time: str = "gpst_unix", accel_unit: str = "
     columns = list(columns)
     _check_layout(path, columns, "t", accel_unit, gyro_unit)
     # Damaged bytes fail as values, in their line; lines end at LF (CR LF too) only, as loadtxt sees them.
-    data = read_bytes(path)
-    head = data[:HEAD_BYTES]
-    if len(head) < len(data):
+    # Only the head is read here: the table streams from the file (a whole 90 MB file held as bytes
+    # was a third of an hour's replay peak), and the whole file is read only for loadtxt's path.
+    raw_head = read_head(path, HEAD_BYTES + 1)
+    head = raw_head[:HEAD_BYTES]
+    if len(raw_head) > HEAD_BYTES:
         head = head[:head.rfind(b"\n") + 1]
     head = [x.rstrip("\r") for x in head.decode("utf-8", errors="replace").split("\n")[:1000]]
     if skip_rows is None:
@@ -168,10 +174,15 @@ def read(path: str | Path, columns, time: str = "gpst_unix", accel_unit: str = "
         delimiter = "," if "," in head[skip_rows] else None
     names = [c for c in columns if c != "-"]
     usecols = [k for k, c in enumerate(columns) if c != "-"]
-    a = _read_table_fast(data, skip_rows, delimiter, usecols)
+    start = _byte_after_lines(raw_head, skip_rows)
+    body = raw_head[start:]
+    row_bytes = max(8.0, len(body) / max(1, body.count(b"\n")))
+    a = _read_table_fast(path, start, delimiter, usecols, row_bytes)
     lines = None
     if a is None:
+        data = read_bytes(path)
         lines = [x.rstrip("\r") for x in data.decode("utf-8", errors="replace").split("\n")]
+        del data
         try:  # NumPy's C parser; the slow scan below only to name a bad value
             a = np.loadtxt(lines[skip_rows:], delimiter=delimiter, usecols=usecols, ndmin=2, comments="#")
         except ValueError:
@@ -191,7 +202,7 @@ def read(path: str | Path, columns, time: str = "gpst_unix", accel_unit: str = "
     except (OverflowError, ValueError) as e:  # utc_unix: a time no calendar has, for the leap seconds
         if isinstance(e, ReaderError):
             raise
-        lines = lines or [x.rstrip("\r") for x in data.decode("utf-8", errors="replace").split("\n")]
+        lines = lines or [x.rstrip("\r") for x in read_bytes(path).decode("utf-8", errors="replace").split("\n")]
         rows = np.asarray(_data_lines(lines, skip_rows, delimiter))
         raise ReaderError(path, f"time {col['t'][0]!r} is no {time} time ({e})",
                           line=int(rows[ok][0]) if len(rows) == len(ok) else skip_rows + 1, field="t") from None
@@ -199,42 +210,75 @@ def read(path: str | Path, columns, time: str = "gpst_unix", accel_unit: str = "
     return from_samples(t, acc, gyr, accel_unit, gyro_unit, path.name, skipped)
 
 
-def _read_table_fast(data: bytes, skip_rows: int, delimiter: str | None, usecols: list[int]) -> np.ndarray | None:
-    """The used columns of a delimited table by pyarrow's CSV reader (threaded: 0.30 s for a 64 MB file
-    where loadtxt takes 0.89 s, the same doubles), or None where loadtxt is to read it: whitespace
-    columns, comments, or anything pyarrow refuses (loadtxt then refuses it too, or reads what pyarrow
-    does not: the slow path names a bad value)."""
-    if delimiter is None or len(delimiter) != 1:
-        return None
+# The table is parsed in pieces of about this many bytes, each cut at a line end: pyarrow's own streaming
+# reader buffered most of a 90 MB file ahead of its parser.
+PIECE_BYTES = 1 << 23
+
+
+def _byte_after_lines(head: bytes, lines: int) -> int:
+    """Where the line after the first ``lines`` lines of the head starts."""
     start = 0
-    for _ in range(skip_rows):
-        start = data.find(b"\n", start) + 1
-        if start == 0:
-            return None
-    if data.find(b"#", start) >= 0:
+    for _ in range(lines):
+        start = head.find(b"\n", start) + 1
+    return start
+
+
+def _pieces(path: Path, start: int):
+    """The file's bytes from ``start`` on, in pieces of whole lines (the last one as it ends)."""
+    opener = gzip.open if path.suffix.lower() == ".gz" else open
+    with opener(path, "rb") as f:
+        f.seek(start)
+        rest = b""
+        while True:
+            chunk = f.read(PIECE_BYTES)
+            if not chunk:
+                if rest.strip():  # pyarrow takes a lone last line only with its line end
+                    yield rest + b"\n"
+                return
+            buf = rest + chunk
+            cut = buf.rfind(b"\n") + 1
+            if cut:
+                yield buf[:cut]
+            rest = buf[cut:]
+
+
+def _read_table_fast(path: Path, start: int, delimiter: str | None, usecols: list[int],
+                     row_bytes: float = 24.0) -> np.ndarray | None:
+    """The used columns of a delimited table from byte ``start`` of the file on, by pyarrow's CSV reader
+    (threaded: 0.30 s for a 64 MB file where loadtxt takes 0.89 s, the same doubles), piece by piece into
+    the array NumPy keeps, or None where loadtxt is to read it: whitespace columns, comments, or anything
+    pyarrow refuses (loadtxt then refuses it too, or reads what pyarrow does not: the slow path names a
+    bad value). A '#' in a used column is a value pyarrow refuses; in an unused one loadtxt would drop
+    the rest of the line, which holds no used value either."""
+    if delimiter is None or len(delimiter) != 1:
         return None
     import pyarrow as pa
     import pyarrow.csv as pa_csv
 
     names = [f"f{k}" for k in usecols]
+    read = pa_csv.ReadOptions(autogenerate_column_names=True, block_size=1 << 20)
+    parse = pa_csv.ParseOptions(delimiter=delimiter, quote_char=False)
     convert = pa_csv.ConvertOptions(include_columns=names, column_types=dict.fromkeys(names, pa.float64()),
                                     null_values=[], strings_can_be_null=False)
-    out = np.empty((data.count(b"\n", start) + 1, len(names)))  # rows at most: one per line
+    # Rows by the head's line length (a compressed file's size says less: grown as needed).
+    out = np.empty((max(1024, int(1.02 * (path.stat().st_size - start) / row_bytes) + 1), len(names)))
     n = 0
     try:
-        # Block by block into the table NumPy keeps: a whole pyarrow table of a 64 MB file held 100 MB
-        # more than loadtxt's peak.
-        reader = pa_csv.open_csv(pa.py_buffer(data)[start:],
-                                 read_options=pa_csv.ReadOptions(autogenerate_column_names=True, block_size=1 << 22),
-                                 parse_options=pa_csv.ParseOptions(delimiter=delimiter, quote_char=False),
-                                 convert_options=convert, memory_pool=pa.system_memory_pool())
-        for batch in reader:
+        for piece in _pieces(path, start):
+            table = pa_csv.read_csv(pa.py_buffer(piece), read_options=read, parse_options=parse,
+                                    convert_options=convert, memory_pool=pa.system_memory_pool())
+            rows = table.num_rows
+            if n + rows > len(out):
+                out.resize((max(2 * len(out), n + rows), len(names)), refcheck=False)
             for k, name in enumerate(names):
-                out[n:n + batch.num_rows, k] = batch.column(name).to_numpy()
-            n += batch.num_rows
+                out[n:n + rows, k] = table.column(name).to_numpy()
+            n += rows
     except (pa.ArrowInvalid, pa.ArrowKeyError, KeyError):
         return None
-    return out[:n] if n else None
+    if not n:
+        return None
+    out.resize((n, len(names)), refcheck=False)  # in place: no second copy of the table
+    return out
 
 
 @dataclass
@@ -333,7 +377,8 @@ def from_samples(t: np.ndarray, acc: np.ndarray, gyr: np.ndarray, accel_unit: st
                  source: str = "", skipped: Counter | None = None) -> ImuData:
     """Samples in SI units (rates or increments as their units say) at GPS times to increments."""
     skipped = Counter(skipped or {})
-    bad = ~finite_rows(np.column_stack([t, acc, gyr]))
+    # Column by column and copied only where a sample goes: the arrays are the run's largest.
+    bad = ~(np.isfinite(t) & finite_rows(acc) & finite_rows(gyr))
     if bad.any():  # before the time order: a NaN time would hide every later one
         skipped["IMU samples with a non-finite value"] = int(bad.sum())
         t, acc, gyr = t[~bad], acc[~bad], gyr[~bad]
@@ -342,9 +387,10 @@ def from_samples(t: np.ndarray, acc: np.ndarray, gyr: np.ndarray, accel_unit: st
     if len(t) > 1:
         run_max = np.maximum.accumulate(t)
         keep[1:] = t[1:] > run_max[:-1]
-    if (~keep).any():
+        del run_max
+    if not keep.all():
         skipped["IMU samples whose time does not increase"] = int((~keep).sum())
-    t, acc, gyr = t[keep], acc[keep], gyr[keep]
+        t, acc, gyr = t[keep], acc[keep], gyr[keep]
     accel_rates, gyro_rates = ACCEL_UNITS[accel_unit][1], GYRO_UNITS[gyro_unit][1]
     dv = _increments(t, acc, accel_rates)
     dth = _increments(t, gyr, gyro_rates)
