@@ -33,6 +33,7 @@ void bind_filter_config(py::module_& m) {
   GPSINS_FIELD(imu_rate_hz);
   GPSINS_FIELD(max_gap_s);
   GPSINS_FIELD(covariance_interval_s);
+  GPSINS_FIELD(gate_standstill_only);
   GPSINS_FIELD(imu_increments_cover_gaps);
   GPSINS_FIELD(gap_accel_sigma_mps2);
   GPSINS_FIELD(gyro_range_rad_per_s);

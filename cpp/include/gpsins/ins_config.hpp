@@ -230,6 +230,11 @@ struct InsConfig {
   // falls as gate / sqrt(NIS), so a run of wild fixes moves it little. Such a fix still counts
   // as rejected (fixes_rejected, the GNSS reset's timer). <= 0: hard rejection.
   int robust_after_rejections = 3;
+  // Only the standstill updates (zero velocity, zero rate) are gated; every other update is
+  // used whatever its NIS. For the likelihood fits' runs (nav/noise_from_data.py): no
+  // hypothesis loses a fix to its gate, while a refused zero-velocity update still ends a
+  // standstill the detector began too early or left too late.
+  bool gate_standstill_only = false;
   double max_attitude_correction_rad = 0.0873;  // 5 deg, for the attitude-correction check
   // GNSS measurements rejected this long while the receiver reports solutions:
   // position and velocity reset to GNSS with inflated covariance. <= 0: never.

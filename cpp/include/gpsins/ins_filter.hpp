@@ -306,7 +306,7 @@ class InsFilter {
   void record(int kind, const UpdateResult<M>& r, int dof, int id = 0);
   // robust_kind: the kind whose rejections in a row allow a down-weighted update (0: none).
   template <int M, int K>
-  UpdateResult<M> apply(const Measurement<M, K>& m, int dof, int robust_kind = 0);
+  UpdateResult<M> apply(const Measurement<M, K>& m, int dof, int robust_kind = 0, bool standstill = false);
   std::array<int, kUpdateKindEnd> rejections_in_row_{};  // per update kind
   double gate(int dof) const { return gates_[static_cast<std::size_t>(dof)]; }
   double attitude_limit() const {

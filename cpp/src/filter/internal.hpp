@@ -60,9 +60,10 @@ void InsFilter<NB, NC, NT>::record(int kind, const UpdateResult<M>& r, int dof, 
 // lets the next be used down-weighted.
 template <int NB, int NC, int NT>
 template <int M, int K>
-UpdateResult<M> InsFilter<NB, NC, NT>::apply(const Measurement<M, K>& m, int dof, int robust_kind) {
-  const auto r = core_.update(m.y, m.H, m.R, gate(dof), attitude_limit());
-  if (robust_kind <= 0 || cfg_.robust_after_rejections <= 0) return r;
+UpdateResult<M> InsFilter<NB, NC, NT>::apply(const Measurement<M, K>& m, int dof, int robust_kind, bool standstill) {
+  const double g = cfg_.gate_standstill_only && !standstill ? 0.0 : gate(dof);
+  const auto r = core_.update(m.y, m.H, m.R, g, attitude_limit());
+  if (robust_kind <= 0 || cfg_.robust_after_rejections <= 0 || !(g > 0.0)) return r;
   int& in_row = rejections_in_row_[static_cast<std::size_t>(robust_kind)];
   const bool beyond_gate = !r.accepted && !r.guarded && !r.attitude_refused;
   if (!beyond_gate) {
@@ -72,7 +73,7 @@ UpdateResult<M> InsFilter<NB, NC, NT>::apply(const Measurement<M, K>& m, int dof
   if (++in_row <= cfg_.robust_after_rejections) return r;
   // A run of rejections says the filter, not this measurement, is off: use it with R
   // scaled so that its NIS would sit at the gate were the prediction exact.
-  const double scale = r.nis / gate(dof);
+  const double scale = r.nis / g;
   auto used = core_.update(m.y, m.H, (m.R * scale).eval(), 0.0, attitude_limit());
   used.nis = r.nis;  // the measurement's consistency, as the unscaled model saw it
   used.log_det_s = r.log_det_s;

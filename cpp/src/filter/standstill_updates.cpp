@@ -110,7 +110,7 @@ void InsFilter<NB, NC, NT>::detect_standstill(const Increment& inc) {
   // mean's noise is independent between windows), with the noise measured from
   // the spread of the block means (vibration included), at least the ARW's.
   const auto m = zero_velocity(core_, cfg_.zero_velocity_sigma_mps);
-  const auto r = apply(m, 3);
+  const auto r = apply(m, 3, 0, true);
   record(kZeroVelocity, r, 3);
   ++counters_.zero_velocity_updates;
   if (!r.accepted) {
@@ -125,7 +125,7 @@ void InsFilter<NB, NC, NT>::detect_standstill(const Increment& inc) {
     // Without a heading the attitude coupling (Earth rate seen through a wrong
     // yaw) is far outside the linear range: use the update for the biases only.
     if (!heading_known()) mz.H.template middleCols<3>(es::att).setZero();
-    record(kZeroRate, apply(mz, 3), 3);
+    record(kZeroRate, apply(mz, 3, 0, true), 3);
     ++counters_.zero_rate_updates;
   }
 }

@@ -46,6 +46,12 @@ class ImuColumns:
         """The whole (n, 7) table [t, dtheta xyz, dv xyz]."""
         return self[:]
 
+    def __array__(self, dtype=None, copy=None):
+        # np.asarray of the columns: the table at once, not NumPy's walk through every row by
+        # __getitem__ (7 s for an hour at 200 Hz).
+        table = self.table()
+        return table if dtype is None else table.astype(dtype, copy=False)
+
 
 @dataclass
 class PseudorangeColumns:
