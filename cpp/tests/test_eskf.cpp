@@ -220,7 +220,7 @@ TEST_CASE("covariance carried over 20 ms of 200 Hz increments matches step-by-st
   auto carried = each;
   carried.covariance_interval_s = 0.02;
   const double dt = 1.0 / 200.0;
-  double worst_var = 0.0, worst_corr = 0.0;
+  double worst_var = 0.0, worst_corr = 0.0, worst_nees = 0.0;
   int flushes_seen = 0;
   for (int k = 1; k <= 2000; ++k) {
     const double t = k * dt;
@@ -236,16 +236,20 @@ TEST_CASE("covariance carried over 20 ms of 200 Hz increments matches step-by-st
       const Eigen::Matrix<double, 15, 15> d = (s.asDiagonal() * (carried.P - each.P) * s.asDiagonal()).cwiseAbs();
       worst_var = std::max(worst_var, d.diagonal().maxCoeff());
       worst_corr = std::max(worst_corr, d.maxCoeff());
+      // An error drawn from the step-by-step covariance, scored with the carried one: its mean NEES per
+      // state is tr(P_carried^-1 P) / n, 1 when the two agree.
+      const double nees = carried.P.ldlt().solve(each.P).trace() / 15.0;
+      worst_nees = std::max(worst_nees, std::abs(nees - 1.0));
     }
   }
-  MESSAGE("after 10 s, worst relative variance difference " << worst_var << ", worst correlation difference "
-                                                            << worst_corr);
+  MESSAGE("after 10 s: worst relative variance difference " << worst_var << ", worst correlation difference "
+                                                            << worst_corr << ", worst relative NEES change "
+                                                            << worst_nees);
   CHECK(flushes_seen == 500);
   CHECK(worst_var > 0.0);  // carried, not propagated at every increment
-  // A variance 0.1 % off moves the NEES by 0.1 %, a few hundredths of a 10-run NEES band's
-  // half-width; a correlation 0.01 off changes a gain by about 1 % of its size.
-  CHECK(worst_var < 1e-3);
-  CHECK(worst_corr < 1e-2);
+  // The issue's measure of "far below the noise": the NEES a consistent filter would show changes by
+  // less than 0.1 %, a few hundredths of a 10-run NEES band's half-width.
+  CHECK(worst_nees < 1e-3);
   // At 64 Hz an interval shorter than two steps changes nothing, bit for bit.
   auto a = realistic_filter<5, 0>(), b = realistic_filter<5, 0>();
   a.P = each.P;
