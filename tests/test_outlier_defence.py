@@ -131,3 +131,25 @@ def test_a_gnss_reset_makes_the_attitude_uncertain_again(drive):
     err = evaluate.nav_errors(sol, truth_of(s))
     later = sol.t > resets[-1] + 30.0
     assert np.mean(np.abs(err.e9[later, :3]) <= 3 * sol.sigma[later, :3]) > 0.95
+
+
+def test_the_fits_gate_uses_every_fix_and_still_ends_a_false_standstill(drive):
+    """`gate_standstill_only` (the likelihood fits' runs): a fix 16 m off at rest is used, where the gate
+    refuses it, while a zero-velocity update after a 0.2 m/s jolt at rest is still refused (ending the
+    standstill), where with no gate at all it is taken."""
+    imu, fixes = sim.imu_table(drive).copy(), sim.fix_table(drive).copy()  # the module's drive stays clean
+    kinds = {name: code for code, name in flt.UPDATE_KINDS.items()}
+    k = int(np.argmin(np.abs(fixes[:, 0] - 255.0)))
+    fixes[k, 1:4] += [12.0, -9.0, 5.0]
+    imu[int(np.argmin(np.abs(imu[:, 0] - 270.3))), 4] += 0.2  # a velocity increment at rest (the last 45 s)
+    seen = {}
+    for name, over in (("gated", {}), ("standstill only", {"gate_standstill_only": True}),
+                       ("no gate", {"gate_probability": 0.0})):
+        u = flt.run(imu, fixes, config(drive, **over)).updates
+        kind, ok, t = (np.asarray(u[c]) for c in ("kind", "accepted", "t"))
+        bad_fix = ok[(kind == kinds["fix_3d"]) & (np.abs(t - fixes[k, 0]) < 1e-6)]
+        assert len(bad_fix) == 1, name
+        seen[name] = (bool(bad_fix[0]), int((~ok[kind == kinds["zero_velocity"]]).sum()))
+    assert seen["gated"][0] is False and seen["gated"][1] >= 1
+    assert seen["standstill only"] == (True, seen["gated"][1])
+    assert seen["no gate"] == (True, 0)
