@@ -186,8 +186,9 @@ class Eskf {
 
   // The covariance may be carried over several increments at once, up to this long (s): the
   // navigation state is mechanised at every increment, its error's covariance once per
-  // interval (0: at every increment). Everything that reads or changes P calls
-  // flush_covariance() first; an increment as long as the interval is carried alone.
+  // interval (0: at every increment). Every update, injection and transition calls
+  // flush_covariance() first, as does InsFilter wherever it changes P; a reader between two
+  // flushes sees P as of the last one. An increment as long as the interval is carried alone.
   double covariance_interval_s = 0.0;
 
   // Advance nominal state and covariance across one raw increment.
