@@ -140,18 +140,11 @@ class Navigation:
 
 def read_bytes(path: str | Path) -> bytes:
     """A file's bytes, gunzipped when its name ends in .gz (archives keep RINEX and logs that way)."""
-    path = Path(path)
-    try:
-        if path.suffix.lower() == ".gz":
-            with gzip.open(path, "rb") as f:
-                return f.read()
-        return path.read_bytes()
-    except (OSError, EOFError) as e:
-        raise ReaderError(path, getattr(e, "strerror", None) or str(e)) from None
+    return read_head(path, -1)
 
 
 def read_head(path: str | Path, n: int) -> bytes:
-    """A file's first n bytes (of its content when gzipped), with read_bytes's errors."""
+    """A file's first n bytes (of its content when gzipped; n < 0: all of it), errors as ReaderError."""
     path = Path(path)
     try:
         if path.suffix.lower() == ".gz":
