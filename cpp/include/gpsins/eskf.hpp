@@ -203,9 +203,15 @@ class Eskf {
     if constexpr (kSisCount > 0) sis *= gauss_markov_step(noise.sis_inv_tau, dt).phi;
     // Fix error: its estimate decays as the process's mean does.
     if constexpr (NC == 3) fix_error *= gauss_markov_step(noise.fix_error_inv_tau, dt).phi;
+    // Flush when one more increment of this length would overrun the interval; an increment that
+    // would be flushed alone (a 64 Hz IMU's every one) goes straight to the propagation.
+    const double limit = covariance_interval_s * (1.0 + 1e-9);
+    if (!(carried_.dt_s > 0.0) && 2.0 * dt > limit) {
+      propagate_covariance(c.dtheta_rad / dt, c.dv_mps / dt, c0, dt);
+      return;
+    }
     carried_.add(c, c0);
-    // Flush when one more increment of this length would overrun the interval.
-    if (carried_.dt_s + dt > covariance_interval_s * (1.0 + 1e-9)) flush_covariance();
+    if (carried_.dt_s + dt > limit) flush_covariance();
   }
 
   // Propagate the covariance over the increments carried since the last flush, as one
